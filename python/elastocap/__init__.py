@@ -1,0 +1,21 @@
+"""elastocap: markerless capture of the shape and motion of moving people, animals and
+objects from calibrated multi-view video.
+
+The heavy kernels live in the Rust extension :mod:`elastocap._core`; this package holds
+the public API, orchestration, I/O and the command line.
+"""
+
+from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
+from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
+from elastocap.polar import polar_rotation
+
+__all__ = [
+    "ConvergenceError",
+    "ElastocapError",
+    "InvalidInputError",
+    "SpatialIndex",
+    "__version__",
+    "knn",
+    "polar_rotation",
+    "radius_neighbors",
+]

@@ -1,0 +1,44 @@
+"""Type stubs of the Rust extension (checked by ``python -m mypy.stubtest elastocap._core``)."""
+
+import numpy as np
+from numpy.typing import NDArray
+from typing_extensions import final
+
+__all__ = [
+    "ConvergenceError",
+    "ElastocapError",
+    "InvalidInputError",
+    "SpatialIndex",
+    "__version__",
+    "polar_rotation",
+]
+
+__version__: str
+
+class ElastocapError(Exception):
+    """Root of every error elastocap raises."""
+
+class ConvergenceError(ElastocapError):
+    """A numerical method did not converge or met a singular system."""
+
+class InvalidInputError(ElastocapError, ValueError):
+    """Bad input: wrong shape, dtype or value. Also a ValueError."""
+
+@final
+class SpatialIndex:
+    def __new__(cls, points: NDArray[np.float64]) -> SpatialIndex: ...
+    @property
+    def n_points(self) -> int: ...
+    @property
+    def dim(self) -> int: ...
+    def cell_size(self, k: int) -> float: ...
+    def knn(
+        self, k: int, queries: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64]]: ...
+    def radius_neighbors(
+        self, radius: float, queries: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]: ...
+
+def polar_rotation(
+    matrices: NDArray[np.float64], return_stretch: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]: ...

@@ -1,0 +1,89 @@
+//! The one error type of the core. Every fallible entry point returns [`Result`];
+//! no input a user can pass makes the core panic.
+
+/// Everything that can go wrong in the core, with the fields a caller needs to say why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Error {
+    /// An input array has no rows where at least one is needed.
+    #[error("{argument} is empty: at least {needed} row(s) are needed")]
+    Empty {
+        /// Name of the offending argument, as the caller knows it.
+        argument: &'static str,
+        /// How many rows the operation needs.
+        needed: usize,
+    },
+    /// An input holds NaN or infinity.
+    #[error("{argument} holds a non-finite value (NaN or infinity) in row {row}")]
+    NonFinite {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// First row (or matrix) with a non-finite entry.
+        row: usize,
+    },
+    /// The number of neighbours asked for cannot be delivered.
+    #[error("k = {k} is out of range: it must be between 1 and {max} (the number of candidate points{note})")]
+    InvalidK {
+        /// Requested neighbour count.
+        k: usize,
+        /// Largest admissible value.
+        max: usize,
+        /// Extra explanation, e.g. that a point is not its own neighbour.
+        note: &'static str,
+    },
+    /// A search radius that is not a positive finite number.
+    #[error("radius must be a positive finite number, got {radius}")]
+    InvalidRadius {
+        /// The radius given.
+        radius: f64,
+    },
+    /// More points than the index can address (it stores 32-bit positions).
+    #[error("{argument} has {got} rows; at most {max} are supported")]
+    TooManyPoints {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Rows given.
+        got: usize,
+        /// Largest supported row count.
+        max: usize,
+    },
+    /// Two arrays that must agree in their dimension do not.
+    #[error("{argument} has {got} columns but the index holds {expected}-D points")]
+    DimensionMismatch {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Dimension of the index.
+        expected: usize,
+        /// Dimension given.
+        got: usize,
+    },
+}
+
+impl Error {
+    /// True for errors caused by bad input (mapped to a `ValueError` subclass in Python).
+    pub fn is_invalid_input(&self) -> bool {
+        matches!(
+            self,
+            Error::Empty { .. }
+                | Error::NonFinite { .. }
+                | Error::InvalidK { .. }
+                | Error::InvalidRadius { .. }
+                | Error::TooManyPoints { .. }
+                | Error::DimensionMismatch { .. }
+        )
+    }
+}
+
+/// Result with the core's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Fails with [`Error::NonFinite`] naming the first row of `rows` holding NaN or infinity.
+pub fn check_finite<const D: usize>(argument: &'static str, rows: &[[f64; D]]) -> Result<()> {
+    use rayon::prelude::*;
+    match rows
+        .par_iter()
+        .position_first(|r| !r.iter().all(|v| v.is_finite()))
+    {
+        Some(row) => Err(Error::NonFinite { argument, row }),
+        None => Ok(()),
+    }
+}

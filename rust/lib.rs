@@ -1,0 +1,15 @@
+//! elastocap's core: the heavy kernels of markerless multi-view shape and motion capture.
+//!
+//! Pure Rust; the Python bindings live in [`python`] behind the `python` feature, which only
+//! maturin turns on.
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod polar;
+pub mod spatial_hash;
+
+#[cfg(feature = "python")]
+mod python;
+
+pub use error::{Error, Result};
+pub use spatial_hash::SpatialHash;

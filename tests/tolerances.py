@@ -1,0 +1,57 @@
+"""Every numerical tolerance the Python tests use, in one place.
+
+Each constant says why it has the value it has. Tolerances are either absolute (``*_ATOL``)
+or relative to a natural scale named in the comment (``*_RTOL``).
+"""
+
+# --- neighbour search -------------------------------------------------------------------
+
+# knn / radius distances vs. cKDTree or brute force: both evaluate sqrt(sum (p - q)^2) in
+# double precision, so they differ by a few ulps at most; 1e-12 leaves ~4 decades of room.
+DISTANCE_RTOL = 1e-12
+# Absolute floor for distances near zero (duplicated points, queries on top of points).
+DISTANCE_ATOL = 1e-12
+
+# Two reference distances closer than this (relative) are treated as a tie when deciding
+# whether the k nearest index sets must agree exactly; wider than DISTANCE_RTOL so that a
+# few-ulp disagreement between implementations never counts as a resolved order.
+TIE_RTOL = 1e-9
+# Absolute part of the tie test, for ties at distance zero (duplicates).
+TIE_ATOL = 1e-12
+
+# Brute-force radius checks on clouds with exact ties: points within this relative band of
+# the radius may fall either way (|p - q| <= r vs. |p - q|^2 <= r^2 can disagree by an ulp);
+# outside it, membership is strict. The integer-lattice test checks exact inclusion.
+RADIUS_BOUNDARY_RTOL = 1e-12
+
+# --- polar decomposition ----------------------------------------------------------------
+
+# R^T R = I, entry-wise: a unit quaternion turned into a matrix is orthonormal to a few ulps.
+ORTHONORMAL_ATOL = 1e-12
+# det R = +1: same argument as ORTHONORMAL_ATOL.
+DETERMINANT_ATOL = 1e-12
+
+# R vs. the SVD rotation U diag(1, 1, det(U V^T)) V^T, entry-wise. A backward-stable method
+# errs by about eps * s1 / (s2 + sign(det A) s3); with UNIQUENESS_MARGIN below this is
+# <= ~1e-11, so 1e-9 leaves two decades of room.
+ROTATION_MATCH_ATOL = 1e-9
+# The nearest rotation is treated as unique when s2 + sign(det A) * s3 > this * s1: then its
+# condition number is at most ~1 / UNIQUENESS_MARGIN and ROTATION_MATCH_ATOL is attainable.
+UNIQUENESS_MARGIN = 1e-5
+
+# Optimality where the rotation is not (safely) unique: tr(R^T A) may fall short of the SVD
+# rotation's value by this times s1 (rounding of a 3x3 product: a few ulps of s1).
+OPTIMALITY_RTOL = 1e-12
+
+# A == R S with the returned stretch, relative to ||A||_F (det A > 0 only, where the
+# factorisation is exact); error ~ eps * condition, bounded as for ROTATION_MATCH_ATOL.
+STRETCH_RTOL = 1e-9
+# S symmetric: the library symmetrises explicitly, so S - S^T is rounding only (rel. ||A||).
+SYMMETRY_RTOL = 1e-14
+# S positive semi-definite for det A > 0: smallest eigenvalue >= -this * ||A||_F (a zero
+# singular value may come out as a tiny negative number).
+PSD_RTOL = 1e-9
+
+# polar(Q A) == Q polar(A) for a rotation Q, entry-wise, where the rotation is unique: both
+# sides are accurate to ROTATION_MATCH_ATOL, so this is that tolerance.
+EQUIVARIANCE_ATOL = ROTATION_MATCH_ATOL
