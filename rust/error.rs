@@ -46,6 +46,14 @@ pub enum Error {
         /// Largest supported row count.
         max: usize,
     },
+    /// An output buffer of the wrong length (a caller's bug, not a user's input).
+    #[error("output buffer holds {got} elements where {expected} are needed")]
+    OutputSize {
+        /// Length needed.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
     /// Two arrays that must agree in their dimension do not.
     #[error("{argument} has {got} columns but the index holds {expected}-D points")]
     DimensionMismatch {

@@ -41,7 +41,14 @@ fn unit_frobenius(a: &Mat3) -> Option<Mat3> {
     if largest == 0.0 {
         return None;
     }
-    let b = a.map(|v| v / largest);
+    // A reciprocal, not nine divisions; 1 / largest cannot overflow unless `largest` is
+    // subnormal, where dividing is exact enough and rare.
+    let b = if largest >= f64::MIN_POSITIVE {
+        let inv = 1.0 / largest;
+        a.map(|v| v * inv)
+    } else {
+        a.map(|v| v / largest)
+    };
     let inv_norm = 1.0 / b.iter().map(|v| v * v).sum::<f64>().sqrt();
     Some(b.map(|v| v * inv_norm))
 }
@@ -248,29 +255,46 @@ pub fn nearest_rotation3(a: &Mat3) -> Mat3 {
 }
 
 /// The rotation of the top eigenvector of `n` by two steps of inverse iteration on
-/// $(\lambda + \delta) I - N$.
+/// $B = (\lambda + \delta) I - N$.
 ///
 /// `lambda` approaches $\lambda_1$ from above but may undershoot it by the rounding of the
-/// quartic, about $10^{-15} / p'(\lambda_1)$: the shift $\delta$ covers that, so the
-/// matrix stays positive definite, and is small against the gap $\ge p'(\lambda_1) / 8$.
-/// The first step is taken from all four basis vectors (the columns of the inverse) and
-/// the longest result kept: it is the one whose start has the largest component along the
-/// top eigenvector (at least 1/2), so no start can be orthogonal to it.
+/// quartic, about $10^{-14} / p'(\lambda_1)$: the shift $\delta$ covers that, so $B$ stays
+/// positive definite with smallest eigenvalue $\mu_1 \le \mu_{max} = 10^{-13} + 2 \cdot
+/// 10^{-14} / p'$, small against the gap $\ge p'(\lambda_1) / 8$.
+///
+/// A basis vector $e_j$ is a good start when its component $|v_{1j}|$ along the top
+/// eigenvector is not small; one always has $|v_{1j}| \ge 1/2$. The first step tells:
+/// $\|B^{-1} e_j\| \ge |v_{1j}| / \mu_{max}$, while the other eigenvectors contribute at
+/// most $8 / p'$. Starts are tried by decreasing diagonal of $N$ (usually the first is
+/// accepted) until one has $|v_{1j}| \gtrsim 0.1$.
+#[inline(always)]
 fn rotation_by_inverse_iteration(n: &[[f64; 4]; 4], lambda: f64, slope: f64) -> Mat3 {
     let delta = 1e-13 + 1e-14 / slope;
+    let mu_max = 1e-13 + 2e-14 / slope;
     let mut b = n.map(|row| row.map(|v| -v));
     for (i, row) in b.iter_mut().enumerate() {
         row[i] += lambda + delta;
     }
     let factor = Ldlt4::new(&b, delta * 1e-3);
     let norm2 = |y: &[f64; 4]| y.iter().map(|v| v * v).sum::<f64>();
-    let first = (0..4)
-        .map(|j| factor.solve(std::array::from_fn(|i| (i == j) as u8 as f64)))
-        .max_by(|y, z| norm2(y).total_cmp(&norm2(z)))
-        .unwrap_or([1.0, 0.0, 0.0, 0.0]);
-    // Each solve scales by at most 1 / delta <= 1e13: normalising in between keeps the
-    // second far from overflow.
-    quaternion_to_matrix(&normalized(factor.solve(normalized(first))))
+    let mut order = [0usize, 1, 2, 3];
+    order.swap(0, largest_diagonal(n));
+    let mut first = [0.0; 4];
+    for &j in &order {
+        let y = factor.solve(std::array::from_fn(|i| (i == j) as u8 as f64));
+        if norm2(&y) > norm2(&first) {
+            first = y;
+        }
+        if norm2(&first) * mu_max * mu_max >= 0.01 {
+            break;
+        }
+    }
+    // Each solve scales by at most 1 / delta <= 1e13: two stay far from overflow.
+    quaternion_to_matrix(&normalized(factor.solve(first)))
+}
+
+fn largest_diagonal(n: &[[f64; 4]; 4]) -> usize {
+    (1..4).fold(0, |j, i| if n[i][i] > n[j][j] { i } else { j })
 }
 
 /// Matrices handled together by [`nearest_rotations3_lanes`].
@@ -408,12 +432,15 @@ pub fn polar3(
     rotations: &mut [Mat3],
     stretches: Option<&mut [Mat3]>,
 ) -> Result<()> {
-    check_finite("matrices", matrices)?;
     const CHUNK: usize = 4096;
-    rotations
+    // The finiteness check rides along with the work (a separate pass over the input
+    // measured 10% of the time); non-finite matrices give garbage, never a panic, and the
+    // first of them is reported.
+    let non_finite = rotations
         .par_chunks_mut(CHUNK)
         .zip(matrices.par_chunks(CHUNK))
-        .for_each(|(rs, ms)| {
+        .enumerate()
+        .filter_map(|(chunk, (rs, ms))| {
             let (groups, rest) = ms.as_chunks::<LANES>();
             let (out_groups, out_rest) = rs.as_chunks_mut::<LANES>();
             for (r, m) in out_groups.iter_mut().zip(groups) {
@@ -422,7 +449,18 @@ pub fn polar3(
             for (r, m) in out_rest.iter_mut().zip(rest) {
                 *r = nearest_rotation3(m);
             }
+            let all_finite = |m: &Mat3| m.iter().all(|v| v.is_finite());
+            ms.iter()
+                .position(|m| !all_finite(m))
+                .map(|i| chunk * CHUNK + i)
+        })
+        .min();
+    if let Some(row) = non_finite {
+        return Err(crate::Error::NonFinite {
+            argument: "matrices",
+            row,
         });
+    }
     if let Some(stretches) = stretches {
         stretches
             .par_iter_mut()

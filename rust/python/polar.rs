@@ -12,6 +12,8 @@ type Kernel<const DD: usize> =
 
 type Polar<'py> = (Bound<'py, PyArray3<f64>>, Option<Bound<'py, PyArray3<f64>>>);
 
+/// Runs `kernel` into output arrays that numpy allocates: numpy puts large arrays on huge
+/// pages, which saves most of the page faults of writing a fresh result.
 fn run<'py, const D: usize, const DD: usize>(
     py: Python<'py>,
     flat: &[f64],
@@ -20,18 +22,20 @@ fn run<'py, const D: usize, const DD: usize>(
 ) -> PyResult<Polar<'py>> {
     let matrices = flat.as_chunks::<DD>().0;
     let n = matrices.len();
-    let mut rotations = vec![[0.0; DD]; n];
-    let mut stretches = if return_stretch {
-        Some(vec![[0.0; DD]; n])
-    } else {
-        None
-    };
-    py.detach(|| kernel(matrices, &mut rotations, stretches.as_deref_mut()))
-        .map_err(|e| to_py(py, e))?;
-    let to_array = |m: Vec<[f64; DD]>| -> PyResult<Bound<'py, PyArray3<f64>>> {
-        numpy::PyArray1::from_vec(py, m.into_flattened()).reshape([n, D, D])
-    };
-    Ok((to_array(rotations)?, stretches.map(to_array).transpose()?))
+    let rotations = PyArray3::<f64>::zeros(py, [n, D, D], false);
+    let stretches = return_stretch.then(|| PyArray3::<f64>::zeros(py, [n, D, D], false));
+    {
+        let mut r = rotations.readwrite();
+        let mut s = stretches.as_ref().map(|s| s.readwrite());
+        let r = r.as_slice_mut()?.as_chunks_mut::<DD>().0;
+        let s = match s.as_mut() {
+            Some(s) => Some(s.as_slice_mut()?.as_chunks_mut::<DD>().0),
+            None => None,
+        };
+        py.detach(|| kernel(matrices, r, s))
+            .map_err(|e| to_py(py, e))?;
+    }
+    Ok((rotations, stretches))
 }
 
 /// `(rotations, stretches or None)` of a C-contiguous `(N, D, D)` float64 array, D = 2 or 3.

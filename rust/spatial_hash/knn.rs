@@ -134,30 +134,42 @@ impl<const D: usize> SpatialHash<D> {
     /// [`Error::InvalidK`] unless `1 <= k <= n` (`n - 1` without queries),
     /// [`Error::Empty`] / [`Error::NonFinite`] for bad queries.
     pub fn knn(&self, queries: Option<&[[f64; D]]>, k: usize) -> Result<Knn> {
-        let n = self.len();
-        let (max, note) = match queries {
-            Some(_) => (n, ""),
-            None => (n - 1, "; a point is not its own neighbour"),
-        };
-        if k == 0 || k > max {
-            return Err(Error::InvalidK { k, max, note });
-        }
-        if let Some(q) = queries {
-            if q.is_empty() {
-                return Err(Error::Empty {
-                    argument: "queries",
-                    needed: 1,
-                });
-            }
-            check_finite("queries", q)?;
-        }
-        let level = self.knn_level(k);
-        self.table(level);
-        let m = queries.map_or(n, <[_]>::len);
+        let m = queries.map_or(self.len(), <[_]>::len);
         let mut indices = vec![0i64; m * k];
         let mut distances = vec![0.0; m * k];
-        let index_rows = DisjointRows::new(&mut indices, k);
-        let distance_rows = DisjointRows::new(&mut distances, k);
+        self.knn_into(queries, k, &mut indices, &mut distances)?;
+        Ok(Knn {
+            k,
+            indices,
+            distances,
+        })
+    }
+
+    /// [`Self::knn`] writing into caller-provided row-major `(queries, k)` outputs (e.g.
+    /// numpy's, which come on huge pages).
+    ///
+    /// # Errors
+    /// As [`Self::knn`], and [`Error::OutputSize`] when an output has the wrong length.
+    pub fn knn_into(
+        &self,
+        queries: Option<&[[f64; D]]>,
+        k: usize,
+        indices: &mut [i64],
+        distances: &mut [f64],
+    ) -> Result<()> {
+        let m = self.check_knn(queries, k)?;
+        let level = self.knn_level(k);
+        self.table(level);
+        for got in [indices.len(), distances.len()] {
+            if got != m * k {
+                return Err(Error::OutputSize {
+                    expected: m * k,
+                    got,
+                });
+            }
+        }
+        let index_rows = DisjointRows::new(indices, k);
+        let distance_rows = DisjointRows::new(distances, k);
 
         // Self-queries run in Morton order (neighbouring queries touch the same cells), each
         // writing its result straight into its caller's row.
@@ -193,11 +205,34 @@ impl<const D: usize> SpatialHash<D> {
                 }
             }
         });
-        Ok(Knn {
-            k,
-            indices,
-            distances,
-        })
+        Ok(())
+    }
+
+    /// Checks a k-nearest query before any work (or output allocation); returns the number
+    /// of queries.
+    ///
+    /// # Errors
+    /// [`Error::InvalidK`] unless `1 <= k <= n` (`n - 1` without queries),
+    /// [`Error::Empty`] / [`Error::NonFinite`] for bad queries.
+    pub fn check_knn(&self, queries: Option<&[[f64; D]]>, k: usize) -> Result<usize> {
+        let n = self.len();
+        let (max, note) = match queries {
+            Some(_) => (n, ""),
+            None => (n - 1, "; a point is not its own neighbour"),
+        };
+        if k == 0 || k > max {
+            return Err(Error::InvalidK { k, max, note });
+        }
+        if let Some(q) = queries {
+            if q.is_empty() {
+                return Err(Error::Empty {
+                    argument: "queries",
+                    needed: 1,
+                });
+            }
+            check_finite("queries", q)?;
+        }
+        Ok(queries.map_or(n, <[_]>::len))
     }
 
     /// The level whose cells are about as wide as the typical k-th neighbour distance.
