@@ -123,7 +123,26 @@ def polar_cases(repeats: int) -> list[dict[str, Any]]:
     ]
 
 
-CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases}
+def sdf_cases(repeats: int) -> list[dict[str, Any]]:
+    """Signed distance of a 256^3 occupancy grid (a smoothed random blob); the peer is
+    scipy's exact EDT of the inside and of the outside, which the SDF is made of."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(3)
+    occupancy = ndimage.zoom(ndimage.gaussian_filter(rng.random((64, 64, 64)), 4), 4, order=1) > 0.5
+    return [
+        _compare(
+            "sdf_blob_256^3",
+            occupancy.size,
+            lambda: elastocap.signed_distance(occupancy),
+            "scipy.ndimage.distance_transform_edt(occ) and (~occ)",
+            lambda: (ndimage.distance_transform_edt(occupancy), ndimage.distance_transform_edt(~occupancy)),
+            max(3, repeats // 2),
+        )
+    ]
+
+
+CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases, "sdf": sdf_cases}
 
 
 def main() -> None:

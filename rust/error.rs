@@ -46,6 +46,16 @@ pub enum Error {
         /// Largest supported row count.
         max: usize,
     },
+    /// A voxel grid whose data, shape and spacing disagree.
+    #[error("a grid of shape {shape:?} and spacing {spacing:?} needs positive finite spacings and as many voxels as the shape says; got {voxels} voxels")]
+    GridShape {
+        /// Voxels given.
+        voxels: usize,
+        /// Shape given.
+        shape: [usize; 3],
+        /// Spacing given.
+        spacing: [f64; 3],
+    },
     /// An output buffer of the wrong length (a caller's bug, not a user's input).
     #[error("output buffer holds {got} elements where {expected} are needed")]
     OutputSize {
@@ -76,6 +86,7 @@ impl Error {
                 | Error::InvalidK { .. }
                 | Error::InvalidRadius { .. }
                 | Error::TooManyPoints { .. }
+                | Error::GridShape { .. }
                 | Error::DimensionMismatch { .. }
         )
     }

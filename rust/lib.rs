@@ -5,7 +5,9 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod grid_sample;
 pub mod polar;
+pub mod sdf;
 pub mod spatial_hash;
 
 #[cfg(feature = "python")]

@@ -55,3 +55,33 @@ PSD_RTOL = 1e-9
 # polar(Q A) == Q polar(A) for a rotation Q, entry-wise, where the rotation is unique: both
 # sides are accurate to ROTATION_MATCH_ATOL, so this is that tolerance.
 EQUIVARIANCE_ATOL = ROTATION_MATCH_ATOL
+
+# --- cameras ----------------------------------------------------------------------------
+
+# Camera.project vs. cv2.projectPoints, in pixels: both evaluate the same polynomial in
+# double precision with different operation order; pixels of magnitude ~1e3 carry rounding
+# of ~1e-13, so 1e-9 px leaves four decades of room.
+PROJECTION_ATOL_PX = 1e-9
+# A point projected and cast back lies on its ray: distance to the ray relative to the
+# point's distance from the camera centre. Newton's undistortion stops at rounding level
+# (~1e-16); 1e-9 leaves room for ill-conditioned (strongly distorted) corners.
+RAY_RTOL = 1e-9
+# Camera.rays vs. cv2.undistortPoints run to convergence, in normalised image coordinates.
+UNDISTORT_ATOL = 1e-12
+
+# --- silhouettes ------------------------------------------------------------------------
+
+# Background subtraction of a synthetic disc on texture + noise: intersection over union
+# with the true disc. The boundary ring (~2 pi r pixels, about 4% of a 40-pixel-radius
+# disc's area) is where blur and clean-up may err by a pixel; 0.97 allows most of it.
+DISC_IOU_MIN = 0.97
+
+# --- signed distance --------------------------------------------------------------------
+
+# Distance transforms vs. scipy.ndimage.distance_transform_edt: both are exact (squared
+# distances are sums of squared integer multiples of the spacings), so only the final
+# sqrt and the half-voxel offset round: 1e-12 relative leaves wide room over 1e-9 asked.
+EDT_RTOL = 1e-12
+# Trilinear samples vs. scipy.ndimage.map_coordinates(order=1): the same interpolant
+# evaluated in a different order of operations; relative to the field's magnitude.
+TRILINEAR_RTOL = 1e-12

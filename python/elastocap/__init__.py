@@ -6,16 +6,21 @@ the public API, orchestration, I/O and the command line.
 """
 
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
+from elastocap.grid import Grid
 from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
+from elastocap.sdf import SDF, signed_distance
 
 __all__ = [
     "ConvergenceError",
     "ElastocapError",
+    "Grid",
     "InvalidInputError",
+    "SDF",
     "SpatialIndex",
     "__version__",
     "knn",
     "polar_rotation",
     "radius_neighbors",
+    "signed_distance",
 ]

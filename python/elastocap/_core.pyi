@@ -11,6 +11,8 @@ __all__ = [
     "SpatialIndex",
     "__version__",
     "polar_rotation",
+    "sample_grid",
+    "signed_distance",
 ]
 
 __version__: str
@@ -41,4 +43,15 @@ class SpatialIndex:
 
 def polar_rotation(
     matrices: NDArray[np.float64], return_stretch: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]: ...
+
+def signed_distance(
+    occupancy: NDArray[np.bool_], spacing: tuple[float, float, float]
+) -> NDArray[np.float64]: ...
+def sample_grid(
+    values: NDArray[np.float64],
+    origin: tuple[float, float, float],
+    spacing: float,
+    points: NDArray[np.float64],
+    gradient: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]: ...

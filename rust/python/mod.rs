@@ -4,6 +4,7 @@
 mod errors;
 mod neighbors;
 mod polar;
+mod sdf;
 
 use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -38,6 +39,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     neighbors::register(m)?;
     polar::register(m)?;
+    sdf::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())
