@@ -86,7 +86,10 @@ def test_gradient_points_outwards_and_closest_points_reach_the_sphere(distance, 
     x = distance * direction
     g = sdf.gradient(x[None])[0]
     assert np.dot(g, direction) > 0.9 * np.linalg.norm(g)
-    assert 0.8 < np.linalg.norm(g) < 1.25
+    if abs(distance - r) > 3 * sdf.grid.spacing:
+        # Away from the surface the distance to the voxel set is smooth and of unit slope;
+        # within a few voxels of it the nearest boundary voxel jumps and |g| may dip.
+        assert 0.8 < np.linalg.norm(g) < 1.25
     closest = sdf.closest_points(x[None])[0]
     assert abs(np.linalg.norm(closest) - r) <= sdf.grid.spacing
     assert np.dot(closest / np.linalg.norm(closest), direction) > 0.99
