@@ -73,7 +73,8 @@ UNDISTORT_ATOL = 1e-12
 
 # Background subtraction of a synthetic disc on texture + noise: intersection over union
 # with the true disc. The boundary ring (~2 pi r pixels, about 4% of a 40-pixel-radius
-# disc's area) is where blur and clean-up may err by a pixel; 0.97 allows most of it.
+# disc's area) is where noise and clean-up may err by a pixel; 0.97 allows most of it
+# (a 1-pixel Gaussian pre-blur, which widens the mask by a ring, gives 0.95 and fails).
 DISC_IOU_MIN = 0.97
 
 # --- signed distance --------------------------------------------------------------------

@@ -59,7 +59,7 @@ def signed_distance(occupancy: Any, spacing: float | Any = 1.0) -> NDArray[np.fl
     s = np.broadcast_to(np.asarray(spacing, dtype=np.float64), (3,))
     if not np.all(np.isfinite(s) & (s > 0)):
         raise InvalidInputError(f"spacing must be positive and finite, got {spacing!r}")
-    return _core.signed_distance(occ, tuple(float(v) for v in s))
+    return _core.signed_distance(occ, (float(s[0]), float(s[1]), float(s[2])))
 
 
 class SDF:
