@@ -56,6 +56,28 @@ pub enum Error {
         /// Spacing given.
         spacing: [f64; 3],
     },
+    /// A camera that cannot image anything.
+    #[error("bad camera: {reason}")]
+    BadCamera {
+        /// What is wrong.
+        reason: &'static str,
+    },
+    /// Masks that do not match their cameras.
+    #[error(
+        "mask {camera} is {got_width}x{got_height} pixels but its camera images {width}x{height}"
+    )]
+    MaskSize {
+        /// Index of the camera.
+        camera: usize,
+        /// Mask width given.
+        got_width: usize,
+        /// Mask height given.
+        got_height: usize,
+        /// Camera image width.
+        width: usize,
+        /// Camera image height.
+        height: usize,
+    },
     /// An output buffer of the wrong length (a caller's bug, not a user's input).
     #[error("output buffer holds {got} elements where {expected} are needed")]
     OutputSize {
@@ -87,6 +109,8 @@ impl Error {
                 | Error::InvalidRadius { .. }
                 | Error::TooManyPoints { .. }
                 | Error::GridShape { .. }
+                | Error::BadCamera { .. }
+                | Error::MaskSize { .. }
                 | Error::DimensionMismatch { .. }
         )
     }

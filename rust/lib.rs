@@ -4,6 +4,8 @@
 //! maturin turns on.
 #![warn(missing_docs)]
 
+pub mod camera;
+pub mod carve;
 pub mod error;
 pub mod grid_sample;
 pub mod polar;

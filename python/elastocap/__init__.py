@@ -9,6 +9,7 @@ from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError,
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.grid import Grid
+from elastocap.hull import Hull, visual_hull
 from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
@@ -20,6 +21,7 @@ __all__ = [
     "ConvergenceError",
     "ElastocapError",
     "Grid",
+    "Hull",
     "InvalidInputError",
     "Rig",
     "SDF",
@@ -32,4 +34,5 @@ __all__ = [
     "signed_distance",
     "subtract_background",
     "threshold_dark_background",
+    "visual_hull",
 ]

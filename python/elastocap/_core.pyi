@@ -5,6 +5,7 @@ from numpy.typing import NDArray
 from typing_extensions import final
 
 __all__ = [
+    "carve",
     "ConvergenceError",
     "ElastocapError",
     "InvalidInputError",
@@ -55,3 +56,16 @@ def sample_grid(
     points: NDArray[np.float64],
     gradient: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]: ...
+
+def carve(
+    masks: list[NDArray[np.uint8]],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    origin: tuple[float, float, float],
+    spacing: float,
+    shape: tuple[int, int, int],
+    tolerance: int = 0,
+    footprint: str = "conservative",
+) -> NDArray[np.bool_]: ...

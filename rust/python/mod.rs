@@ -1,6 +1,7 @@
 //! Thin Python bindings: extract and check arrays, release the GIL around the core,
 //! map errors, return numpy arrays. No algorithm lives here.
 
+mod carve;
 mod errors;
 mod neighbors;
 mod polar;
@@ -37,6 +38,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
+    carve::register(m)?;
     neighbors::register(m)?;
     polar::register(m)?;
     sdf::register(m)?;

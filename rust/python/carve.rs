@@ -1,0 +1,88 @@
+//! Binding of voxel carving.
+
+use numpy::{
+    PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
+};
+use pyo3::prelude::*;
+use rayon::prelude::*;
+
+use super::{invalid_input, to_py};
+use crate::camera::Camera;
+use crate::carve::{carve as core_carve, Footprint, GridSpec, Silhouette};
+
+/// Row `c` of a flat array of rows of `N` (lengths are checked by the caller).
+fn row<const N: usize>(flat: &[f64], c: usize) -> [f64; N] {
+    std::array::from_fn(|i| flat[N * c + i])
+}
+
+/// Carves a visual hull. `k`, `r`: `(C, 3, 3)`; `dist`: `(C, 5)`; `t`: `(C, 3)`;
+/// `masks`: C arrays `(H, W)` uint8 (non-zero = foreground), in camera order.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (masks, k, dist, r, t, origin, spacing, shape, tolerance=0, footprint="conservative"))]
+fn carve<'py>(
+    py: Python<'py>,
+    masks: Vec<PyReadonlyArray2<'py, u8>>,
+    k: PyReadonlyArray3<'py, f64>,
+    dist: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray3<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    origin: [f64; 3],
+    spacing: f64,
+    shape: [usize; 3],
+    tolerance: usize,
+    footprint: &str,
+) -> PyResult<Bound<'py, PyArray3<bool>>> {
+    let footprint = match footprint {
+        "conservative" => Footprint::Conservative,
+        "center" => Footprint::Center,
+        other => {
+            return Err(invalid_input(format!(
+                "footprint must be 'conservative' or 'center', got {other:?}"
+            )))
+        }
+    };
+    let n = masks.len();
+    let contiguous = |name: &str| invalid_input(format!("{name} must be C-contiguous"));
+    let k = k.as_slice().map_err(|_| contiguous("K"))?;
+    let dist = dist.as_slice().map_err(|_| contiguous("dist"))?;
+    let r = r.as_slice().map_err(|_| contiguous("R"))?;
+    let t = t.as_slice().map_err(|_| contiguous("t"))?;
+    if k.len() != 9 * n || r.len() != 9 * n || dist.len() != 5 * n || t.len() != 3 * n {
+        return Err(invalid_input(format!(
+            "need K, dist, R, t for each of the {n} masks"
+        )));
+    }
+    let mut cameras = Vec::with_capacity(n);
+    let mut views = Vec::with_capacity(n);
+    for (c, mask) in masks.iter().enumerate() {
+        let (height, width) = (mask.shape()[0], mask.shape()[1]);
+        let camera = Camera::new(row(k, c), row(dist, c), row(r, c), row(t, c), width, height)
+            .map_err(|e| to_py(py, e))?;
+        cameras.push(camera);
+        views.push((
+            mask.as_slice().map_err(|_| contiguous("masks"))?,
+            width,
+            height,
+        ));
+    }
+    let grid = GridSpec {
+        origin,
+        spacing,
+        shape,
+    };
+    let occupancy = py
+        .detach(|| {
+            let silhouettes: Vec<Silhouette> = views
+                .par_iter()
+                .map(|&(m, w, h)| Silhouette::new(m, w, h))
+                .collect();
+            core_carve(&cameras, &silhouettes, grid, tolerance, footprint)
+        })
+        .map_err(|e| to_py(py, e))?;
+    PyArray1::from_vec(py, occupancy).reshape(shape)
+}
+
+pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(carve, m)?)
+}
