@@ -13,8 +13,13 @@ from elastocap.cli import main
 
 
 def test_demo_writes_metrics_that_agree_with_the_references(tmp_path: Path) -> None:
-    assert main(["demo", "--out", str(tmp_path), "--points", "3000", "--quiet"]) == 0
+    assert main(["demo", "--out", str(tmp_path), "--points", "3000", "--frames", "2", "--cameras", "8", "--quiet"]) == 0
     metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert (tmp_path / "hull_views.png").stat().st_size > 10_000
+    for frame in metrics["hull"]["frames"]:
+        # The ground truth lies inside the hull, to within a voxel.
+        assert frame["truth_surface_outside_hull_max_m"] <= frame["voxel_m"]
+        assert frame["truth_volume_m3"] < frame["hull_volume_m3"] < 2 * frame["truth_volume_m3"]
     assert len(metrics["neighbours"]) == 3
     for cloud in metrics["neighbours"]:
         assert cloud["knn_max_distance_error_vs_ckdtree"] < 1e-12
@@ -23,7 +28,7 @@ def test_demo_writes_metrics_that_agree_with_the_references(tmp_path: Path) -> N
     assert polar["max_orthonormality_error"] < 1e-12
     assert polar["min_det"] > 1 - 1e-12
     assert polar["max_difference_to_svd_rotation"] < 1e-6
-    assert not list(tmp_path.glob("*.tmp")), "the atomic write left a temporary file"
+    assert not list(tmp_path.rglob("*.tmp")), "an atomic write left a temporary file"
 
 
 def test_bad_demo_input_exits_non_zero_with_one_line(tmp_path: Path) -> None:

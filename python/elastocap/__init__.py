@@ -10,16 +10,19 @@ from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.grid import Grid
 from elastocap.hull import Hull, visual_hull
+from elastocap.hull_stage import load_hull, run_hull_stage
 from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
 from elastocap.silhouette import clean_mask, subtract_background, threshold_dark_background
+from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
     "Camera",
     "Capture",
     "ConvergenceError",
     "ElastocapError",
+    "Figure",
     "Grid",
     "Hull",
     "InvalidInputError",
@@ -29,10 +32,14 @@ __all__ = [
     "__version__",
     "clean_mask",
     "knn",
+    "load_hull",
     "polar_rotation",
     "radius_neighbors",
+    "ring_rig",
+    "run_hull_stage",
     "signed_distance",
     "subtract_background",
     "threshold_dark_background",
     "visual_hull",
+    "write_synthetic_capture",
 ]

@@ -18,8 +18,38 @@ __all__ = ["main"]
 def _demo(args: argparse.Namespace) -> int:
     from elastocap.demo import run_demo
 
-    metrics_path = run_demo(Path(args.out), n_points=args.points, progress=not args.quiet)
+    metrics_path = run_demo(
+        Path(args.out), n_points=args.points, frames=args.frames, cameras=args.cameras, progress=not args.quiet
+    )
     print(f"wrote {metrics_path}")
+    return 0
+
+
+def _synth(args: argparse.Namespace) -> int:
+    from elastocap.synth import write_synthetic_capture
+
+    out = write_synthetic_capture(
+        Path(args.out), frames=args.frames, cameras=args.cameras, seed=args.seed, progress=not args.quiet
+    )
+    print(f"wrote {out} ({args.frames} frames, {args.cameras} cameras)")
+    return 0
+
+
+def _hull(args: argparse.Namespace) -> int:
+    from elastocap.capture import Capture
+    from elastocap.hull_stage import parse_frames, run_hull_stage
+
+    capture = Capture.open(args.capture)
+    written = run_hull_stage(
+        capture,
+        Path(args.out),
+        resolution=args.resolution,
+        frames=parse_frames(args.frames, capture.frames),
+        tolerance=args.tolerance,
+        footprint=args.footprint,
+        progress=not args.quiet,
+    )
+    print(f"wrote {len(written)} hull(s) into {Path(args.out) / 'hull'} ({len(capture.frames) - len(written)} already there or not asked for)")
     return 0
 
 
@@ -31,14 +61,45 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = commands.add_parser(
         "demo",
-        help="run the demo on generated data and write what it measured",
-        description="Exercise the kernels (spatial hashing, polar decomposition) on generated "
-        "data, check them against scipy and numpy, and write OUT/metrics.json.",
+        help="synthetic capture -> visual hulls, plus kernel checks; writes pictures and metrics",
+        description="Write a synthetic capture, carve its visual hulls, draw the first frame's "
+        "hull over the camera images (OUT/hull_views.png), check the kernels against scipy "
+        "and numpy, and write OUT/metrics.json. A second run resumes the first.",
     )
     demo.add_argument("--out", default="demo-out", help="output folder (default: demo-out)")
     demo.add_argument("--points", type=int, default=100_000, help="points per generated cloud (default: 100000)")
+    demo.add_argument("--frames", type=int, default=10, help="frames of the synthetic capture (default: 10)")
+    demo.add_argument("--cameras", type=int, default=8, help="cameras of the synthetic capture (default: 8)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(run=_demo)
+    synth = commands.add_parser(
+        "synth",
+        help="write a synthetic capture folder (figure in motion, camera ring, ground truth)",
+        description="Render a walking, turning, clapping figure from a ring of calibrated cameras "
+        "and write the capture folder (intri.yml, extri.yml, images/, masks/, background/) with "
+        "the ground-truth surfaces in ground_truth/. Rerunning finishes an interrupted capture.",
+    )
+    synth.add_argument("--out", required=True, metavar="CAPTURE", help="capture folder to write")
+    synth.add_argument("--frames", type=int, default=30, help="number of frames (default: 30, one walk cycle)")
+    synth.add_argument("--cameras", type=int, default=8, help="number of cameras, at least 2 (default: 8)")
+    synth.add_argument("--seed", type=int, default=0, help="figure and rig variation (default: 0)")
+    synth.add_argument("--quiet", action="store_true", help="no progress bar")
+    synth.set_defaults(run=_synth)
+    hull = commands.add_parser(
+        "hull",
+        help="carve the visual hull of every frame of a capture",
+        description="Carve each frame's visual hull from the capture's masks and write "
+        "OUT/hull/<frame>.ply (surface) and .npz (occupancy, grid, signed distance). Frames "
+        "already written are skipped, so an interrupted run resumes.",
+    )
+    hull.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
+    hull.add_argument("--out", required=True, help="output folder")
+    hull.add_argument("--resolution", type=int, default=128, help="voxels along the longest side (default: 128)")
+    hull.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    hull.add_argument("--tolerance", type=int, default=0, help="cameras that may disagree (default: 0)")
+    hull.add_argument("--footprint", choices=["center", "conservative"], default="center", help="finest-level test")
+    hull.add_argument("--quiet", action="store_true", help="no progress bar")
+    hull.set_defaults(run=_hull)
     return parser
 
 

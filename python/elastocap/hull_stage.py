@@ -1,0 +1,153 @@
+"""The hull stage of a capture: a visual hull, its surface and signed distance per frame.
+
+Writes ``OUT/hull/<frame:06d>.ply`` (the surface, world units) and
+``OUT/hull/<frame:06d>.npz`` (``occupancy`` bit-packed with its ``shape``, ``origin``,
+``spacing``, ``sdf`` as float32), skipping frames already written, so an interrupted run
+resumes where it stopped. Writes are atomic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from elastocap._core import InvalidInputError
+from elastocap._io import save_mesh, save_npz
+from elastocap.camera import Rig
+from elastocap.capture import Capture
+from elastocap.grid import Grid
+from elastocap.hull import Hull, visual_hull
+
+__all__ = ["load_hull", "run_hull_stage", "space_seen_by", "frame_grid"]
+
+# Voxels along the longest side of the coarse carving that locates the object.
+_COARSE = 48
+
+
+def space_seen_by(rig: Rig, *, samples: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower (3,), upper (3,))``: the box around the space every camera sees.
+
+    Samples a box around the camera centres and keeps the points in front of every camera
+    and inside every image; raises when no point is seen by all of them.
+    """
+    centres = np.array([c.center for c in rig.cameras])
+    middle = centres.mean(axis=0)
+    reach = max(float(np.linalg.norm(centres - middle, axis=1).max()), 1e-9) * 1.5
+    axis = np.linspace(-reach, reach, samples)
+    points = middle + np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    seen = np.ones(len(points), bool)
+    for camera in rig.cameras:
+        seen &= camera.visible(points)
+    if not seen.any():
+        raise InvalidInputError("no point is seen by all cameras: check the calibration")
+    step = 2 * reach / (samples - 1)
+    return points[seen].min(axis=0) - step, points[seen].max(axis=0) + step
+
+
+def frame_grid(masks: dict[str, np.ndarray], rig: Rig, resolution: int, seen: tuple[np.ndarray, np.ndarray]) -> Grid:
+    """The grid of one frame: a coarse conservative carving of the seen space locates the
+    object, and the grid covers its box (plus two coarse voxels) with ``resolution`` voxels
+    along the longest side.
+
+    Only coarse voxels that every camera sees locate the object: one that some camera does
+    not see is not carved by it, so the cone of a silhouette reaching out of the other
+    cameras' views would stretch the box.
+    """
+    coarse = visual_hull(masks, rig, Grid.around(seen[0], seen[1], _COARSE))
+    centres = coarse.grid.centres().reshape(-1, 3)
+    seen_by_all = np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras])
+    located = coarse.occupancy & seen_by_all.reshape(coarse.grid.shape)
+    if not located.any():
+        raise InvalidInputError("the silhouettes carve away everything: check masks and calibration")
+    index = np.argwhere(located)
+    h = coarse.grid.spacing
+    lower = coarse.grid.origin + h * index.min(axis=0) - 2 * h
+    upper = coarse.grid.origin + h * index.max(axis=0) + 2 * h
+    return Grid.around(lower, upper, resolution)
+
+
+def _frame_files(out: Path, frame: int) -> tuple[Path, Path]:
+    return out / "hull" / f"{frame:06d}.ply", out / "hull" / f"{frame:06d}.npz"
+
+
+def load_hull(out: Path, frame: int) -> Hull:
+    """The hull of ``frame`` written by :func:`run_hull_stage` into ``out``."""
+    with np.load(_frame_files(Path(out), frame)[1]) as data:
+        grid = Grid(data["origin"], float(data["spacing"]), tuple(data["shape"]))
+        count = int(np.prod(grid.shape))
+        occupancy = np.unpackbits(data["occupancy"], count=count).astype(bool).reshape(grid.shape)
+    return Hull(occupancy, grid)
+
+
+def run_hull_stage(
+    capture: Capture | str | Path,
+    out: str | Path,
+    *,
+    resolution: int = 128,
+    frames: Iterable[int] | None = None,
+    tolerance: int = 0,
+    footprint: str = "center",
+    progress: bool = True,
+) -> list[int]:
+    """Carve, mesh and write the hull of every frame; returns the frames written now.
+
+    Parameters
+    ----------
+    capture : Capture or path
+        The capture folder (with masks).
+    out : path
+        Output folder; ``out/hull/`` is created.
+    resolution : int
+        Voxels along the longest side of each frame's grid.
+    frames : iterable of int, optional
+        Frames to process (default: all); frames already written are skipped.
+    tolerance, footprint
+        As in :func:`~elastocap.hull.visual_hull`.
+    progress : bool
+        Show a progress bar.
+    """
+    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
+    if not cap.has_masks:
+        raise InvalidInputError(f"{cap} has no masks/ folder: the hull stage needs silhouettes")
+    wanted = list(cap.frames if frames is None else frames)
+    unknown = sorted(set(wanted) - set(cap.frames))
+    if unknown:
+        raise InvalidInputError(f"frames {unknown[:5]} are not in the capture (it has {cap.frames[0]}..{cap.frames[-1]})")
+    out = Path(out)
+    todo = [f for f in wanted if not all(p.exists() for p in _frame_files(out, f))]
+    seen = space_seen_by(cap.rig)
+    for frame in tqdm(todo, desc="hull", unit="frame", disable=not progress):
+        masks = cap.masks(frame)
+        grid = frame_grid(masks, cap.rig, resolution, seen)
+        hull = visual_hull(masks, cap.rig, grid, tolerance=tolerance, footprint=footprint)
+        ply, npz = _frame_files(out, frame)
+        save_npz(
+            npz,
+            occupancy=np.packbits(hull.occupancy.reshape(-1)),
+            shape=np.array(grid.shape),
+            origin=grid.origin,
+            spacing=np.float64(grid.spacing),
+            sdf=hull.sdf().values.astype(np.float32),
+        )
+        save_mesh(ply, hull.mesh())
+    return todo
+
+
+def parse_frames(text: str | None, available: list[int]) -> list[int] | None:
+    """``"a:b"`` (Python slice of frame numbers, end exclusive), ``"a"``, or None for all."""
+    if text is None:
+        return None
+    try:
+        if ":" in text:
+            start, _, stop = text.partition(":")
+            lo = int(start) if start else available[0]
+            hi = int(stop) if stop else available[-1] + 1
+            return [f for f in available if lo <= f < hi]
+        return [int(text)]
+    except ValueError:
+        raise InvalidInputError(f"--frames must look like 'a:b' or 'a', got {text!r}") from None
+
+

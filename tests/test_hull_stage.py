@@ -1,0 +1,65 @@
+"""The hull stage on a small synthetic capture: files, resume, accuracy against the ground
+truth, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from elastocap import InvalidInputError
+from elastocap.hull_stage import load_hull, parse_frames, run_hull_stage
+from elastocap.synth import write_synthetic_capture
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("capture")
+    return write_synthetic_capture(out, frames=3, cameras=8, spacing=0.02, image_size=(320, 240), progress=False)
+
+
+def test_writes_every_frame_and_resumes_without_redoing(capture, tmp_path):
+    written = run_hull_stage(capture, tmp_path, resolution=48, progress=False)
+    assert written == [0, 1, 2]
+    files = sorted((tmp_path / "hull").iterdir())
+    assert [f.name for f in files] == [f"{i:06d}.{ext}" for i in range(3) for ext in ("npz", "ply")]
+    stamps = {f: f.stat().st_mtime_ns for f in files}
+    assert run_hull_stage(capture, tmp_path, resolution=48, progress=False) == []
+    assert stamps == {f: f.stat().st_mtime_ns for f in files}
+    # An interrupted run loses only the unfinished frame.
+    (tmp_path / "hull" / "000001.ply").unlink()
+    assert run_hull_stage(capture, tmp_path, resolution=48, progress=False) == [1]
+    assert not list((tmp_path / "hull").glob(".*")), "temporary files left behind"
+
+
+def test_hull_contains_the_ground_truth_and_hugs_it(capture, tmp_path):
+    run_hull_stage(capture, tmp_path, resolution=64, frames=[0], progress=False)
+    hull = load_hull(tmp_path, 0)
+    truth = trimesh.load(capture / "ground_truth" / "000000.ply")
+    sdf = hull.sdf()
+    on_truth = sdf.sample(truth.sample(3000))
+    # The carving is of rendered silhouettes at 320x240: allow a voxel and a pixel or so.
+    assert np.quantile(on_truth, 0.99) <= 1.5 * hull.grid.spacing
+    assert hull.volume / truth.volume < 1.6
+    surface = trimesh.load(tmp_path / "hull" / "000000.ply")
+    assert surface.is_watertight
+
+
+def test_parse_frames():
+    assert parse_frames("1:3", [0, 1, 2, 3, 4]) == [1, 2]
+    assert parse_frames(":2", [0, 1, 2]) == [0, 1]
+    assert parse_frames("2", [0, 1, 2]) == [2]
+    assert parse_frames(None, [0, 1]) is None
+    with pytest.raises(InvalidInputError, match="--frames"):
+        parse_frames("a:b", [0])
+
+
+def test_bad_input(capture, tmp_path):
+    with pytest.raises(InvalidInputError, match="not in the capture"):
+        run_hull_stage(capture, tmp_path, frames=[99], progress=False)
+    empty = tmp_path / "nomasks"
+    empty.mkdir()
+    with pytest.raises((InvalidInputError, FileNotFoundError)):
+        run_hull_stage(empty, tmp_path, progress=False)
