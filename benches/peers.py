@@ -240,24 +240,27 @@ def _carve_rows(masks, rig, grid, cams, ours, repeats):
     return rows
 
 
+# VmHWM (peak resident set of this process image), not ru_maxrss, which Linux carries over
+# from the parent across fork + exec: peers.py itself peaks at gigabytes.
 _MEMORY_SCRIPT = """
-import resource, sys, json
-import numpy as np
+import sys, json
 sys.path.insert(0, {benches!r})
 import peers
+def peak_mb():
+    line = next(l for l in open("/proc/self/status") if l.startswith("VmHWM:"))
+    return int(line.split()[1]) / 1024
 masks, rig, grid = peers._carve_setup()
-before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+before = peak_mb()
 import elastocap
 hull = elastocap.visual_hull(masks, rig, grid, footprint="center")
 sdf = hull.sdf()
-after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({{"before_mb": before / 1024, "after_mb": after / 1024}}))
+print(json.dumps({{"before_mb": before, "after_mb": peak_mb()}}))
 """
 
 
 def memory_cases(repeats: int) -> list[dict[str, Any]]:
     """Peak resident memory of carving a 256^3 hull and computing its signed distance, in a
-    fresh process (ru_maxrss); `input_mb` is the peak before (the masks and interpreter)."""
+    fresh process (VmHWM); `input_mb` is the peak before (the masks and interpreter)."""
     import subprocess
     import sys
     from pathlib import Path
