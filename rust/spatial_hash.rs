@@ -229,6 +229,17 @@ impl<const D: usize> SpatialHash<D> {
     }
 }
 
+/// Queries must be a non-empty set of finite points.
+fn check_queries<const D: usize>(queries: &[[f64; D]]) -> Result<()> {
+    if queries.is_empty() {
+        return Err(Error::Empty {
+            argument: "queries",
+            needed: 1,
+        });
+    }
+    check_finite("queries", queries)
+}
+
 fn bounding_box<const D: usize>(points: &[[f64; D]]) -> ([f64; D], [f64; D]) {
     points
         .par_iter()

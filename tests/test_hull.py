@@ -112,14 +112,16 @@ def temple_rig_and_masks():
     masks = {}
     for name, camera in zip(rig.names, rig.cameras):
         image = cv2.imread(str(TEMPLE / f"{name}.png"))[:, :, ::-1]
-        mask = elastocap.threshold_dark_background(image, 45)
+        # Grey > 48 after a 1-px blur, opened by 1 px and closed by 4 px, specks under 500 px
+        # dropped: chosen on this data set (reported in the issue), not derived.
+        mask = elastocap.threshold_dark_background(image, 48, open_radius=1, close_radius=4, min_area=500)
         # The black cloth around the temple shows through the threshold at the image
         # edges; the data set's bounding box (its README) says where the temple is.
         uv, _ = camera.project(corners)
         roi = np.zeros(mask.shape, np.uint8)
         cv2.fillConvexPoly(roi, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
         masks[name] = mask & roi.astype(bool)
-    return rig, masks, Grid.around(lo, hi, 200)
+    return rig, masks, Grid.around(lo, hi, 250)
 
 
 @pytest.mark.skipif(not TEMPLE.exists(), reason="shared data not present")
@@ -130,10 +132,10 @@ def test_temple_hull_reprojects_onto_its_silhouettes():
     for name, camera in zip(rig.names, rig.cameras):
         projected = render(surface, camera)
         ious.append((projected & masks[name]).sum() / (projected | masks[name]).sum())
-    # Measured 0.92 to 0.96 per view (see the note in the issue): the thresholded masks
-    # are not consistent between views to better than a few pixels.
-    assert min(ious) >= 0.90, np.round(ious, 3)
-    assert np.median(ious) >= 0.93, np.round(ious, 3)
+    # Measured 0.945 to 0.974 per view, 15 of 16 at 0.95 or more: in view 2 a fold of the
+    # dark cloth touching the temple passes the threshold and no hull can explain it.
+    assert min(ious) >= 0.94, np.round(ious, 3)
+    assert np.mean(np.array(ious) >= 0.95) >= 15 / 16, np.round(ious, 3)
 
 
 def test_bad_input_is_a_clear_error():

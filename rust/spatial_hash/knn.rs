@@ -6,8 +6,8 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
-use super::{levels, morton, ring_offsets, DisjointRows, SpatialHash, LEAF_SIZE};
-use crate::error::{check_finite, Error, Result};
+use super::{check_queries, levels, morton, ring_offsets, DisjointRows, SpatialHash, LEAF_SIZE};
+use crate::error::{Error, Result};
 
 /// Rings of cells searched around a query before falling back to the octree walk.
 const MAX_RINGS: i64 = 2;
@@ -224,13 +224,7 @@ impl<const D: usize> SpatialHash<D> {
             return Err(Error::InvalidK { k, max, note });
         }
         if let Some(q) = queries {
-            if q.is_empty() {
-                return Err(Error::Empty {
-                    argument: "queries",
-                    needed: 1,
-                });
-            }
-            check_finite("queries", q)?;
+            check_queries(q)?;
         }
         Ok(queries.map_or(n, <[_]>::len))
     }

@@ -3,8 +3,8 @@
 
 use rayon::prelude::*;
 
-use super::{levels, morton, ring_offsets, SpatialHash, LEAF_SIZE};
-use crate::error::{check_finite, Error, Result};
+use super::{check_queries, levels, morton, ring_offsets, SpatialHash, LEAF_SIZE};
+use crate::error::{Error, Result};
 
 /// Neighbours within a radius, in compressed sparse row form.
 #[derive(Debug, Clone)]
@@ -33,13 +33,7 @@ impl<const D: usize> SpatialHash<D> {
             return Err(Error::InvalidRadius { radius });
         }
         if let Some(q) = queries {
-            if q.is_empty() {
-                return Err(Error::Empty {
-                    argument: "queries",
-                    needed: 1,
-                });
-            }
-            check_finite("queries", q)?;
+            check_queries(q)?;
         }
         let level = (0..levels(D))
             .find(|&l| self.cell_size(l) >= radius)
