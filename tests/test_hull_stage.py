@@ -63,3 +63,28 @@ def test_bad_input(capture, tmp_path):
     empty.mkdir()
     with pytest.raises((InvalidInputError, FileNotFoundError)):
         run_hull_stage(empty, tmp_path, progress=False)
+
+
+def test_a_camera_with_an_all_black_mask_stops_with_its_name(capture, tmp_path):
+    import shutil
+
+    import cv2
+
+    broken = tmp_path / "broken"
+    shutil.copytree(capture, broken)
+    mask_file = broken / "masks" / "cam03" / "000001.png"
+    cv2.imwrite(str(mask_file), np.zeros_like(cv2.imread(str(mask_file), cv2.IMREAD_GRAYSCALE)))
+    out = tmp_path / "out"
+    with pytest.raises(InvalidInputError, match=r"frame 1: .*cam03"):
+        run_hull_stage(broken, out, resolution=32, progress=False)
+    assert (out / "hull" / "000000.ply").exists(), "the frame before the bad one is kept"
+
+
+def test_grid_seen_by_the_rig_holds_the_figure(capture):
+    from elastocap import Capture, Grid
+
+    cap = Capture.open(capture)
+    grid = Grid.seen_by(cap.rig, 32)
+    truth = trimesh.load_mesh(capture / "ground_truth" / "000000.ply")
+    lower, upper = grid.bounds
+    assert np.all(truth.bounds[0] >= lower) and np.all(truth.bounds[1] <= upper)

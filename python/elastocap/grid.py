@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_positive
 
-__all__ = ["Grid"]
+__all__ = ["Grid", "space_seen_by"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,22 @@ class Grid:
         shape = np.maximum(1, np.ceil((hi - lo) / spacing - 1e-9)).astype(int)
         return cls(lo + spacing / 2, spacing, tuple(shape))
 
+    @classmethod
+    def seen_by(cls, rig: Any, resolution: int, *, samples: int = 48) -> Grid:
+        """The grid over the box of the space every camera of ``rig`` sees, with
+        ``resolution`` voxels along its longest side.
+
+        Samples a box around the camera centres (``samples`` per side) and keeps the points
+        in front of every camera and inside every image.
+
+        Raises
+        ------
+        InvalidInputError
+            When no sampled point is seen by all cameras.
+        """
+        lower, upper = space_seen_by(rig, samples=samples)
+        return cls.around(lower, upper, resolution)
+
     @property
     def bounds(self) -> NDArray[np.float64]:
         """``(2, 3)``: lower and upper corners of the box the voxels cover, world units."""
@@ -75,3 +91,21 @@ class Grid:
     def to_index(self, points: Any) -> NDArray[np.float64]:
         """``(N, 3)`` continuous voxel indices of world points (centre of voxel = integer)."""
         return (np.asarray(points, dtype=np.float64) - self.origin) / self.spacing
+
+
+def space_seen_by(rig: Any, *, samples: int = 48) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(lower (3,), upper (3,))``: the box around the space every camera of ``rig`` sees
+    (see :meth:`Grid.seen_by`)."""
+    cameras = list(rig.cameras)
+    centres = np.array([c.center for c in cameras])
+    middle = centres.mean(axis=0)
+    reach = max(float(np.linalg.norm(centres - middle, axis=1).max()), 1e-9) * 1.5
+    axis = np.linspace(-reach, reach, samples)
+    points = middle + np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    seen = np.ones(len(points), bool)
+    for camera in cameras:
+        seen &= camera.visible(points)
+    if not seen.any():
+        raise InvalidInputError("no point is seen by all cameras: check the calibration")
+    step = 2 * reach / (samples - 1)
+    return points[seen].min(axis=0) - step, points[seen].max(axis=0) + step

@@ -18,33 +18,13 @@ from elastocap._core import InvalidInputError
 from elastocap._io import save_mesh, save_npz
 from elastocap.camera import Rig
 from elastocap.capture import Capture
-from elastocap.grid import Grid
+from elastocap.grid import Grid, space_seen_by
 from elastocap.hull import Hull, visual_hull
 
-__all__ = ["load_hull", "run_hull_stage", "space_seen_by", "frame_grid"]
+__all__ = ["frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
-
-
-def space_seen_by(rig: Rig, *, samples: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """``(lower (3,), upper (3,))``: the box around the space every camera sees.
-
-    Samples a box around the camera centres and keeps the points in front of every camera
-    and inside every image; raises when no point is seen by all of them.
-    """
-    centres = np.array([c.center for c in rig.cameras])
-    middle = centres.mean(axis=0)
-    reach = max(float(np.linalg.norm(centres - middle, axis=1).max()), 1e-9) * 1.5
-    axis = np.linspace(-reach, reach, samples)
-    points = middle + np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
-    seen = np.ones(len(points), bool)
-    for camera in rig.cameras:
-        seen &= camera.visible(points)
-    if not seen.any():
-        raise InvalidInputError("no point is seen by all cameras: check the calibration")
-    step = 2 * reach / (samples - 1)
-    return points[seen].min(axis=0) - step, points[seen].max(axis=0) + step
 
 
 def frame_grid(masks: dict[str, np.ndarray], rig: Rig, resolution: int, seen: tuple[np.ndarray, np.ndarray]) -> Grid:
@@ -121,6 +101,12 @@ def run_hull_stage(
     seen = space_seen_by(cap.rig)
     for frame in tqdm(todo, desc="hull", unit="frame", disable=not progress):
         masks = cap.masks(frame)
+        blank = [name for name, mask in masks.items() if not mask.any()]
+        if blank:
+            raise InvalidInputError(
+                f"frame {frame}: the mask of camera(s) {blank} is all background, which carves "
+                f"the whole hull away; frames written so far are kept"
+            )
         grid = frame_grid(masks, cap.rig, resolution, seen)
         hull = visual_hull(masks, cap.rig, grid, tolerance=tolerance, footprint=footprint)
         ply, npz = _frame_files(out, frame)
