@@ -20,8 +20,8 @@ import elastocap
 from elastocap.camera import Camera, Rig
 from elastocap.silhouette import threshold_dark_background
 from tolerances import PROJECTION_ATOL_PX, RAY_RTOL, UNDISTORT_ATOL
+from data_paths import TEMPLE
 
-TEMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "temple_sparse_ring"
 # README.txt of the data set: the temple's tight bounding box.
 TEMPLE_BOX = np.array([[-0.073568, 0.021728, -0.012445], [0.028855, 0.181892, 0.062736]])
 # Grey level (after a 1-pixel Gaussian blur) above which a temple pixel is foreground.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,8 +10,8 @@ import trimesh
 
 import elastocap
 from elastocap import Camera, Grid, Rig, visual_hull
+from data_paths import TEMPLE
 
-TEMPLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "temple_sparse_ring"
 
 
 def look_at(name: str, eye, target=(0.0, 0.0, 0.0), size=(320, 240), f=300.0) -> Camera:
