@@ -96,6 +96,61 @@ pub enum Error {
         /// Dimension given.
         got: usize,
     },
+    /// An array whose row count disagrees with the number of points.
+    #[error("{argument} has {got} rows but points has {expected}")]
+    LengthMismatch {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Rows needed (the number of points).
+        expected: usize,
+        /// Rows given.
+        got: usize,
+    },
+    /// A neighbour index that names no point.
+    #[error("neighbors[{row}, {column}] = {index} is not a point index: it must be in 0..{n}")]
+    NeighborIndex {
+        /// Row (node) of the offending entry.
+        row: usize,
+        /// Column of the offending entry.
+        column: usize,
+        /// The index given.
+        index: i64,
+        /// Number of points.
+        n: usize,
+    },
+    /// A neighbour list that does not contain its own node.
+    #[error("neighbors row {node} does not contain the node itself ({node}): each node must be its own neighbour")]
+    SelfNotNeighbour {
+        /// The node.
+        node: usize,
+    },
+    /// Too few neighbours per node for the approximation asked for.
+    #[error("{found} neighbours per node (including the node) are too few: at least {needed} are needed")]
+    NotEnoughNeighbours {
+        /// Neighbours per node given.
+        found: usize,
+        /// Least number needed.
+        needed: usize,
+    },
+    /// A support radius that is not a positive finite number.
+    #[error("support[{node}] = {value} must be a positive finite number")]
+    InvalidSupport {
+        /// The node.
+        node: usize,
+        /// The radius given.
+        value: f64,
+    },
+    /// A node whose moment matrix stays ill-conditioned after enlarging its support: its
+    /// neighbours are (nearly) collinear in 2-D or coplanar in 3-D, or too few carry weight.
+    #[error("the neighbours of node {node} do not span the space (collinear or coplanar): reciprocal condition number {rcond:.1e} of the moment matrix even with the support enlarged to {support}")]
+    IllConditioned {
+        /// The node.
+        node: usize,
+        /// Reciprocal condition number of the equilibrated moment matrix at the last try.
+        rcond: f64,
+        /// Support radius of the last try.
+        support: f64,
+    },
 }
 
 impl Error {
@@ -112,6 +167,12 @@ impl Error {
                 | Error::BadCamera { .. }
                 | Error::MaskSize { .. }
                 | Error::DimensionMismatch { .. }
+                | Error::LengthMismatch { .. }
+                | Error::NeighborIndex { .. }
+                | Error::SelfNotNeighbour { .. }
+                | Error::NotEnoughNeighbours { .. }
+                | Error::InvalidSupport { .. }
+                | Error::IllConditioned { .. }
         )
     }
 }

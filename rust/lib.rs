@@ -8,6 +8,7 @@ pub mod camera;
 pub mod carve;
 pub mod error;
 pub mod grid_sample;
+pub mod mls;
 pub mod polar;
 pub mod sdf;
 pub mod spatial_hash;

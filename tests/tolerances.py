@@ -86,3 +86,20 @@ EDT_RTOL = 1e-12
 # Trilinear samples vs. scipy.ndimage.map_coordinates(order=1): the same interpolant
 # evaluated in a different order of operations; relative to the field's magnitude.
 TRILINEAR_RTOL = 1e-12
+
+# --- MLS shape functions ----------------------------------------------------------------
+
+# The SPEC 4.2 identities (partition of unity, linear reproduction, sum grad Phi = 0,
+# sum grad Phi x^T = I), entry-wise; gradient sums are made dimensionless by the node's
+# support. SPEC asks 1e-10; the core only accepts nodes whose scaled moment matrix has
+# rcond >= 1e-3, where the measured error is <= ~1e-13 / rcond, and the test clouds
+# (k >= 2D + 2) show ~1e-13.
+MLS_IDENTITY_ATOL = 1e-10
+# Phi vs. an independent numpy evaluation of the same formula (np.linalg.solve on the
+# unscaled moment matrix): both are backward stable on matrices with rcond >~ 1e-2, so
+# they agree to ~1e-14; 1e-11 leaves room.
+MLS_REFERENCE_ATOL = 1e-11
+# grad Phi (times the support, dimensionless) vs. central differences of the numpy Phi(x)
+# with step 1e-5 of the support: truncation ~h^2 * |Phi'''| ~ 1e-10 and rounding
+# ~eps / h ~ 1e-11; 1e-7 leaves room for the spline's kinks in the third derivative.
+MLS_FD_GRADIENT_ATOL = 1e-7

@@ -11,6 +11,7 @@ from elastocap.capture import Capture
 from elastocap.grid import Grid
 from elastocap.hull import Hull, visual_hull
 from elastocap.hull_stage import load_hull, run_hull_stage
+from elastocap.mls import mls_shape_functions
 from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
@@ -33,6 +34,7 @@ __all__ = [
     "clean_mask",
     "knn",
     "load_hull",
+    "mls_shape_functions",
     "polar_rotation",
     "radius_neighbors",
     "ring_rig",

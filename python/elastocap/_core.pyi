@@ -11,6 +11,7 @@ __all__ = [
     "InvalidInputError",
     "SpatialIndex",
     "__version__",
+    "mls_shape_functions",
     "polar_rotation",
     "sample_grid",
     "signed_distance",
@@ -69,3 +70,9 @@ def carve(
     tolerance: int = 0,
     footprint: str = "conservative",
 ) -> NDArray[np.bool_]: ...
+
+def mls_shape_functions(
+    points: NDArray[np.float64],
+    neighbors: NDArray[np.int64],
+    support: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...

@@ -6,7 +6,7 @@ use numpy::{
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
-use super::{invalid_input, to_py};
+use super::{c_slice, invalid_input, to_py};
 use crate::camera::Camera;
 use crate::carve::{carve as core_carve, Footprint, GridSpec, Silhouette};
 
@@ -43,11 +43,10 @@ fn carve<'py>(
         }
     };
     let n = masks.len();
-    let contiguous = |name: &str| invalid_input(format!("{name} must be C-contiguous"));
-    let k = k.as_slice().map_err(|_| contiguous("K"))?;
-    let dist = dist.as_slice().map_err(|_| contiguous("dist"))?;
-    let r = r.as_slice().map_err(|_| contiguous("R"))?;
-    let t = t.as_slice().map_err(|_| contiguous("t"))?;
+    let k = c_slice(&k, "K")?;
+    let dist = c_slice(&dist, "dist")?;
+    let r = c_slice(&r, "R")?;
+    let t = c_slice(&t, "t")?;
     if k.len() != 9 * n || r.len() != 9 * n || dist.len() != 5 * n || t.len() != 3 * n {
         return Err(invalid_input(format!(
             "need K, dist, R, t for each of the {n} masks"
@@ -60,11 +59,7 @@ fn carve<'py>(
         let camera = Camera::new(row(k, c), row(dist, c), row(r, c), row(t, c), width, height)
             .map_err(|e| to_py(py, e))?;
         cameras.push(camera);
-        views.push((
-            mask.as_slice().map_err(|_| contiguous("masks"))?,
-            width,
-            height,
-        ));
+        views.push((c_slice(mask, "masks")?, width, height));
     }
     let grid = GridSpec {
         origin,

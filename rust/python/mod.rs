@@ -3,15 +3,29 @@
 
 mod carve;
 mod errors;
+mod mls;
 mod neighbors;
 mod polar;
 mod sdf;
 
-use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use crate::Error;
 pub(crate) use errors::invalid_input;
+
+/// The data of a C-contiguous array. (`as_slice` alone also accepts Fortran order, whose
+/// data would then be read transposed.)
+pub(crate) fn c_slice<'a, T: Element, Dim: numpy::ndarray::Dimension>(
+    array: &'a PyReadonlyArray<'_, T, Dim>,
+    argument: &str,
+) -> PyResult<&'a [T]> {
+    let contiguous = || invalid_input(format!("{argument} must be C-contiguous"));
+    if !array.is_c_contiguous() {
+        return Err(contiguous());
+    }
+    array.as_slice().map_err(|_| contiguous())
+}
 
 /// Rows of a C-contiguous `(N, D)` float64 array as `&[[f64; D]]`.
 pub(crate) fn rows<'a, const D: usize>(
@@ -24,10 +38,7 @@ pub(crate) fn rows<'a, const D: usize>(
             array.shape()
         )));
     }
-    let flat = array
-        .as_slice()
-        .map_err(|_| invalid_input(format!("{argument} must be C-contiguous")))?;
-    Ok(flat.as_chunks::<D>().0)
+    Ok(c_slice(array, argument)?.as_chunks::<D>().0)
 }
 
 /// Maps a core error onto the exception hierarchy.
@@ -39,6 +50,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     carve::register(m)?;
+    mls::register(m)?;
     neighbors::register(m)?;
     polar::register(m)?;
     sdf::register(m)?;

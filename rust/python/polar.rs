@@ -3,7 +3,7 @@
 use numpy::{PyArray3, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{invalid_input, to_py};
+use super::{c_slice, invalid_input, to_py};
 use crate::polar::{polar2, polar3};
 
 /// A batched kernel: matrices, rotations out, optional stretches out.
@@ -47,9 +47,7 @@ fn polar_rotation<'py>(
     return_stretch: bool,
 ) -> PyResult<Polar<'py>> {
     let shape = matrices.shape().to_vec();
-    let flat = matrices
-        .as_slice()
-        .map_err(|_| invalid_input("matrices must be C-contiguous".into()))?;
+    let flat = c_slice(&matrices, "matrices")?;
     match (shape[1], shape[2]) {
         (3, 3) => run::<3, 9>(py, flat, return_stretch, polar3),
         (2, 2) => run::<2, 4>(py, flat, return_stretch, polar2),

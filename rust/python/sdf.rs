@@ -6,7 +6,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{invalid_input, rows, to_py};
+use super::{c_slice, rows, to_py};
 use crate::grid_sample::{sample_points, GridField};
 use crate::sdf::signed_distance as core_signed_distance;
 
@@ -22,9 +22,7 @@ fn signed_distance<'py>(
     spacing: [f64; 3],
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let shape = shape3(occupancy.shape());
-    let flat = occupancy
-        .as_slice()
-        .map_err(|_| invalid_input("occupancy must be C-contiguous".into()))?;
+    let flat = c_slice(&occupancy, "occupancy")?;
     let sdf = py
         .detach(|| core_signed_distance(flat, shape, spacing))
         .map_err(|e| to_py(py, e))?;
@@ -45,9 +43,7 @@ fn sample_grid<'py>(
     gradient: bool,
 ) -> PyResult<Samples<'py>> {
     let shape = shape3(values.shape());
-    let flat = values
-        .as_slice()
-        .map_err(|_| invalid_input("values must be C-contiguous".into()))?;
+    let flat = c_slice(&values, "values")?;
     let field = GridField::new(flat, shape, origin, spacing).map_err(|e| to_py(py, e))?;
     let p = rows::<3>(&points, "points")?;
     let n = p.len();
