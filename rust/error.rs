@@ -151,6 +151,24 @@ pub enum Error {
         /// Support radius of the last try.
         support: f64,
     },
+    /// A material constant outside its physical range.
+    #[error("{argument} = {value} is out of range: it must be {expected}")]
+    InvalidMaterial {
+        /// Name of the offending argument (`youngs`, `poisson`).
+        argument: &'static str,
+        /// The value given.
+        value: f64,
+        /// The admissible range, in words.
+        expected: &'static str,
+    },
+    /// A nodal volume that is not a positive finite number.
+    #[error("volumes[{node}] = {value} must be a positive finite number")]
+    InvalidVolume {
+        /// The node.
+        node: usize,
+        /// The volume given.
+        value: f64,
+    },
 }
 
 impl Error {
@@ -173,6 +191,8 @@ impl Error {
                 | Error::NotEnoughNeighbours { .. }
                 | Error::InvalidSupport { .. }
                 | Error::IllConditioned { .. }
+                | Error::InvalidMaterial { .. }
+                | Error::InvalidVolume { .. }
         )
     }
 }

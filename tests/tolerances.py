@@ -103,3 +103,22 @@ MLS_REFERENCE_ATOL = 1e-11
 # with step 1e-5 of the support: truncation ~h^2 * |Phi'''| ~ 1e-10 and rounding
 # ~eps / h ~ 1e-11; 1e-7 leaves room for the spline's kinks in the third derivative.
 MLS_FD_GRADIENT_ATOL = 1e-7
+
+# --- EFG stiffness by nodal integration -------------------------------------------------
+
+# Symmetry of K, entry-wise relative to its largest entry: k_p = V_p B^T (C B) is formed
+# with one rounding per product, so the mirror entries differ by ~1e-16 (measured 1e-16).
+EFG_SYMMETRY_RTOL = 1e-12
+# An eigenvalue counts as zero below this fraction of the largest (SPEC 4.3). The measured
+# zero modes sit at ~1e-16 and the smallest non-zero ones at ~4e-5 (2-D, k = 20, 8x8) and
+# ~7e-3 (3-D, k = 20, 5^3), so the count does not depend on the threshold over 1e-14..1e-5.
+EFG_ZERO_EIGENVALUE_RTOL = 1e-8
+# Positive semi-definite: the smallest eigenvalue may be negative by rounding only.
+EFG_PSD_RTOL = 1e-12
+# Constant-strain patch test (SPEC 4.3): strains of an affine field, absolute, for
+# gradients of order 1 (unit grid spacing) and |A| ~ 1; the MLS identities hold to ~1e-13.
+EFG_PATCH_ATOL = 1e-9
+# K u = 0 for rigid modes, relative to ||K|| ||u|| (as the brief asks).
+EFG_RIGID_RTOL = 1e-9
+# Energy of a uniform stretch vs 1/2 eps^T C eps times the volume; forces vs -K u.
+EFG_ENERGY_RTOL = 1e-9

@@ -8,6 +8,7 @@ the public API, orchestration, I/O and the command line.
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
+from elastocap.efg import stiffness_matrix
 from elastocap.grid import Grid
 from elastocap.hull import Hull, visual_hull
 from elastocap.hull_stage import load_hull, run_hull_stage
@@ -40,6 +41,7 @@ __all__ = [
     "ring_rig",
     "run_hull_stage",
     "signed_distance",
+    "stiffness_matrix",
     "subtract_background",
     "threshold_dark_background",
     "visual_hull",

@@ -7,6 +7,8 @@ from typing_extensions import final
 __all__ = [
     "carve",
     "ConvergenceError",
+    "efg_energy",
+    "efg_stiffness",
     "ElastocapError",
     "InvalidInputError",
     "SpatialIndex",
@@ -76,3 +78,24 @@ def mls_shape_functions(
     neighbors: NDArray[np.int64],
     support: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...
+
+def efg_stiffness(
+    points: NDArray[np.float64],
+    neighbors: NDArray[np.int64],
+    grad: NDArray[np.float64],
+    volumes: NDArray[np.float64],
+    youngs: float,
+    poisson: float,
+    plane: str = "strain",
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]: ...
+
+def efg_energy(
+    points: NDArray[np.float64],
+    neighbors: NDArray[np.int64],
+    grad: NDArray[np.float64],
+    volumes: NDArray[np.float64],
+    displacements: NDArray[np.float64],
+    youngs: float,
+    poisson: float,
+    plane: str = "strain",
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]: ...

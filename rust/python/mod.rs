@@ -2,6 +2,7 @@
 //! map errors, return numpy arrays. No algorithm lives here.
 
 mod carve;
+mod efg;
 mod errors;
 mod mls;
 mod neighbors;
@@ -50,6 +51,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     carve::register(m)?;
+    efg::register(m)?;
     mls::register(m)?;
     neighbors::register(m)?;
     polar::register(m)?;
