@@ -131,6 +131,7 @@ def test_temple_hull_reprojects_onto_its_silhouettes():
     for name, camera in zip(rig.names, rig.cameras):
         projected = render(surface, camera)
         ious.append((projected & masks[name]).sum() / (projected | masks[name]).sum())
+    print("temple reprojection IoU per view:", np.round(ious, 3))  # shown with pytest -s
     # Measured 0.945 to 0.974 per view, 15 of 16 at 0.95 or more: in view 2 a fold of the
     # dark cloth touching the temple passes the threshold and no hull can explain it.
     assert min(ious) >= 0.94, np.round(ious, 3)
