@@ -6,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
 
-use _core::efg::{Material, NodalElasticity, Plane};
+use _core::efg::{BlockPattern, Material, NodalElasticity, Plane};
 use _core::mls::shape_functions;
 use _core::SpatialHash;
 
@@ -59,6 +59,22 @@ fn efg(c: &mut Criterion) {
     });
     group.bench_function("stiffness_assembly", |b| {
         b.iter(|| black_box(&elasticity).stiffness())
+    });
+    group.bench_function("stiffness_pattern", |b| {
+        b.iter(|| BlockPattern::new(black_box(&neighbors), K, points.len()))
+    });
+    let pattern = BlockPattern::new(&neighbors, K, points.len());
+    let mut blocks = vec![[[0.0; 3]; 3]; pattern.nnz()];
+    group.bench_function("stiffness_blocks", |b| {
+        b.iter(|| {
+            pattern.assemble(
+                black_box(&shapes.grad),
+                &volumes,
+                elasticity.lame(),
+                None,
+                &mut blocks,
+            )
+        })
     });
     group.bench_function("forces_matrix_free", |b| {
         b.iter(|| elasticity.forces(black_box(&displacement)).unwrap())

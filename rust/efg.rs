@@ -20,6 +20,9 @@ use rayon::prelude::*;
 
 use crate::error::{check_finite, Error, Result};
 
+pub mod assembly;
+pub use assembly::{Block, BlockPattern, Occurrences};
+
 /// 2-D idealisation of a 3-D body.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Plane {
@@ -283,95 +286,21 @@ impl<'a, const D: usize> NodalElasticity<'a, D> {
         local
     }
 
+    /// Lamé parameters $(\lambda, \mu)$ of $C$ (plane stress: the reduced $\lambda$).
+    pub fn lame(&self) -> (f64, f64) {
+        let s = voigt_size(D);
+        (self.c[1], self.c[D * s + D])
+    }
+
     /// The global stiffness $K$ ($nD \times nD$, dof `node * D + axis`) as CSR, columns
-    /// sorted, assembled row by row in parallel: the block row of node $i$ sums, over the
-    /// nodes $q$ whose neighbourhood holds $i$, the rows of $B_q^\top (V_q C B_q)$ belonging
-    /// to $i$. No triplet list is formed or sorted.
+    /// sorted: the block pattern and closed-form blocks of [`assembly`], expanded.
     pub fn stiffness(&self) -> Csr {
-        let (n, k, s) = (self.len(), self.k, voigt_size(D));
-        let width = D * k;
-        // Per node q: B_q and V_q C B_q, each S x Dk.
-        let factors: Vec<(Vec<f64>, Vec<f64>)> = (0..n)
-            .into_par_iter()
-            .map(|q| {
-                let b = self.strain_displacement(q);
-                let mut cb = vec![0.0; s * width];
-                for r in 0..s {
-                    for t in 0..s {
-                        let c = self.c[r * s + t] * self.volumes[q];
-                        if c != 0.0 {
-                            for j in 0..width {
-                                cb[r * width + j] += c * b[t * width + j];
-                            }
-                        }
-                    }
-                }
-                (b, cb)
-            })
-            .collect();
-        // Where each node occurs: (neighbourhood q, position in it), grouped by node.
-        let mut start = vec![0usize; n + 1];
-        for &i in self.neighbors {
-            start[i as usize + 1] += 1;
-        }
-        for i in 0..n {
-            start[i + 1] += start[i];
-        }
-        let mut fill = start.clone();
-        let mut occurrences = vec![(0u32, 0u32); self.neighbors.len()];
-        for (at, &i) in self.neighbors.iter().enumerate() {
-            occurrences[fill[i as usize]] = ((at / k) as u32, (at % k) as u32);
-            fill[i as usize] += 1;
-        }
-        let blocks: Vec<(Vec<u32>, Vec<f64>)> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let found = &occurrences[start[i]..start[i + 1]];
-                let mut columns: Vec<u32> = found
-                    .iter()
-                    .flat_map(|&(q, _)| &self.neighbors[q as usize * k..(q as usize + 1) * k])
-                    .copied()
-                    .collect();
-                columns.sort_unstable();
-                columns.dedup();
-                let row_len = columns.len() * D;
-                let mut values = vec![0.0; D * row_len];
-                for &(q, li) in found {
-                    let (b, cb) = &factors[q as usize];
-                    let hood = &self.neighbors[q as usize * k..(q as usize + 1) * k];
-                    for (lj, node) in hood.iter().enumerate() {
-                        let c = columns.binary_search(node).expect("column collected above");
-                        for a in 0..D {
-                            for bb in 0..D {
-                                let (ia, jb) = (li as usize * D + a, lj * D + bb);
-                                values[a * row_len + c * D + bb] += (0..s)
-                                    .map(|r| b[r * width + ia] * cb[r * width + jb])
-                                    .sum::<f64>();
-                            }
-                        }
-                    }
-                }
-                (columns, values)
-            })
-            .collect();
-        let size = D * n;
-        let mut indptr = Vec::with_capacity(size + 1);
-        indptr.push(0);
-        let total: usize = blocks.iter().map(|(_, v)| v.len()).sum();
-        let mut indices = Vec::with_capacity(total);
-        let mut data = Vec::with_capacity(total);
-        for (columns, values) in blocks {
-            let row_len = columns.len() * D;
-            for a in 0..D {
-                for &c in &columns {
-                    indices.extend((0..D).map(|bb| c as usize * D + bb));
-                }
-                data.extend_from_slice(&values[a * row_len..(a + 1) * row_len]);
-                indptr.push(indptr.last().copied().unwrap_or(0) + row_len);
-            }
-        }
+        let pattern = BlockPattern::new(self.neighbors, self.k, self.len());
+        let mut blocks = vec![[[0.0; D]; D]; pattern.nnz()];
+        pattern.assemble(self.grad, self.volumes, self.lame(), None, &mut blocks);
+        let (indptr, indices, data) = pattern.to_scalar_csr(&blocks);
         Csr {
-            size,
+            size: D * self.len(),
             indptr,
             indices,
             data,

@@ -7,6 +7,7 @@
 pub mod camera;
 pub mod carve;
 pub mod efg;
+pub mod elastic;
 pub mod error;
 pub mod grid_sample;
 pub mod mls;

@@ -3,6 +3,7 @@
 
 mod carve;
 mod efg;
+mod elastic;
 mod errors;
 mod mls;
 mod neighbors;
@@ -52,6 +53,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     carve::register(m)?;
     efg::register(m)?;
+    elastic::register(m)?;
     mls::register(m)?;
     neighbors::register(m)?;
     polar::register(m)?;
