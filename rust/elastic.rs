@@ -45,6 +45,17 @@ pub enum Rotation {
     Warped,
 }
 
+/// Which matrix's polar rotation is $R_p$ (SPEC 4.4 names the first).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RotationFit {
+    /// $A_p = \sum_i m_i (x_i - x_p)(X_i - X_p)^\top$ with Gaussian weights (the paper's).
+    Weighted,
+    /// The MLS deformation gradient $F_p$: the rotation the strain measure itself sees.
+    /// Measured: on a bar bent by 90 degrees the `Rhs` fixed-point iteration diverges with
+    /// `Weighted` rotations and converges with these (benches/README.md).
+    Gradient,
+}
+
 /// Support radius factor $c$ of SPEC 4.1: $d_p = c\, r_k$.
 pub const SUPPORT_FACTOR: f64 = 1.1;
 
@@ -59,6 +70,7 @@ pub struct ElasticModel<const D: usize> {
     volumes: Vec<f64>,
     lame: (f64, f64),
     rotation: Rotation,
+    fit: RotationFit,
     /// $G_p$ per node.
     rest_gradient: Vec<Block<D>>,
     /// Rotation-fit weights $m_i$, row-major `(n, k)`.
@@ -84,6 +96,7 @@ impl<const D: usize> ElasticModel<D> {
         volumes: Vec<f64>,
         material: &Material,
         rotation: Rotation,
+        fit: RotationFit,
     ) -> Result<Self> {
         const { assert!(D == 2 || D == 3, "elastic models are 2-D or 3-D") };
         let c = elasticity_matrix::<D>(material)?;
@@ -162,6 +175,7 @@ impl<const D: usize> ElasticModel<D> {
             volumes,
             lame,
             rotation,
+            fit,
             rest_gradient,
             weights,
             occurrences,
@@ -237,7 +251,8 @@ impl<const D: usize> ElasticModel<D> {
         check_finite("positions", x)
     }
 
-    /// $R_p$ for every node at positions `x` (SPEC 4.4); identities in the `Linear` mode.
+    /// $R_p$ for every node at positions `x` (SPEC 4.4, from the matrix [`RotationFit`]
+    /// names); identities in the `Linear` mode.
     ///
     /// # Errors
     /// As [`Self::check_positions`].
@@ -251,6 +266,9 @@ impl<const D: usize> ElasticModel<D> {
         let covariances: Vec<f64> = (0..self.len())
             .into_par_iter()
             .flat_map_iter(|p| {
+                if self.fit == RotationFit::Gradient {
+                    return self.deformation_gradient(p, x).into_iter().flatten();
+                }
                 let hood = &self.neighbors[p * k..(p + 1) * k];
                 let mut a = [[0.0; D]; D];
                 for (&i, &m) in hood.iter().zip(&self.weights[p * k..(p + 1) * k]) {

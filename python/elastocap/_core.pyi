@@ -112,6 +112,7 @@ class ElasticCore:
         poisson: float,
         plane: str = "strain",
         rotation: str = "rhs",
+        rotation_fit: str = "gradient",
     ) -> ElasticCore: ...
     @property
     def dim(self) -> int: ...

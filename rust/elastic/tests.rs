@@ -25,10 +25,18 @@ fn jittered<const D: usize>(side: usize, seed: u64) -> Vec<[f64; D]> {
         .collect()
 }
 
-fn model<const D: usize>(side: usize, rotation: Rotation) -> ElasticModel<D> {
+fn model<const D: usize>(side: usize, rotation: Rotation, fit: RotationFit) -> ElasticModel<D> {
     let rest = jittered::<D>(side, 3);
     let n = rest.len();
-    ElasticModel::new(rest, 12, vec![1.0; n], &MATERIAL, rotation).unwrap()
+    ElasticModel::new(
+        rest,
+        12,
+        vec![1.0; n],
+        &MATERIAL,
+        rotation,
+        RotationFit::Weighted,
+    )
+    .unwrap()
 }
 
 fn rotation3(angle: [f64; 3]) -> Block<3> {
@@ -95,18 +103,21 @@ fn rigid_case<const D: usize>(m: &ElasticModel<D>, r: Block<D>) {
 
 #[test]
 fn rigid_motions_have_no_energy_and_no_force() {
-    for rotation in [Rotation::Rhs, Rotation::Warped] {
-        let m3 = model::<3>(5, rotation);
+    for (rotation, fit) in [Rotation::Rhs, Rotation::Warped]
+        .into_iter()
+        .flat_map(|r| [(r, RotationFit::Weighted), (r, RotationFit::Gradient)])
+    {
+        let m3 = model::<3>(5, rotation, fit);
         rigid_case(&m3, rotation3([0.7, -1.9, 2.6]));
         rigid_case(&m3, rotation3([0.0, std::f64::consts::FRAC_PI_2, 0.0]));
-        let m2 = model::<2>(9, rotation);
+        let m2 = model::<2>(9, rotation, fit);
         rigid_case(&m2, rotation2(2.2));
     }
 }
 
 #[test]
 fn linear_mode_reads_rotation_as_strain() {
-    let m = model::<3>(5, Rotation::Linear);
+    let m = model::<3>(5, Rotation::Linear, RotationFit::Gradient);
     let x = moved(m.rest(), &rotation3([0.0, 0.0, 1.0]), [0.0; 3]);
     let rotations = m.rotations(&x).unwrap();
     assert!(m.energy(&x, &rotations).unwrap() > 1.0);
@@ -177,8 +188,10 @@ fn consistency<const D: usize>(m: &ElasticModel<D>) {
 #[test]
 fn energy_forces_rhs_and_system_agree() {
     for rotation in [Rotation::Linear, Rotation::Rhs, Rotation::Warped] {
-        consistency(&model::<3>(5, rotation));
-        consistency(&model::<2>(8, rotation));
+        for fit in [RotationFit::Weighted, RotationFit::Gradient] {
+            consistency(&model::<3>(5, rotation, fit));
+            consistency(&model::<2>(8, rotation, fit));
+        }
     }
 }
 
@@ -187,7 +200,14 @@ fn bad_input_is_an_error() {
     let rest = jittered::<3>(4, 1);
     let n = rest.len();
     let build = |k, volumes: Vec<f64>| {
-        ElasticModel::new(rest.clone(), k, volumes, &MATERIAL, Rotation::Rhs)
+        ElasticModel::new(
+            rest.clone(),
+            k,
+            volumes,
+            &MATERIAL,
+            Rotation::Rhs,
+            RotationFit::Gradient,
+        )
     };
     assert!(matches!(
         build(n + 1, vec![1.0; n]),

@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows, to_py};
 use crate::efg::{Block, Material, Plane};
-use crate::elastic::{ElasticModel, Rotation};
+use crate::elastic::{ElasticModel, Rotation, RotationFit};
 
 enum Model {
     Planar(ElasticModel<2>),
@@ -116,7 +116,7 @@ type Csr<'py> = (
 #[pymethods]
 impl ElasticCore {
     #[new]
-    #[pyo3(signature = (nodes, k, volumes, youngs, poisson, plane = "strain", rotation = "rhs"))]
+    #[pyo3(signature = (nodes, k, volumes, youngs, poisson, plane = "strain", rotation = "rhs", rotation_fit = "gradient"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -127,7 +127,17 @@ impl ElasticCore {
         poisson: f64,
         plane: &str,
         rotation: &str,
+        rotation_fit: &str,
     ) -> PyResult<Self> {
+        let fit = match rotation_fit {
+            "gradient" => RotationFit::Gradient,
+            "weighted" => RotationFit::Weighted,
+            other => {
+                return Err(invalid_input(format!(
+                    "rotation_fit must be \"gradient\" or \"weighted\", got {other:?}"
+                )))
+            }
+        };
         let material = Material {
             youngs,
             poisson,
@@ -139,14 +149,14 @@ impl ElasticCore {
             2 => {
                 let rest = rows::<2>(&nodes, "nodes")?.to_vec();
                 Model::Planar(
-                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation))
+                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation, fit))
                         .map_err(|e| to_py(py, e))?,
                 )
             }
             3 => {
                 let rest = rows::<3>(&nodes, "nodes")?.to_vec();
                 Model::Spatial(
-                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation))
+                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation, fit))
                         .map_err(|e| to_py(py, e))?,
                 )
             }
