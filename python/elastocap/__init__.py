@@ -9,6 +9,7 @@ from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError,
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.efg import stiffness_matrix
+from elastocap.elastic import ElasticModel, StaticSolution
 from elastocap.grid import Grid
 from elastocap.hull import Hull, visual_hull
 from elastocap.hull_stage import load_hull, run_hull_stage
@@ -23,6 +24,7 @@ __all__ = [
     "Camera",
     "Capture",
     "ConvergenceError",
+    "ElasticModel",
     "ElastocapError",
     "Figure",
     "Grid",
@@ -31,6 +33,7 @@ __all__ = [
     "Rig",
     "SDF",
     "SpatialIndex",
+    "StaticSolution",
     "__version__",
     "clean_mask",
     "knn",

@@ -28,15 +28,7 @@ fn jittered<const D: usize>(side: usize, seed: u64) -> Vec<[f64; D]> {
 fn model<const D: usize>(side: usize, rotation: Rotation, fit: RotationFit) -> ElasticModel<D> {
     let rest = jittered::<D>(side, 3);
     let n = rest.len();
-    ElasticModel::new(
-        rest,
-        12,
-        vec![1.0; n],
-        &MATERIAL,
-        rotation,
-        RotationFit::Weighted,
-    )
-    .unwrap()
+    ElasticModel::new(rest, 12, vec![1.0; n], &MATERIAL, rotation, fit).unwrap()
 }
 
 fn rotation3(angle: [f64; 3]) -> Block<3> {
