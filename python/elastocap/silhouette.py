@@ -260,7 +260,8 @@ def refine_silhouette(
     background_model = np.zeros((1, 65), np.float64)
     foreground_model = np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(GRABCUT_SEED)
-    cv2.grabCut(lab, labels, None, background_model, foreground_model, rounds, cv2.GC_INIT_WITH_MASK)
+    no_rectangle = (0, 0, 0, 0)  # the labels initialise the cut, not a rectangle
+    cv2.grabCut(lab, labels, no_rectangle, background_model, foreground_model, rounds, cv2.GC_INIT_WITH_MASK)
     kept = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
     return np.asarray(kept, dtype=bool)
 
