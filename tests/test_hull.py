@@ -11,6 +11,7 @@ import trimesh
 import elastocap
 from elastocap import Camera, Grid, Rig, visual_hull
 from data_paths import TEMPLE
+from tolerances import TEMPLE_IOU_MIN
 
 
 
@@ -104,38 +105,57 @@ def test_tolerance_keeps_voxels_that_one_camera_wrongly_rejects():
 
 
 def temple_rig_and_masks():
+    """templeSparseRing: the rig, the silhouettes the hull is carved from, the former
+    threshold-only silhouettes (for comparison) and the carving grid.
+
+    Silhouettes by :func:`elastocap.segment_dark_background`: grey > 30 after a 1-px blur
+    proposes, the pixels above the view's Otsu level (eroded by 2 px) are sure temple, and
+    GrabCut in Lab keeps what has the temple's colours. Parameters are the defaults but
+    for the clean-up (opened by 1 px, parts under 500 px dropped), chosen on this data set:
+    over threshold 20..48, band 15..30 and 5..10 iterations the worst view's IoU (rendered
+    by pixel-centre coverage) stayed within 0.969..0.977. The threshold-only masks (grey >
+    48, opened by 1 px, closed by 4 px, specks under 500 px dropped) kept a fold of the dark
+    cloth touching the temple (view 2) and cut into the temple's shadowed undersides
+    (views 12, 9 and 7 most), which then carved the hull seen from the other views.
+    """
     rig = Rig.load(TEMPLE / "templeSR_par.txt")
     lo = np.array([-0.073568, 0.021728, -0.012445]) - 0.005
     hi = np.array([0.028855, 0.181892, 0.062736]) + 0.005
     corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, -1).T
-    masks = {}
+    masks, thresholded = {}, {}
     for name, camera in zip(rig.names, rig.cameras):
         image = cv2.imread(str(TEMPLE / f"{name}.png"))[:, :, ::-1]
-        # Grey > 48 after a 1-px blur, opened by 1 px and closed by 4 px, specks under 500 px
-        # dropped: chosen on this data set (reported in the issue), not derived.
-        mask = elastocap.threshold_dark_background(image, 48, open_radius=1, close_radius=4, min_area=500)
-        # The black cloth around the temple shows through the threshold at the image
+        # The black cloth around the temple shows through any threshold at the image
         # edges; the data set's bounding box (its README) says where the temple is.
         uv, _ = camera.project(corners)
-        roi = np.zeros(mask.shape, np.uint8)
+        roi = np.zeros(image.shape[:2], np.uint8)
         cv2.fillConvexPoly(roi, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
-        masks[name] = mask & roi.astype(bool)
-    return rig, masks, Grid.around(lo, hi, 250)
+        roi = roi.astype(bool)
+        masks[name] = elastocap.segment_dark_background(image, 30, region=roi, open_radius=1, min_area=500)
+        threshold = elastocap.threshold_dark_background(image, 48, open_radius=1, close_radius=4, min_area=500)
+        thresholded[name] = threshold & roi
+    return rig, masks, thresholded, Grid.around(lo, hi, 250)
 
 
 @pytest.mark.skipif(not TEMPLE.exists(), reason="shared data not present")
 def test_temple_hull_reprojects_onto_its_silhouettes():
-    rig, masks, grid = temple_rig_and_masks()
+    rig, masks, thresholded, grid = temple_rig_and_masks()
     surface = visual_hull(masks, rig, grid, footprint="center").mesh()
-    ious = []
+    ious, threshold_ious = [], []
     for name, camera in zip(rig.names, rig.cameras):
         projected = render(surface, camera)
         ious.append((projected & masks[name]).sum() / (projected | masks[name]).sum())
-    print("temple reprojection IoU per view:", np.round(ious, 3))  # shown with pytest -s
-    # Measured 0.945 to 0.974 per view, 15 of 16 at 0.95 or more: in view 2 a fold of the
-    # dark cloth touching the temple passes the threshold and no hull can explain it.
-    assert min(ious) >= 0.94, np.round(ious, 3)
-    assert np.mean(np.array(ious) >= 0.95) >= 15 / 16, np.round(ious, 3)
+        reference = thresholded[name]
+        threshold_ious.append((projected & reference).sum() / (projected | reference).sum())
+    # Shown with pytest -s. The second line compares the same hull with the threshold-only
+    # masks, which still hold the cloth fold: for information, not asserted.
+    print("temple reprojection IoU per view:", np.round(ious, 3))
+    print("  same hull vs threshold-only masks:", np.round(threshold_ious, 3))
+    # Measured 0.975 to 0.983 per view (threshold-only pipeline: 0.945 to 0.974). What is
+    # left is mostly a rim of about one pixel where the rendered hull exceeds the mask:
+    # this render fills every pixel a projected triangle's edge touches (pixel-centre
+    # coverage gives 0.973 to 0.986), and voxels are 1.8 px wide in these views.
+    assert min(ious) >= TEMPLE_IOU_MIN, np.round(ious, 3)
 
 
 def test_bad_input_is_a_clear_error():

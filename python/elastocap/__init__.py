@@ -18,6 +18,7 @@ from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
 from elastocap.silhouette import clean_mask, subtract_background, threshold_dark_background
+from elastocap.silhouette import refine_silhouette, segment_dark_background
 from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
@@ -41,8 +42,10 @@ __all__ = [
     "mls_shape_functions",
     "polar_rotation",
     "radius_neighbors",
+    "refine_silhouette",
     "ring_rig",
     "run_hull_stage",
+    "segment_dark_background",
     "signed_distance",
     "stiffness_matrix",
     "subtract_background",

@@ -1,5 +1,6 @@
 """Silhouettes: background subtraction against an empty-scene frame, thresholding of a dark
-background, and morphological clean-up of masks.
+background, GrabCut refinement of a coarse mask (and its use on dark backgrounds), and
+morphological clean-up of masks.
 
 Masks stored in a capture folder are read with :meth:`elastocap.Capture.mask`.
 """
@@ -13,8 +14,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._validate import as_count
 
-__all__ = ["clean_mask", "subtract_background", "threshold_dark_background"]
+__all__ = [
+    "clean_mask",
+    "refine_silhouette",
+    "segment_dark_background",
+    "subtract_background",
+    "threshold_dark_background",
+]
 
 # The automatic background-subtraction threshold is the median colour difference plus this
 # many robust standard deviations (1.4826 MAD) of it, both taken over the pixels below the
@@ -28,6 +36,12 @@ CLIPPING_ROUNDS = 5
 # foreground.
 MIN_THRESHOLD = 2.5
 _MAD_TO_SIGMA = 1.4826
+# GrabCut's k-means initialisation of its colour models draws from OpenCV's RNG; a fixed
+# seed makes the same image and seeds give the same mask (unseeded, a few boundary pixels
+# of a 640 x 480 view change from call to call).
+GRABCUT_SEED = 0
+# Gaussian components per colour model in OpenCV's GrabCut (fixed in its implementation).
+GRABCUT_COMPONENTS = 5
 
 
 def subtract_background(
@@ -160,6 +174,184 @@ def threshold_dark_background(
     )
 
 
+def refine_silhouette(
+    image: Any,
+    mask: Any,
+    *,
+    sure_foreground: Any = None,
+    region: Any = None,
+    band: int = 15,
+    iterations: int = 5,
+) -> NDArray[np.bool_]:
+    """GrabCut refinement of a coarse silhouette: keep what looks like the object.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8
+        The frame, RGB (as :meth:`Capture.image` returns it) or grey.
+    mask : (H, W) array_like of bool or integer
+        The coarse silhouette (non-zero = probably foreground), e.g. a threshold or a
+        background difference.
+    sure_foreground : (H, W) array_like of bool or integer, optional, keyword-only
+        Pixels that are certainly the object; they stay foreground and teach the colour
+        model of the object. Default: none.
+    region : (H, W) array_like of bool or integer, optional, keyword-only
+        Where the object can be (e.g. the projection of a known bounding box); outside it
+        every pixel is background. Default: the whole image.
+    band : int, default 15, keyword-only
+        Pixels of ``region`` outside ``mask`` and within this many pixels of it are probable
+        background: the boundary may move out through them where they look like the
+        object. Farther ones are sure background. 0: everything outside ``mask`` is sure
+        background and refinement only removes pixels.
+    iterations : int, default 5, keyword-only
+        GrabCut rounds (refit the colour models, cut again); at least 1.
+
+    Returns
+    -------
+    (H, W) bool
+        The refined silhouette: it holds ``sure_foreground``, lies within ``region`` and
+        within ``band`` pixels of ``mask``. When ``mask | sure_foreground`` (within
+        ``region``) holds, or leaves out, fewer pixels than a colour model has components
+        (5), there is nothing to learn from and it is returned as it is.
+
+    Notes
+    -----
+    GrabCut (Rother, Kolmogorov and Blake, SIGGRAPH 2004; ``cv2.grabCut``) fits a Gaussian
+    mixture of five components to the colours of the foreground and another to those of the
+    background,
+    labels each pixel by a minimum graph cut of the mixtures' log-likelihoods plus a
+    contrast-weighted smoothness term, and iterates. So a region that passes a threshold
+    but has the colour of the background (a fold of a dark cloth touching the object, a
+    soft shadow on the floor) is dropped, while dark parts of the object that keep its hue
+    are kept, and the boundary moves to the strongest nearby edge. The colours are taken
+    in CIE Lab (8-bit, ``cv2.COLOR_RGB2Lab``), where lightness is apart from chroma and
+    distances follow perceived differences. Letting the boundary move out into ``band``
+    matters: the object's blurred rim and darkest parts fall below any threshold that
+    keeps the background out (on the temple data of ``tests/test_hull.py``, keeping the
+    result inside ``mask`` lowered the worst view's hull reprojection IoU from 0.973 to
+    0.965). OpenCV's RNG is seeded (``GRABCUT_SEED``) for reproducible results.
+    """
+    picture = _as_image("image", image)
+    shape = picture.shape[:2]
+    candidate = _as_mask("mask", mask, shape)
+    sure = _as_mask("sure_foreground", sure_foreground, shape) if sure_foreground is not None else None
+    allowed = _as_mask("region", region, shape) if region is not None else None
+    reach = _radius("band", band)
+    rounds = as_count("iterations", iterations, minimum=1)
+    if allowed is not None:
+        candidate = candidate & allowed
+        sure = sure & allowed if sure is not None else None
+    if sure is not None:
+        candidate = candidate | sure
+    labels = np.full(shape, cv2.GC_BGD, np.uint8)
+    if reach:
+        near = cv2.dilate(candidate.astype(np.uint8), _disc(reach)).astype(bool)
+        labels[near if allowed is None else near & allowed] = cv2.GC_PR_BGD
+    labels[candidate] = cv2.GC_PR_FGD
+    if sure is not None:
+        labels[sure] = cv2.GC_FGD
+    # Each colour model is a mixture fitted by k-means: it needs at least as many pixels as
+    # components (nothing to refine when the mask is empty or covers everything).
+    background = int(np.count_nonzero(~candidate))
+    if min(int(np.count_nonzero(candidate)), background) < GRABCUT_COMPONENTS:
+        return candidate
+    rgb = picture if picture.ndim == 3 else cv2.cvtColor(picture, cv2.COLOR_GRAY2RGB)
+    lab = np.ascontiguousarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab))
+    background_model = np.zeros((1, 65), np.float64)
+    foreground_model = np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(GRABCUT_SEED)
+    no_rectangle = (0, 0, 0, 0)  # the labels initialise the cut, not a rectangle
+    cv2.grabCut(lab, labels, no_rectangle, background_model, foreground_model, rounds, cv2.GC_INIT_WITH_MASK)
+    kept = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
+    return np.asarray(kept, dtype=bool)
+
+
+def segment_dark_background(
+    image: Any,
+    threshold: float = 30.0,
+    *,
+    region: Any = None,
+    blur_sigma: float = 1.0,
+    sure_erosion: int = 2,
+    band: int = 15,
+    iterations: int = 5,
+    open_radius: int = 0,
+    close_radius: int = 0,
+    fill_holes: bool = False,
+    min_area: int = 0,
+) -> NDArray[np.bool_]:
+    """Silhouette of an object in front of a dark background that is not uniformly black
+    (a cloth with folds, dim props): a threshold proposes, GrabCut decides.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8
+        The frame (RGB or grey; colour separates far better).
+    threshold : float, default 30
+        Grey level (0 to 255, after the blur) above which a pixel may be the object: set it
+        low enough to take the object's shadowed parts, the refinement removes the
+        background that also passes.
+    region : (H, W) array_like of bool or integer, optional, keyword-only
+        Where the object can be (e.g. the projection of its bounding box); outside it is
+        background, and the Otsu level below is computed inside it. Default: whole image.
+    blur_sigma : float, default 1.0, keyword-only
+        Gaussian blur (pixels) before both thresholds; 0 disables it.
+    sure_erosion : int, default 2, keyword-only
+        Radius (pixels) by which the pixels brighter than the Otsu level are eroded to give
+        the sure foreground, so that their mixed boundary pixels do not count as sure.
+    band, iterations
+        As in :func:`refine_silhouette`.
+    open_radius, close_radius, fill_holes, min_area
+        Clean-up of the result, as in :func:`clean_mask`; off by default.
+
+    Returns
+    -------
+    (H, W) bool
+        True on the object.
+
+    Notes
+    -----
+    Three steps. (1) Candidates: blurred grey level above ``threshold`` inside ``region``,
+    as :func:`threshold_dark_background`. (2) Sure foreground: grey level above Otsu's
+    level (the threshold that best separates the grey levels of ``region`` into two
+    classes, ``cv2.THRESH_OTSU``; at least ``threshold``), eroded by ``sure_erosion``: on a
+    dark background the bright class is the lit object. (3) :func:`refine_silhouette`
+    with these seeds, which drops candidates whose colour belongs to the background.
+
+    On Middlebury's templeSparseRing (plaster on black cloth, see
+    ``tests/test_hull.py``) a threshold of 48 was needed to keep the cloth's folds out,
+    and it still let one fold through while cutting into the temple's shadowed
+    undersides; with this refinement a threshold of 30 takes the undersides and leaves
+    the cloth out, and the visual hull explains every view's silhouette better.
+    """
+    picture = _as_image("image", image)
+    shape = picture.shape[:2]
+    allowed = _as_mask("region", region, shape) if region is not None else np.ones(shape, bool)
+    sigma = _non_negative("blur_sigma", blur_sigma)
+    level = _non_negative("threshold", threshold)
+    erosion = _radius("sure_erosion", sure_erosion)
+    grey = picture if picture.ndim == 2 else cv2.cvtColor(picture, cv2.COLOR_RGB2GRAY)
+    smooth = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), sigma) if sigma > 0 else grey.astype(np.float32)
+    candidate = (smooth > level) & allowed
+    if not candidate.any():
+        return candidate
+    inside = np.clip(np.round(smooth[allowed]), 0, 255).astype(np.uint8).reshape(-1, 1)
+    otsu, _ = cv2.threshold(inside, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    sure = (smooth > max(float(otsu), level)) & allowed
+    if erosion:
+        sure = cv2.erode(sure.astype(np.uint8), _disc(erosion)).astype(bool)
+    refined = refine_silhouette(
+        picture, candidate, sure_foreground=sure, region=allowed, band=band, iterations=iterations
+    )
+    return clean_mask(
+        refined,
+        open_radius=open_radius,
+        close_radius=close_radius,
+        fill_holes=fill_holes,
+        min_area=min_area,
+    )
+
+
 def clean_mask(
     mask: Any,
     *,
@@ -271,6 +463,15 @@ def _as_image(name: str, value: Any) -> NDArray[np.uint8]:
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)) or array.size == 0:
         raise InvalidInputError(f"{name} must have shape (H, W, 3) or (H, W), got {array.shape}")
     return np.ascontiguousarray(array)
+
+
+def _as_mask(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    array = np.asarray(value)
+    if array.dtype.kind not in "biu":
+        raise InvalidInputError(f"{name} must hold booleans or integers, got dtype {array.dtype}")
+    if array.shape != shape:
+        raise InvalidInputError(f"{name} must have the image's shape {shape}, got {array.shape}")
+    return np.asarray(array != 0, dtype=bool)
 
 
 def _non_negative(name: str, value: Any) -> float:
