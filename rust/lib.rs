@@ -9,6 +9,7 @@ pub mod carve;
 pub mod efg;
 pub mod elastic;
 pub mod error;
+pub mod fit;
 pub mod grid_sample;
 pub mod mls;
 pub mod polar;

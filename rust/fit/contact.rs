@@ -1,0 +1,86 @@
+//! The self-intersection term of the fitting (SPEC 5, step 3; the paper's Eq. 16-17).
+//!
+//! A surface node `p` penetrates when it lies behind the surface of a part of the model that
+//! is far from `p` at rest (more than $3 d_p$): among the current surface nodes near `p`,
+//! a node `q` far from `p` at rest with $(x_p - x_q) \cdot n_q < 0$ and
+//! $|x_p - x_q| < d_q$. Its push-back target is `p'`, the projection of $x_p$ onto `q`'s
+//! tangent plane (the closest point of that part's surface, to first order), pulled along
+//! $e = \operatorname{normalise}(n_p - n_q)$ with the metric
+//! $M_I = s_I^2 I + (1 - s_I^2) e e^\top$, $s_I = 0.1$.
+
+use rayon::prelude::*;
+
+use super::surface::{dist, dot, sub, unit, FAR_APART};
+use crate::efg::Block;
+use crate::SpatialHash;
+
+/// Anisotropy of the contact metric (SPEC 5: $s_I = 0.1$).
+pub const CONTACT_ANISOTROPY: f64 = 0.1;
+/// Surface nodes examined around each node.
+const CANDIDATES: usize = 8;
+
+/// A penetrating surface node and where it is pushed.
+#[derive(Debug, Clone, Copy)]
+pub struct Contact {
+    /// Index of the node among the surface nodes.
+    pub node: usize,
+    /// $x_{p'}$, held fixed during a solve.
+    pub target: [f64; 3],
+    /// $M_I$.
+    pub weight: Block<3>,
+    /// Penetration depth $-(x_p - x_q) \cdot n_q \ge 0$.
+    pub depth: f64,
+}
+
+/// The penetrating surface nodes at `positions` (surface nodes only) with `normals`, their
+/// `rest` positions and supports.
+pub fn find_contacts(
+    positions: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    rest: &[[f64; 3]],
+    support: &[f64],
+) -> Vec<Contact> {
+    let n = positions.len();
+    if n < 2 {
+        return Vec::new();
+    }
+    let Ok(hash) = SpatialHash::new(positions) else {
+        return Vec::new();
+    };
+    let Ok(near) = hash.knn(None, CANDIDATES.min(n - 1)) else {
+        return Vec::new();
+    };
+    let k = near.k;
+    (0..n)
+        .into_par_iter()
+        .filter_map(|p| {
+            let x = positions[p];
+            near.indices[p * k..(p + 1) * k]
+                .iter()
+                .map(|&q| q as usize)
+                .filter(|&q| dist(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q]))
+                .filter_map(|q| {
+                    let offset = sub(&x, &positions[q]);
+                    let depth = -dot(&offset, &normals[q]);
+                    (depth > 0.0 && dist(&x, &positions[q]) < support[q]).then_some((q, depth))
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(q, depth)| {
+                    let target = std::array::from_fn(|a| x[a] + depth * normals[q][a]);
+                    let e = unit(&sub(&normals[p], &normals[q]));
+                    let s2 = CONTACT_ANISOTROPY * CONTACT_ANISOTROPY;
+                    let weight = std::array::from_fn(|r| {
+                        std::array::from_fn(|c| {
+                            (if r == c { s2 } else { 0.0 }) + (1.0 - s2) * e[r] * e[c]
+                        })
+                    });
+                    Contact {
+                        node: p,
+                        target,
+                        weight,
+                        depth,
+                    }
+                })
+        })
+        .collect()
+}

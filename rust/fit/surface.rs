@@ -1,0 +1,158 @@
+//! The surface-distance term of the fitting (SPEC 5, step 2; the paper's Eq. 13-15) and the
+//! surface geometry it needs (vertex normals of the model's surface at current positions).
+
+use rayon::prelude::*;
+
+use crate::efg::Block;
+use crate::grid_sample::GridField;
+use crate::SpatialHash;
+
+/// Lower clamp of the anisotropy $s$: moving across the surface costs at least 100 times
+/// more than sliding along it (SPEC 5).
+pub const MIN_ANISOTROPY: f64 = 0.1;
+/// Associations closer than this fraction of $d_p$ collide (SPEC 5: $d/3$).
+pub const COLLISION_FRACTION: f64 = 1.0 / 3.0;
+/// Nodes farther apart at rest than this many $d_p$ belong to different parts (SPEC 5).
+pub const FAR_APART: f64 = 3.0;
+
+/// Unit vertex normals of a closed triangle surface (area-weighted face normals), one per
+/// surface vertex; `faces` index into `vertices`.
+pub fn vertex_normals(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]> {
+    let mut normals = vec![[0.0; 3]; vertices.len()];
+    for face in faces {
+        let [a, b, c] = face.map(|i| vertices[i as usize]);
+        let (u, v) = (sub(&b, &a), sub(&c, &a));
+        let n = cross(&u, &v);
+        for &i in face {
+            for axis in 0..3 {
+                normals[i as usize][axis] += n[axis];
+            }
+        }
+    }
+    normals.iter_mut().for_each(|n| *n = unit(n));
+    normals
+}
+
+/// One surface node's association with the target: where it is pulled, how confidently,
+/// and the metric of the pull.
+#[derive(Debug, Clone, Copy)]
+pub struct Association {
+    /// Closest point $t_p$ on the target surface.
+    pub target: [f64; 3],
+    /// Signed distance $d(x_p)$ to the target (positive outside).
+    pub distance: f64,
+    /// $w_p M_p$, with $w_p = \max(0, n_p \cdot g)$ and
+    /// $M_p = s^2 I + (1 - s^2) g g^\top$, $s = \operatorname{clamp}(|d| / d_p, 0.1, 1)$.
+    pub weight: Block<3>,
+    /// $w_p$ (zero when invalidated).
+    pub confidence: f64,
+}
+
+/// The associations of surface nodes at `positions` with `normals`, to the signed distance
+/// field `target`; `support` are the nodes' $d_p$.
+pub fn associate(
+    target: &GridField<'_>,
+    positions: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    support: &[f64],
+) -> Vec<Association> {
+    positions
+        .par_iter()
+        .zip(normals)
+        .zip(support)
+        .map(|((x, n), &ddm)| {
+            let (d, gradient) = target.sample(x);
+            let g = unit(&gradient);
+            // One Newton step onto the zero level along the unit gradient (an exact
+            // distance field has |grad| = 1; trilinear interpolation nearly so).
+            let t = std::array::from_fn(|a| x[a] - d * g[a]);
+            let confidence = dot(n, &g).max(0.0);
+            let s = (d.abs() / ddm).clamp(MIN_ANISOTROPY, 1.0);
+            let s2 = s * s;
+            let weight = std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    confidence * (if r == c { s2 } else { 0.0 } + (1.0 - s2) * g[r] * g[c])
+                })
+            });
+            Association {
+                target: t,
+                distance: d,
+                weight,
+                confidence,
+            }
+        })
+        .collect()
+}
+
+/// SPEC 5 invalidation: surface nodes `p`, `q` whose targets are closer than $d_p / 3$
+/// while they are more than $3 d_p$ apart at rest are both dropped (a limb tip must not be
+/// pulled onto another limb). Returns how many were dropped.
+pub fn invalidate_collisions(
+    associations: &mut [Association],
+    rest: &[[f64; 3]],
+    support: &[f64],
+) -> usize {
+    let targets: Vec<[f64; 3]> = associations.iter().map(|a| a.target).collect();
+    let Ok(hash) = SpatialHash::new(&targets) else {
+        return 0;
+    };
+    let radius = COLLISION_FRACTION * support.iter().copied().fold(0.0, f64::max);
+    let Ok(found) = hash.radius_neighbors(None, radius) else {
+        return 0;
+    };
+    let dropped: Vec<bool> = (0..associations.len())
+        .into_par_iter()
+        .map(|p| {
+            let row = found.indptr[p] as usize..found.indptr[p + 1] as usize;
+            found.indices[row.clone()]
+                .iter()
+                .zip(&found.distances[row])
+                .any(|(&q, &gap)| {
+                    let q = q as usize;
+                    let reach = support[p].min(support[q]);
+                    q != p
+                        && gap < COLLISION_FRACTION * reach
+                        && dist(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q])
+                })
+        })
+        .collect();
+    let mut count = 0;
+    for (association, drop) in associations.iter_mut().zip(dropped) {
+        if drop {
+            association.confidence = 0.0;
+            association.weight = [[0.0; 3]; 3];
+            count += 1;
+        }
+    }
+    count
+}
+
+pub(crate) fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| a[i] - b[i])
+}
+
+pub(crate) fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+pub(crate) fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+pub(crate) fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    dot(&sub(a, b), &sub(a, b)).sqrt()
+}
+
+/// `v / |v|`, or zero for a zero vector.
+pub(crate) fn unit(v: &[f64; 3]) -> [f64; 3] {
+    let norm = dot(v, v).sqrt();
+    if norm > 0.0 {
+        v.map(|x| x / norm)
+    } else {
+        [0.0; 3]
+    }
+}

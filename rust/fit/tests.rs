@@ -1,0 +1,149 @@
+//! Tests of the fitting terms on shapes with known answers.
+
+use super::contact::find_contacts;
+use super::surface::{associate, invalidate_collisions, vertex_normals, MIN_ANISOTROPY};
+use crate::grid_sample::GridField;
+
+/// A sphere of radius `r` as an exact signed distance on a grid of spacing `h` over
+/// [-2, 2]^3.
+fn sphere_field(r: f64, h: f64) -> (Vec<f64>, [usize; 3], [f64; 3]) {
+    let n = (4.0 / h) as usize + 1;
+    let mut values = Vec::with_capacity(n * n * n);
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                let p = [i, j, k].map(|c| -2.0 + c as f64 * h);
+                values.push((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - r);
+            }
+        }
+    }
+    (values, [n; 3], [-2.0; 3])
+}
+
+/// Points on a sphere (Fibonacci lattice).
+fn sphere_points(count: usize, r: f64) -> Vec<[f64; 3]> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / count as f64;
+            let rho = (1.0 - z * z).sqrt();
+            let phi = golden * i as f64;
+            [r * rho * phi.cos(), r * rho * phi.sin(), r * z]
+        })
+        .collect()
+}
+
+#[test]
+fn vertex_normals_of_a_tetrahedron_point_outwards() {
+    let v = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+    ];
+    let faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+    let centre = [0.25; 3];
+    for (p, n) in v.iter().zip(vertex_normals(&v, &faces)) {
+        let out: f64 = (0..3).map(|a| (p[a] - centre[a]) * n[a]).sum();
+        assert!(out > 0.0);
+        assert!(((0..3).map(|a| n[a] * n[a]).sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn associations_pull_onto_the_target_across_more_than_along() {
+    let (values, shape, origin) = sphere_field(1.0, 0.05);
+    let field = GridField::new(&values, shape, origin, 0.05).unwrap();
+    let points = sphere_points(200, 1.2);
+    let normals: Vec<[f64; 3]> = points.iter().map(|p| p.map(|x| x / 1.2)).collect();
+    let support = vec![0.4; points.len()];
+    for (a, p) in associate(&field, &points, &normals, &support)
+        .iter()
+        .zip(&points)
+    {
+        let radius = a.target.iter().map(|x| x * x).sum::<f64>().sqrt();
+        assert!((radius - 1.0).abs() < 2e-3, "target at radius {radius}");
+        assert!((a.distance - 0.2).abs() < 2e-3);
+        assert!((a.confidence - 1.0).abs() < 1e-3);
+        // s = |d| / d_p = 0.5: across (radial) weight 1, along s^2 = 0.25.
+        let u = p.map(|x| x / 1.2);
+        let across: f64 = (0..3)
+            .map(|r| (0..3).map(|c| u[r] * a.weight[r][c] * u[c]).sum::<f64>())
+            .sum();
+        let trace: f64 = (0..3).map(|r| a.weight[r][r]).sum();
+        assert!((across - 1.0).abs() < 1e-2);
+        assert!((trace - across - 2.0 * 0.25).abs() < 1e-2);
+    }
+    // A node facing away from the target's gradient has no confidence, and very close to
+    // the surface the anisotropy bottoms out at MIN_ANISOTROPY.
+    let inward = vec![[0.0, 0.0, -1.0]];
+    let a = associate(&field, &[[0.0, 0.0, 1.0005]], &inward, &[1.0])[0];
+    assert_eq!(a.confidence, 0.0);
+    let a = associate(&field, &[[0.0, 0.0, 1.0005]], &[[0.0, 0.0, 1.0]], &[1.0])[0];
+    let tangential = a.weight[0][0];
+    // (The trilinear gradient's direction is off by ~1.5 degrees on a grid line here.)
+    assert!(
+        (tangential - MIN_ANISOTROPY * MIN_ANISOTROPY).abs() < 1e-3,
+        "{tangential}"
+    );
+}
+
+#[test]
+fn colliding_associations_of_distant_parts_are_dropped() {
+    let (values, shape, origin) = sphere_field(1.0, 0.05);
+    let field = GridField::new(&values, shape, origin, 0.05).unwrap();
+    // Two nodes far apart at rest, now both just outside the same spot of the target; a
+    // third, near the first at rest, stays.
+    let points = [[0.0, 0.0, 1.1], [0.0, 0.001, 1.1], [0.0, 0.3, 1.1]];
+    let rest = [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 0.3, 0.0]];
+    let normals = [[0.0, 0.0, 1.0]; 3];
+    let support = [0.5; 3];
+    let mut found = associate(&field, &points, &normals, &support);
+    assert_eq!(invalidate_collisions(&mut found, &rest, &support), 2);
+    assert_eq!(found[0].confidence, 0.0);
+    assert_eq!(found[1].confidence, 0.0);
+    assert!(found[2].confidence > 0.9);
+}
+
+#[test]
+fn a_node_pushed_through_another_part_is_a_contact() {
+    // Two parallel sheets of surface nodes, far apart at rest, facing each other (normals
+    // +z below, -z above); one node of the lower sheet has passed above the upper sheet.
+    let mut positions = Vec::new();
+    let mut normals = Vec::new();
+    let mut rest = Vec::new();
+    for (z, nz, rest_z) in [(0.0, 1.0, 0.0), (0.1, -1.0, 10.0)] {
+        for i in 0..5 {
+            for j in 0..5 {
+                positions.push([0.1 * i as f64, 0.1 * j as f64, z]);
+                normals.push([0.0, 0.0, nz]);
+                rest.push([0.1 * i as f64, 0.1 * j as f64, rest_z]);
+            }
+        }
+    }
+    positions[12][2] = 0.15; // the lower sheet's centre node, now 0.05 inside the upper part
+    let support = vec![0.25; positions.len()];
+    let contacts = find_contacts(&positions, &normals, &rest, &support);
+    // The spike is inside the upper part, and the upper sheet's nodes around it are inside
+    // the lower part as its tangent plane at the spike sees it: every one is pushed apart,
+    // the spike down onto the upper sheet, the upper nodes up onto the spike's plane.
+    let spike = contacts
+        .iter()
+        .find(|c| c.node == 12)
+        .expect("the spike penetrates");
+    assert!((spike.depth - 0.05).abs() < 1e-12);
+    assert!((spike.target[2] - 0.1).abs() < 1e-12);
+    for c in &contacts {
+        if c.node != 12 {
+            assert!(
+                c.node >= 25,
+                "only upper-sheet nodes are near the spike: {c:?}"
+            );
+            assert!((c.target[2] - 0.15).abs() < 1e-12);
+        }
+        // Pushed along z (e = normalise(n_p - n_q) = +-z): full weight along z, s_I^2 across.
+        assert!((c.weight[2][2] - 1.0).abs() < 1e-12);
+        assert!((c.weight[0][0] - 0.01).abs() < 1e-12);
+    }
+    assert!(contacts.len() > 1 && contacts.len() <= 9);
+}
