@@ -15,7 +15,7 @@ mod block;
 mod cholesky;
 mod pcg;
 
-pub use block::BlockCsr;
+pub use block::{Block, BlockCsr};
 pub use cholesky::SparseCholesky;
 pub use pcg::{BlockJacobi, Pcg, PcgStatus, Preconditioner};
 

@@ -17,6 +17,7 @@ from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
 from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
 from elastocap.silhouette import clean_mask, subtract_background, threshold_dark_background
+from elastocap.solvers import SolveStatus, SparseCholesky, conjugate_gradient
 from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
@@ -30,9 +31,12 @@ __all__ = [
     "InvalidInputError",
     "Rig",
     "SDF",
+    "SolveStatus",
+    "SparseCholesky",
     "SpatialIndex",
     "__version__",
     "clean_mask",
+    "conjugate_gradient",
     "knn",
     "load_hull",
     "mls_shape_functions",

@@ -16,6 +16,9 @@ use crate::error::{check_finite, Error, Result};
 /// are tens of microseconds of work, well above the cost of a task.
 pub(super) const ROWS_PER_TASK: usize = 64;
 
+/// A dense $B \times B$ block, row-major.
+pub type Block<const B: usize> = [[f64; B]; B];
+
 /// Block columns of each block row, sorted, symmetric, with the diagonal present.
 #[derive(Debug, PartialEq, Eq)]
 pub(super) struct Pattern {
@@ -111,7 +114,7 @@ impl<const B: usize> BlockCsr<B> {
                 needed: 1,
             });
         }
-        if size % B != 0 {
+        if !size.is_multiple_of(B) {
             return Err(Error::BlockSize {
                 argument,
                 size,
@@ -158,7 +161,7 @@ impl<const B: usize> BlockCsr<B> {
             });
         }
         let n = size / B;
-        let grouped: Vec<(Vec<u32>, Vec<[[f64; B]; B]>)> = (0..n)
+        let grouped: Vec<(Vec<u32>, Vec<Block<B>>)> = (0..n)
             .into_par_iter()
             .map(|i| {
                 let span = csr.indptr[i * B]..csr.indptr[(i + 1) * B];
@@ -170,12 +173,11 @@ impl<const B: usize> BlockCsr<B> {
                 columns.sort_unstable();
                 columns.dedup();
                 let mut blocks = vec![[[0.0; B]; B]; columns.len()];
-                for a in 0..B {
-                    let r = i * B + a;
+                for r in i * B..(i + 1) * B {
                     for at in csr.indptr[r]..csr.indptr[r + 1] {
                         let c = csr.indices[at];
                         let pos = columns.partition_point(|&j| (j as usize) < c / B);
-                        blocks[pos][a][c % B] = csr.data[at];
+                        blocks[pos][r % B][c % B] = csr.data[at];
                     }
                 }
                 (columns, blocks)

@@ -131,9 +131,9 @@ impl<const B: usize> SparseCholesky<B> {
             let row = indptr[i]..indptr[i + 1];
             let first = row.start + indices[row.clone()].partition_point(|&j| (j as usize) < i);
             for a in 0..B {
-                for at in first..row.end {
+                for (at, block) in blocks.iter().enumerate().take(row.end).skip(first) {
                     let start = if indices[at] as usize == i { a } else { 0 };
-                    let values = &blocks[at][a][start..];
+                    let values = &block[a][start..];
                     self.values[out..out + values.len()].copy_from_slice(values);
                     out += values.len();
                 }

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::block::{BlockCsr, ROWS_PER_TASK};
+use super::block::{Block, BlockCsr, ROWS_PER_TASK};
 use crate::error::{check_finite, Error, Result};
 
 /// Below this many scalar entries, vector updates and dot products run on one thread:
@@ -35,7 +35,7 @@ fn spd_inverse<const B: usize>(m: &[[f64; B]; B]) -> std::result::Result<[[f64; 
     for j in 0..B {
         let d = m[j][j] - (0..j).map(|t| l[j][t] * l[j][t]).sum::<f64>();
         // Relative to the block's own scale: a pivot lost to rounding is not positive.
-        if !(d > 1e-14 * m[j][j].abs()) || !d.is_finite() {
+        if d.is_nan() || d <= 1e-14 * m[j][j].abs() || d.is_infinite() {
             return Err(j);
         }
         l[j][j] = d.sqrt();
@@ -45,12 +45,13 @@ fn spd_inverse<const B: usize>(m: &[[f64; B]; B]) -> std::result::Result<[[f64; 
     }
     // L^{-1}, lower triangular, by forward substitution on the identity.
     let mut inv_l = [[0.0; B]; B];
-    for c in 0..B {
-        for i in c..B {
-            let s =
-                if i == c { 1.0 } else { 0.0 } - (c..i).map(|t| l[i][t] * inv_l[t][c]).sum::<f64>();
-            inv_l[i][c] = s / l[i][i];
+    for i in 0..B {
+        let mut row = [0.0; B];
+        for (c, value) in row.iter_mut().enumerate().take(i + 1) {
+            let identity = if i == c { 1.0 } else { 0.0 };
+            *value = (identity - (c..i).map(|t| l[i][t] * inv_l[t][c]).sum::<f64>()) / l[i][i];
         }
+        inv_l[i] = row;
     }
     let mut inverse = [[0.0; B]; B];
     for a in 0..B {
@@ -111,7 +112,7 @@ impl<const B: usize> BlockJacobi<B> {
 
 impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
     fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) {
-        let one = |(zi, (m, ri)): (&mut [f64; B], (&[[f64; B]; B], &[f64; B]))| {
+        let one = |(zi, (m, ri)): (&mut [f64; B], (&Block<B>, &[f64; B]))| {
             for a in 0..B {
                 zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
             }
@@ -257,7 +258,7 @@ impl<const B: usize> Pcg<B> {
                 iterations += 1;
                 matrix.mul_unchecked(&self.p, &mut self.q);
                 let curvature = dot(&self.p, &self.q);
-                if !(curvature > 0.0) {
+                if curvature.is_nan() || curvature <= 0.0 {
                     return Err(Error::NotPositiveDefinite {
                         argument: "matrix",
                         row: 0,

@@ -32,13 +32,14 @@ fn random_spd<const B: usize>(n: usize, density: f64, seed: u64) -> BlockCsr<B> 
         }
     }
     let csr = m.to_csr();
-    let mut row_sums = vec![0.0; n * B];
-    for r in 0..csr.size {
-        row_sums[r] = csr.data[csr.indptr[r]..csr.indptr[r + 1]]
-            .iter()
-            .map(|v| v.abs())
-            .sum::<f64>();
-    }
+    let row_sums: Vec<f64> = (0..csr.size)
+        .map(|r| {
+            csr.data[csr.indptr[r]..csr.indptr[r + 1]]
+                .iter()
+                .map(|v| v.abs())
+                .sum::<f64>()
+        })
+        .collect();
     for i in 0..n {
         let d = m.diagonal_block_mut(i);
         for a in 0..B {
