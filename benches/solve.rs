@@ -102,6 +102,16 @@ fn solve(c: &mut Criterion) {
     let (stiffness, surface, blocks, rhs) = fitting_system(2465, 7);
     let a = assemble(&stiffness, &surface, &blocks, 1.0);
     let size = a.size();
+    let csr = a.to_csr();
+    for _ in 0..3 {
+        let start = std::time::Instant::now();
+        let back = BlockCsr::<3>::from_csr(&csr).unwrap();
+        eprintln!(
+            "from_csr {:?} ({} blocks)",
+            start.elapsed(),
+            back.blocks().len()
+        );
+    }
     let mut pcg = Pcg::new();
     let mut jacobi = BlockJacobi::new(&a).unwrap();
     let mut exact = vec![0.0; size];

@@ -14,8 +14,9 @@
 mod block;
 mod cholesky;
 mod pcg;
+mod upper;
 
-pub use block::{Block, BlockCsr};
+pub use block::{Block, BlockCsr, CsrIndex};
 pub use cholesky::SparseCholesky;
 pub use pcg::{BlockJacobi, Pcg, PcgStatus, Preconditioner};
 

@@ -7,30 +7,36 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, to_py};
-use crate::efg::Csr;
 use crate::solve::{BlockCsr, BlockJacobi, Pcg, PcgStatus, SparseCholesky as Cholesky};
 
 /// `(x, converged, iterations, relative_residual)`.
 type CgOutputs<'py> = (Bound<'py, PyArray1<f64>>, bool, usize, f64);
 
-fn csr(
+/// Borrowed scalar CSR arrays (scipy's, sorted); grouped into blocks by the core.
+struct CsrArrays<'a> {
     size: usize,
-    indptr: &PyReadonlyArray1<'_, i64>,
-    indices: &PyReadonlyArray1<'_, i64>,
-    data: &PyReadonlyArray1<'_, f64>,
-) -> PyResult<Csr> {
-    let to_usize = |argument: &str, values: &[i64]| {
-        values
-            .iter()
-            .map(|&v| usize::try_from(v))
-            .collect::<Result<Vec<usize>, _>>()
-            .map_err(|_| invalid_input(format!("matrix {argument} holds a negative entry")))
-    };
-    Ok(Csr {
+    indptr: &'a [i64],
+    indices: &'a [i64],
+    data: &'a [f64],
+}
+
+impl CsrArrays<'_> {
+    fn blocks<const B: usize>(&self) -> crate::Result<BlockCsr<B>> {
+        BlockCsr::from_csr_parts(self.size, self.indptr, self.indices, self.data)
+    }
+}
+
+fn csr<'a>(
+    size: usize,
+    indptr: &'a PyReadonlyArray1<'_, i64>,
+    indices: &'a PyReadonlyArray1<'_, i64>,
+    data: &'a PyReadonlyArray1<'_, f64>,
+) -> PyResult<CsrArrays<'a>> {
+    Ok(CsrArrays {
         size,
-        indptr: to_usize("indptr", c_slice(indptr, "indptr")?)?,
-        indices: to_usize("indices", c_slice(indices, "indices")?)?,
-        data: c_slice(data, "data")?.to_vec(),
+        indptr: c_slice(indptr, "indptr")?,
+        indices: c_slice(indices, "indices")?,
+        data: c_slice(data, "data")?,
     })
 }
 
@@ -48,15 +54,15 @@ fn check_block(block: usize) -> PyResult<()> {
     }
 }
 
-fn analyse_and_factorize<const B: usize>(csr: &Csr) -> crate::Result<Cholesky<B>> {
-    let matrix = BlockCsr::<B>::from_csr(csr)?;
+fn analyse_and_factorize<const B: usize>(csr: &CsrArrays<'_>) -> crate::Result<Cholesky<B>> {
+    let matrix = csr.blocks::<B>()?;
     let mut factor = Cholesky::analyse(&matrix)?;
     factor.factorize(&matrix)?;
     Ok(factor)
 }
 
-fn factorize<const B: usize>(factor: &mut Cholesky<B>, csr: &Csr) -> crate::Result<()> {
-    factor.factorize(&BlockCsr::<B>::from_csr(csr)?)
+fn factorize<const B: usize>(factor: &mut Cholesky<B>, csr: &CsrArrays<'_>) -> crate::Result<()> {
+    factor.factorize(&csr.blocks::<B>()?)
 }
 
 fn solve<const B: usize>(factor: &mut Cholesky<B>, rhs: &[f64]) -> crate::Result<Vec<f64>> {
@@ -66,14 +72,14 @@ fn solve<const B: usize>(factor: &mut Cholesky<B>, rhs: &[f64]) -> crate::Result
 }
 
 fn cg<const B: usize>(
-    csr: &Csr,
+    csr: &CsrArrays<'_>,
     rhs: &[f64],
     x: &mut [f64],
     tolerance: f64,
     max_iterations: usize,
     factor: Option<&mut Cholesky<B>>,
 ) -> crate::Result<PcgStatus> {
-    let matrix = BlockCsr::<B>::from_csr(csr)?;
+    let matrix = csr.blocks::<B>()?;
     let mut pcg = Pcg::new();
     match factor {
         Some(factor) => pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations),

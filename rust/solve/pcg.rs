@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use super::block::{Block, BlockCsr, ROWS_PER_TASK};
+use super::upper::Upper;
 use crate::error::{check_finite, Error, Result};
 
 /// Below this many scalar entries, vector updates and dot products run on one thread:
@@ -167,6 +168,7 @@ pub struct Pcg<const B: usize> {
     z: Vec<[f64; B]>,
     p: Vec<[f64; B]>,
     q: Vec<[f64; B]>,
+    upper: Upper<B>,
 }
 
 impl<const B: usize> Pcg<B> {
@@ -177,6 +179,7 @@ impl<const B: usize> Pcg<B> {
             z: Vec::new(),
             p: Vec::new(),
             q: Vec::new(),
+            upper: Upper::default(),
         }
     }
 
@@ -233,10 +236,11 @@ impl<const B: usize> Pcg<B> {
             });
         }
         let target = tolerance * b_norm;
+        self.upper.load(matrix);
         let mut iterations = 0;
         loop {
             // True residual r = b - A x: at the start and to confirm convergence.
-            matrix.mul_unchecked(x, &mut self.q);
+            self.upper.mul(x, &mut self.q);
             self.r.copy_from_slice(b);
             update(&mut self.r, &self.q, |r, q| {
                 for a in 0..B {
@@ -256,7 +260,7 @@ impl<const B: usize> Pcg<B> {
             let mut rz = dot(&self.r, &self.z);
             while iterations < max_iterations {
                 iterations += 1;
-                matrix.mul_unchecked(&self.p, &mut self.q);
+                self.upper.mul(&self.p, &mut self.q);
                 let curvature = dot(&self.p, &self.q);
                 if curvature.is_nan() || curvature <= 0.0 {
                     return Err(Error::NotPositiveDefinite {
