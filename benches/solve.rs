@@ -248,7 +248,7 @@ fn scaling(c: &mut Criterion) {
                     .unwrap()
             })
         });
-        if n <= 16000 {
+        if n <= 4000 {
             let mut cholesky = SparseCholesky::analyse(&a).unwrap();
             eprintln!("n = {n}: Cholesky factor {} entries", cholesky.factor_len());
             group.bench_with_input(

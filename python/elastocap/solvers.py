@@ -68,8 +68,10 @@ def _as_csr(matrix: Any, block: int) -> _Csr:
         )
     if matrix.dtype.kind not in "fiu":
         raise InvalidInputError(f"matrix must hold real numbers, got dtype {matrix.dtype}")
-    csr = scipy.sparse.csr_array(matrix, dtype=np.float64, copy=True)
-    csr.sum_duplicates()  # also sorts the column indices
+    csr = scipy.sparse.csr_array(matrix, dtype=np.float64)  # shares a float64 CSR's arrays
+    if not csr.has_canonical_format:
+        csr = csr.copy()  # never reorder the caller's arrays
+        csr.sum_duplicates()  # also sorts the column indices
     return (
         size,
         np.ascontiguousarray(csr.indptr, dtype=np.int64),

@@ -231,11 +231,11 @@ impl<const B: usize> BlockCsr<B> {
         }
         let column = |at: usize| indices[at].get().unwrap_or(0);
         let n = size / B;
-        let grouped: Vec<(Vec<u32>, Vec<Block<B>>)> = (0..n)
+        // Block columns of each scalar row are sorted; the rows of a block row usually
+        // share them, which saves the merge.
+        let rows: Vec<Vec<u32>> = (0..n)
             .into_par_iter()
             .map(|i| {
-                // Block columns of each scalar row are sorted; the rows of a block row
-                // usually share them, which saves the merge.
                 let block_columns = |r: usize| {
                     let mut columns: Vec<u32> = Vec::with_capacity(indptr[r + 1] - indptr[r]);
                     for at in indptr[r]..indptr[r + 1] {
@@ -258,7 +258,24 @@ impl<const B: usize> BlockCsr<B> {
                 if let Err(at) = columns.binary_search(&(i as u32)) {
                     columns.insert(at, i as u32);
                 }
-                let mut blocks = vec![[[0.0; B]; B]; columns.len()];
+                columns
+            })
+            .collect();
+        let mut this = Self::zeros(Pattern::from_rows(argument, rows)?);
+        // Each block row's blocks are a disjoint slice of the output: fill them in place.
+        let p = Arc::clone(&this.pattern);
+        let mut rest = this.blocks.as_mut_slice();
+        let mut row_blocks = Vec::with_capacity(n);
+        for i in 0..n {
+            let (row, tail) = rest.split_at_mut(p.indptr[i + 1] - p.indptr[i]);
+            row_blocks.push(row);
+            rest = tail;
+        }
+        row_blocks
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(i, blocks)| {
+                let columns = &p.indices[p.indptr[i]..p.indptr[i + 1]];
                 for r in i * B..(i + 1) * B {
                     let mut pos = 0;
                     let span = indptr[r]..indptr[r + 1];
@@ -270,19 +287,8 @@ impl<const B: usize> BlockCsr<B> {
                         blocks[pos][r % B][c % B] = value;
                     }
                 }
-                (columns, blocks)
-            })
-            .collect();
-        let mut rows = Vec::with_capacity(n);
-        let mut blocks = Vec::with_capacity(grouped.iter().map(|(c, _)| c.len()).sum());
-        for (columns, values) in grouped {
-            rows.push(columns);
-            blocks.extend(values);
-        }
-        Ok(Self {
-            pattern: Arc::new(Pattern::from_rows(argument, rows)?),
-            blocks,
-        })
+            });
+        Ok(this)
     }
 
     /// A zero matrix whose pattern is the symmetric closure of `adjacency` (node `i` is
