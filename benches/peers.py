@@ -279,7 +279,77 @@ def memory_cases(repeats: int) -> list[dict[str, Any]]:
     ]
 
 
-CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases, "sdf": sdf_cases, "carve": carve_cases, "memory": memory_cases}
+def fitting_system(n: int, seed: int = 7) -> tuple[Any, np.ndarray]:
+    """The elastic fitting system of benches/solve.rs: EFG stiffness (k = 20, unit volumes)
+    of the first ``n`` points of a jittered cubic grid, plus ``s (0.3 I + g g^T)`` blocks
+    (``g`` random unit, ``s`` the mean diagonal of K) on the grid's outer layer."""
+    import scipy.sparse
+
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(n ** (1 / 3)))
+    i = np.arange(n)
+    cells = np.stack([i % side, (i // side) % side, i // (side * side)], axis=1)
+    points = cells + rng.uniform(-0.3, 0.3, (n, 3))
+    stiffness = elastocap.stiffness_matrix(points, k=20, volumes=np.ones(n))
+    scale = stiffness.diagonal().mean()
+    layers = -(-n // (side * side))
+    surface = np.flatnonzero((cells == 0).any(axis=1) | (cells[:, 0] == side - 1) | (cells[:, 1] == side - 1) | (cells[:, 2] + 1 >= layers))
+    g = rng.normal(size=(len(surface), 3))
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    blocks = scale * (0.3 * np.eye(3) + g[:, :, None] * g[:, None, :])
+    rows = (surface[:, None, None] * 3 + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    cols = (surface[:, None, None] * 3 + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    metric = scipy.sparse.coo_array((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=stiffness.shape)
+    return (stiffness + metric).tocsr(), rng.uniform(-1, 1, 3 * n)
+
+
+def solve_cases(repeats: int) -> list[dict[str, Any]]:
+    """One solve of the fitting system at the paper's size (2,465 nodes, k = 20, 7,395
+    unknowns), relative tolerance 1e-8: block-Jacobi PCG cold and warm (from the solution
+    perturbed by 1e-3 of its RMS) against scipy's CG with a Jacobi preconditioner; the
+    sparse Cholesky (analysis + factorisation + solve, and the solve alone) against
+    scipy's spsolve and factorized (SuperLU)."""
+    import scipy.sparse.linalg as sla
+
+    n, tol = 2465, 1e-8
+    matrix, rhs = fitting_system(n)
+    csc = matrix.tocsc()
+    jacobi = sla.LinearOperator(matrix.shape, matvec=lambda v, d=1.0 / matrix.diagonal(): d * v)
+    exact = sla.spsolve(csc, rhs)
+    start = exact + 1e-3 * np.sqrt(np.mean(exact**2)) * np.random.default_rng(3).uniform(-1, 1, exact.shape)
+    counts: dict[str, int] = {}
+
+    def scipy_cg(x0: np.ndarray | None = None) -> np.ndarray:
+        iterations = [0]
+        x, info = sla.cg(matrix, rhs, x0=x0, rtol=tol, maxiter=10 * len(rhs), M=jacobi, callback=lambda _: iterations.__setitem__(0, iterations[0] + 1))
+        assert info == 0, "scipy cg did not converge"
+        counts["peer_iterations"] = iterations[0]
+        return x
+
+    def ours_cg(x0: np.ndarray | None = None) -> np.ndarray:
+        x, status = elastocap.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol)
+        assert status.converged
+        counts["ours_iterations"] = status.iterations
+        return x
+
+    rows = []
+    for case, x0 in (("solve_pcg_cold_2465_k20", None), ("solve_pcg_warm_2465_k20", start)):
+        row = _compare(case, n, lambda x0=x0: ours_cg(x0), "scipy.sparse.linalg.cg (Jacobi preconditioner, same rtol)", lambda x0=x0: scipy_cg(x0), repeats)
+        rows.append({**row, **counts})
+    factor = elastocap.SparseCholesky(matrix)
+    lu = sla.factorized(csc)
+    assert np.allclose(factor.solve(rhs), exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
+    rows.append(
+        {
+            **_compare("solve_cholesky_full_2465_k20", n, lambda: elastocap.SparseCholesky(matrix).solve(rhs), "scipy.sparse.linalg.spsolve (SuperLU)", lambda: sla.spsolve(csc, rhs), max(3, repeats // 2)),
+            "factor_entries": factor.factor_entries,
+        }
+    )
+    rows.append(_compare("solve_cholesky_solve_only_2465_k20", n, lambda: factor.solve(rhs), "scipy.sparse.linalg.factorized(A)(b) (SuperLU solve only)", lambda: lu(rhs), repeats))
+    return rows
+
+
+CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases, "sdf": sdf_cases, "carve": carve_cases, "memory": memory_cases, "solve": solve_cases}
 
 
 def main() -> None:

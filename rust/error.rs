@@ -169,6 +169,85 @@ pub enum Error {
         /// The volume given.
         value: f64,
     },
+    /// A square sparse matrix whose size is not a whole number of blocks.
+    #[error("{argument} has {size} rows, which is not a multiple of the block size {block}")]
+    BlockSize {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Rows (and columns) given.
+        size: usize,
+        /// Block size asked for.
+        block: usize,
+    },
+    /// A sparse matrix whose structure is malformed or not symmetric.
+    #[error("{argument} has a bad sparsity pattern in row {row}: {reason}")]
+    SparsePattern {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// First (scalar or block) row where the problem shows.
+        row: usize,
+        /// What is wrong.
+        reason: &'static str,
+    },
+    /// A matrix whose pattern differs from the one a solver or output was set up for.
+    #[error("{argument} does not have the sparsity pattern {expected}")]
+    PatternMismatch {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Which pattern was expected.
+        expected: &'static str,
+    },
+    /// A vector whose length disagrees with the matrix it goes with.
+    #[error("{argument} has length {got} where {expected} are needed (one per matrix row)")]
+    VectorLength {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Rows of the matrix.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+    /// An index that names no node.
+    #[error("{argument}[{position}] = {index} is not a node index: it must be in 0..{n}")]
+    NodeIndex {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Position (row) of the offending entry.
+        position: usize,
+        /// The index given.
+        index: usize,
+        /// Number of nodes.
+        n: usize,
+    },
+    /// A matrix that must be symmetric positive definite is not (numerically).
+    #[error("{argument} is not positive definite: {reason} at row {row}")]
+    NotPositiveDefinite {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Scalar row where it showed.
+        row: usize,
+        /// How it showed.
+        reason: &'static str,
+    },
+    /// A solver option outside its range.
+    #[error("{argument} = {value} is out of range: it must be {expected}")]
+    InvalidOption {
+        /// Name of the option.
+        argument: &'static str,
+        /// The value given.
+        value: f64,
+        /// The admissible range, in words.
+        expected: &'static str,
+    },
+    /// A solve asked of a factorisation that holds no factor.
+    #[error("the Cholesky factorisation holds no factor: none was computed since the analysis, or the last factorize failed")]
+    NotFactorized,
+    /// The sparse factorisation could not run (memory, index overflow).
+    #[error("the sparse factorisation failed: {reason}")]
+    Factorization {
+        /// faer's reason.
+        reason: String,
+    },
 }
 
 impl Error {
@@ -193,6 +272,14 @@ impl Error {
                 | Error::IllConditioned { .. }
                 | Error::InvalidMaterial { .. }
                 | Error::InvalidVolume { .. }
+                | Error::BlockSize { .. }
+                | Error::SparsePattern { .. }
+                | Error::PatternMismatch { .. }
+                | Error::VectorLength { .. }
+                | Error::NodeIndex { .. }
+                | Error::NotPositiveDefinite { .. }
+                | Error::InvalidOption { .. }
+                | Error::NotFactorized
         )
     }
 }

@@ -14,6 +14,7 @@ pub mod grid_sample;
 pub mod mls;
 pub mod polar;
 pub mod sdf;
+pub mod solve;
 pub mod spatial_hash;
 
 #[cfg(feature = "python")]

@@ -19,6 +19,7 @@ from elastocap.polar import polar_rotation
 from elastocap.sdf import SDF, signed_distance
 from elastocap.silhouette import clean_mask, subtract_background, threshold_dark_background
 from elastocap.silhouette import refine_silhouette, segment_dark_background
+from elastocap.solvers import SolveStatus, SparseCholesky, conjugate_gradient
 from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
@@ -33,10 +34,13 @@ __all__ = [
     "InvalidInputError",
     "Rig",
     "SDF",
+    "SolveStatus",
+    "SparseCholesky",
     "SpatialIndex",
     "StaticSolution",
     "__version__",
     "clean_mask",
+    "conjugate_gradient",
     "knn",
     "load_hull",
     "mls_shape_functions",

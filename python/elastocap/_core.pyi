@@ -6,6 +6,7 @@ from typing_extensions import final
 
 __all__ = [
     "carve",
+    "conjugate_gradient",
     "ConvergenceError",
     "efg_energy",
     "ElasticCore",
@@ -18,6 +19,7 @@ __all__ = [
     "polar_rotation",
     "sample_grid",
     "signed_distance",
+    "SparseCholesky",
 ]
 
 __version__: str
@@ -136,3 +138,38 @@ class ElasticCore:
     def system(
         self, rotations: NDArray[np.float64]
     ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]: ...
+class SparseCholesky:
+    def __new__(
+        cls,
+        size: int,
+        indptr: NDArray[np.int64],
+        indices: NDArray[np.int64],
+        data: NDArray[np.float64],
+        block: int,
+    ) -> SparseCholesky: ...
+    def factorize(
+        self,
+        indptr: NDArray[np.int64],
+        indices: NDArray[np.int64],
+        data: NDArray[np.float64],
+    ) -> None: ...
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]: ...
+    @property
+    def size(self) -> int: ...
+    @property
+    def block(self) -> int: ...
+    @property
+    def factor_entries(self) -> int: ...
+
+def conjugate_gradient(
+    size: int,
+    indptr: NDArray[np.int64],
+    indices: NDArray[np.int64],
+    data: NDArray[np.float64],
+    rhs: NDArray[np.float64],
+    x0: NDArray[np.float64],
+    block: int,
+    tolerance: float,
+    max_iterations: int,
+    preconditioner: SparseCholesky | None = None,
+) -> tuple[NDArray[np.float64], bool, int, float]: ...

@@ -9,6 +9,7 @@ mod mls;
 mod neighbors;
 mod polar;
 mod sdf;
+mod solve;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -58,6 +59,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     neighbors::register(m)?;
     polar::register(m)?;
     sdf::register(m)?;
+    solve::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

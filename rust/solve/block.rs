@@ -1,0 +1,614 @@
+//! A symmetric block-sparse matrix: $B \times B$ blocks in compressed sparse rows, the full
+//! pattern stored (both triangles, every diagonal block present), columns sorted.
+//!
+//! The pattern is shared (`Arc`) by every matrix of a sequence, so checking that two
+//! matrices have the same pattern is a pointer comparison in the common case, and the
+//! per-iteration assembly $\alpha K + \sum_j s M_j$ rewrites values in place.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use crate::efg::Csr;
+use crate::error::{check_finite, Error, Result};
+
+/// Block rows per rayon task: a row of the EFG pattern holds ~50-100 blocks, so 64 rows
+/// are tens of microseconds of work, well above the cost of a task.
+pub(super) const ROWS_PER_TASK: usize = 64;
+
+/// A dense $B \times B$ block, row-major.
+pub type Block<const B: usize> = [[f64; B]; B];
+
+/// Block columns of each block row, sorted, symmetric, with the diagonal present.
+#[derive(Debug, PartialEq, Eq)]
+pub(super) struct Pattern {
+    /// `(n + 1,)`: block row `i` holds blocks `indptr[i]..indptr[i + 1]`.
+    pub(super) indptr: Vec<usize>,
+    /// Block column of each block.
+    pub(super) indices: Vec<u32>,
+    /// Position of the diagonal block of each row.
+    pub(super) diagonal: Vec<usize>,
+}
+
+impl Pattern {
+    /// The pattern of sorted, deduplicated `rows` (each holding its own index); fails
+    /// unless it is symmetric.
+    fn from_rows(argument: &'static str, rows: Vec<Vec<u32>>) -> Result<Self> {
+        let n = rows.len();
+        let mut indptr = Vec::with_capacity(n + 1);
+        indptr.push(0);
+        for row in &rows {
+            indptr.push(indptr[indptr.len() - 1] + row.len());
+        }
+        let mut indices = Vec::with_capacity(indptr[n]);
+        for row in rows {
+            indices.extend(row);
+        }
+        let diagonal: Vec<usize> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let row = &indices[indptr[i]..indptr[i + 1]];
+                indptr[i] + row.binary_search(&(i as u32)).unwrap_or(0)
+            })
+            .collect();
+        let asymmetric = (0..n).into_par_iter().find_first(|&i| {
+            indices[indptr[i]..indptr[i + 1]].iter().any(|&j| {
+                let mirror = &indices[indptr[j as usize]..indptr[j as usize + 1]];
+                mirror.binary_search(&(i as u32)).is_err()
+            })
+        });
+        if let Some(row) = asymmetric {
+            return Err(Error::SparsePattern {
+                argument,
+                row,
+                reason: "the pattern is not symmetric (an entry (i, j) has no (j, i))",
+            });
+        }
+        Ok(Self {
+            indptr,
+            indices,
+            diagonal,
+        })
+    }
+
+    fn len(&self) -> usize {
+        self.diagonal.len()
+    }
+}
+
+/// A symmetric matrix of $n \times n$ blocks of size $B \times B$ ($B$ = 2 or 3), scalar
+/// degree of freedom `node * B + axis`.
+#[derive(Debug, Clone)]
+pub struct BlockCsr<const B: usize> {
+    pattern: Arc<Pattern>,
+    blocks: Vec<[[f64; B]; B]>,
+}
+
+/// An integer type CSR arrays may use for their indices.
+pub trait CsrIndex: Copy + Send + Sync {
+    /// The index as `usize`, `None` if it is negative or does not fit.
+    fn get(self) -> Option<usize>;
+}
+
+impl CsrIndex for usize {
+    fn get(self) -> Option<usize> {
+        Some(self)
+    }
+}
+
+impl CsrIndex for u32 {
+    fn get(self) -> Option<usize> {
+        usize::try_from(self).ok()
+    }
+}
+
+impl CsrIndex for i32 {
+    fn get(self) -> Option<usize> {
+        usize::try_from(self).ok()
+    }
+}
+
+impl CsrIndex for i64 {
+    fn get(self) -> Option<usize> {
+        usize::try_from(self).ok()
+    }
+}
+
+/// Sorts and deduplicates each row, adding its own index.
+fn finish_rows(rows: &mut [Vec<u32>]) {
+    rows.par_iter_mut().enumerate().for_each(|(i, row)| {
+        row.push(i as u32);
+        row.sort_unstable();
+        row.dedup();
+    });
+}
+
+impl<const B: usize> BlockCsr<B> {
+    const CHECK: () = assert!(B == 2 || B == 3, "blocks are 2x2 or 3x3");
+
+    /// Groups a scalar CSR matrix (columns sorted within rows) into $B \times B$ blocks. A
+    /// block is stored when any of its scalar entries is; entries missing inside a stored
+    /// block are zero, and a missing diagonal block is stored as zeros.
+    ///
+    /// # Errors
+    /// [`Error::Empty`]; [`Error::BlockSize`] unless the size is a multiple of $B$;
+    /// [`Error::SparsePattern`] for a malformed CSR (indptr, unsorted or out-of-range
+    /// columns) or a block pattern that is not symmetric; [`Error::NonFinite`].
+    pub fn from_csr(csr: &Csr) -> Result<Self> {
+        Self::from_csr_parts(csr.size, &csr.indptr, &csr.indices, &csr.data)
+    }
+
+    /// [`Self::from_csr`] from borrowed CSR arrays with any integer index type (scipy's
+    /// `int32` / `int64` arrays are read in place).
+    ///
+    /// # Errors
+    /// As [`Self::from_csr`]; negative indices are out of range.
+    pub fn from_csr_parts<I: CsrIndex>(
+        size: usize,
+        indptr: &[I],
+        indices: &[I],
+        data: &[f64],
+    ) -> Result<Self> {
+        let () = Self::CHECK;
+        let argument = "matrix";
+        if size == 0 {
+            return Err(Error::Empty {
+                argument,
+                needed: 1,
+            });
+        }
+        if !size.is_multiple_of(B) {
+            return Err(Error::BlockSize {
+                argument,
+                size,
+                block: B,
+            });
+        }
+        if size / B > u32::MAX as usize {
+            return Err(Error::TooManyPoints {
+                argument,
+                got: size / B,
+                max: u32::MAX as usize,
+            });
+        }
+        let bad = |row, reason| Error::SparsePattern {
+            argument,
+            row,
+            reason,
+        };
+        if indptr.len() != size + 1 {
+            return Err(bad(0, "indptr must have size + 1 entries"));
+        }
+        let indptr: Vec<usize> = indptr
+            .iter()
+            .map(|p| p.get())
+            .collect::<Option<_>>()
+            .ok_or_else(|| bad(0, "indptr holds a negative entry"))?;
+        if indptr[0] != 0 || indices.len() != data.len() || indptr[size] != indices.len() {
+            return Err(bad(
+                size,
+                "indptr must start at 0 and end at the length of indices and data",
+            ));
+        }
+        if let Some(row) = (0..size)
+            .into_par_iter()
+            .find_first(|&r| indptr[r] > indptr[r + 1])
+        {
+            return Err(bad(row, "indptr decreases"));
+        }
+        let sorted = |r: usize| {
+            let mut last = None;
+            indices[indptr[r]..indptr[r + 1]]
+                .iter()
+                .all(|c| match c.get() {
+                    Some(c) if c < size && last.is_none_or(|l| l < c) => {
+                        last = Some(c);
+                        true
+                    }
+                    _ => false,
+                })
+        };
+        if let Some(row) = (0..size).into_par_iter().find_first(|&r| !sorted(r)) {
+            return Err(bad(row, "columns must be sorted, unique and in 0..size"));
+        }
+        // Chunks, not entries, as rayon's unit: position_first costs an atomic check per
+        // item (~40 ms for the 1.9 M entries of the paper's system, measured).
+        let first_bad = data
+            .par_chunks(1 << 14)
+            .position_first(|chunk| !chunk.iter().all(|v| v.is_finite()))
+            .map(|c| {
+                c * (1 << 14)
+                    + data[c << 14..]
+                        .iter()
+                        .position(|v| !v.is_finite())
+                        .unwrap_or(0)
+            });
+        if let Some(at) = first_bad {
+            return Err(Error::NonFinite {
+                argument,
+                row: indptr.partition_point(|&p| p <= at) - 1,
+            });
+        }
+        let column = |at: usize| indices[at].get().unwrap_or(0);
+        let n = size / B;
+        // Block columns of each scalar row are sorted; the rows of a block row usually
+        // share them, which saves the merge.
+        let rows: Vec<Vec<u32>> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let block_columns = |r: usize| {
+                    let mut columns: Vec<u32> = Vec::with_capacity(indptr[r + 1] - indptr[r]);
+                    for at in indptr[r]..indptr[r + 1] {
+                        let j = (column(at) / B) as u32;
+                        if columns.last() != Some(&j) {
+                            columns.push(j);
+                        }
+                    }
+                    columns
+                };
+                let mut columns = block_columns(i * B);
+                for r in i * B + 1..(i + 1) * B {
+                    let other = block_columns(r);
+                    if other != columns {
+                        columns.extend(other);
+                        columns.sort_unstable();
+                        columns.dedup();
+                    }
+                }
+                if let Err(at) = columns.binary_search(&(i as u32)) {
+                    columns.insert(at, i as u32);
+                }
+                columns
+            })
+            .collect();
+        let mut this = Self::zeros(Pattern::from_rows(argument, rows)?);
+        // Each block row's blocks are a disjoint slice of the output: fill them in place.
+        let p = Arc::clone(&this.pattern);
+        let mut rest = this.blocks.as_mut_slice();
+        let mut row_blocks = Vec::with_capacity(n);
+        for i in 0..n {
+            let (row, tail) = rest.split_at_mut(p.indptr[i + 1] - p.indptr[i]);
+            row_blocks.push(row);
+            rest = tail;
+        }
+        row_blocks
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(i, blocks)| {
+                let columns = &p.indices[p.indptr[i]..p.indptr[i + 1]];
+                for r in i * B..(i + 1) * B {
+                    let mut pos = 0;
+                    let span = indptr[r]..indptr[r + 1];
+                    for (c, &value) in indices[span.clone()].iter().zip(&data[span]) {
+                        let c = c.get().unwrap_or(0);
+                        while (columns[pos] as usize) < c / B {
+                            pos += 1;
+                        }
+                        blocks[pos][r % B][c % B] = value;
+                    }
+                }
+            });
+        Ok(this)
+    }
+
+    /// A zero matrix whose pattern is the symmetric closure of `adjacency` (node `i` is
+    /// coupled to every node of `adjacency[i]` and they to it) plus the diagonal.
+    ///
+    /// # Errors
+    /// [`Error::Empty`]; [`Error::NodeIndex`] for an index `>= adjacency.len()`.
+    pub fn from_pattern<R: AsRef<[u32]>>(adjacency: &[R]) -> Result<Self> {
+        let () = Self::CHECK;
+        let n = adjacency.len();
+        if n == 0 {
+            return Err(Error::Empty {
+                argument: "adjacency",
+                needed: 1,
+            });
+        }
+        let mut rows: Vec<Vec<u32>> = adjacency.iter().map(|r| r.as_ref().to_vec()).collect();
+        for (i, row) in adjacency.iter().enumerate() {
+            for &j in row.as_ref() {
+                if j as usize >= n {
+                    return Err(Error::NodeIndex {
+                        argument: "adjacency",
+                        position: i,
+                        index: j as usize,
+                        n,
+                    });
+                }
+                rows[j as usize].push(i as u32);
+            }
+        }
+        finish_rows(&mut rows);
+        Ok(Self::zeros(Pattern::from_rows("adjacency", rows)?))
+    }
+
+    /// A zero matrix with the pattern of the EFG stiffness: nodes `i` and `j` are coupled
+    /// when one neighbourhood holds both. `neighbors` is row-major `(n, k)`.
+    ///
+    /// # Errors
+    /// [`Error::Empty`]; [`Error::LengthMismatch`] unless `neighbors` holds `n * k`
+    /// entries; [`Error::NodeIndex`] for an index `>= n`.
+    pub fn from_neighborhoods(n: usize, neighbors: &[u32], k: usize) -> Result<Self> {
+        let () = Self::CHECK;
+        if n == 0 || k == 0 {
+            return Err(Error::Empty {
+                argument: "neighbors",
+                needed: 1,
+            });
+        }
+        if neighbors.len() != n * k {
+            return Err(Error::LengthMismatch {
+                argument: "neighbors",
+                expected: n,
+                got: neighbors.len() / k,
+            });
+        }
+        if let Some(position) = neighbors.par_iter().position_first(|&i| i as usize >= n) {
+            return Err(Error::NodeIndex {
+                argument: "neighbors",
+                position,
+                index: neighbors[position] as usize,
+                n,
+            });
+        }
+        // Neighbourhoods holding each node, then per node the union of those.
+        let mut start = vec![0usize; n + 1];
+        for &i in neighbors {
+            start[i as usize + 1] += 1;
+        }
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut holders = vec![0u32; neighbors.len()];
+        for (at, &i) in neighbors.iter().enumerate() {
+            holders[fill[i as usize]] = (at / k) as u32;
+            fill[i as usize] += 1;
+        }
+        let mut rows: Vec<Vec<u32>> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                holders[start[i]..start[i + 1]]
+                    .iter()
+                    .flat_map(|&q| &neighbors[q as usize * k..(q as usize + 1) * k])
+                    .copied()
+                    .collect()
+            })
+            .collect();
+        finish_rows(&mut rows);
+        Ok(Self::zeros(Pattern::from_rows("neighbors", rows)?))
+    }
+
+    fn zeros(pattern: Pattern) -> Self {
+        let blocks = vec![[[0.0; B]; B]; pattern.indices.len()];
+        Self {
+            pattern: Arc::new(pattern),
+            blocks,
+        }
+    }
+
+    /// A zero matrix sharing this one's pattern: the preallocated output of
+    /// [`Self::scale_into`].
+    pub fn zeros_like(&self) -> Self {
+        Self {
+            pattern: Arc::clone(&self.pattern),
+            blocks: vec![[[0.0; B]; B]; self.blocks.len()],
+        }
+    }
+
+    /// The scalar CSR matrix ($nB \times nB$), every stored block written out in full.
+    pub fn to_csr(&self) -> Csr {
+        let (n, p) = (self.len(), &*self.pattern);
+        let size = n * B;
+        let mut indptr = Vec::with_capacity(size + 1);
+        indptr.push(0);
+        let mut indices = Vec::with_capacity(self.blocks.len() * B * B);
+        let mut data = Vec::with_capacity(self.blocks.len() * B * B);
+        for i in 0..n {
+            for a in 0..B {
+                for at in p.indptr[i]..p.indptr[i + 1] {
+                    let j = p.indices[at] as usize;
+                    indices.extend((0..B).map(|b| j * B + b));
+                    data.extend_from_slice(&self.blocks[at][a]);
+                }
+                indptr.push(data.len());
+            }
+        }
+        Csr {
+            size,
+            indptr,
+            indices,
+            data,
+        }
+    }
+
+    /// Number of block rows (nodes).
+    pub fn len(&self) -> usize {
+        self.pattern.len()
+    }
+
+    /// Always false: a matrix has at least one block row.
+    pub fn is_empty(&self) -> bool {
+        self.pattern.len() == 0
+    }
+
+    /// Number of scalar rows, $nB$.
+    pub fn size(&self) -> usize {
+        self.len() * B
+    }
+
+    /// `(n + 1,)` block-row pointers.
+    pub fn indptr(&self) -> &[usize] {
+        &self.pattern.indptr
+    }
+
+    /// Block column of each stored block, sorted within each row.
+    pub fn indices(&self) -> &[u32] {
+        &self.pattern.indices
+    }
+
+    /// The stored blocks, row-major.
+    pub fn blocks(&self) -> &[[[f64; B]; B]] {
+        &self.blocks
+    }
+
+    /// The stored blocks, to rewrite in place (the pattern stays).
+    pub fn blocks_mut(&mut self) -> &mut [[[f64; B]; B]] {
+        &mut self.blocks
+    }
+
+    /// The diagonal block of node `i`.
+    ///
+    /// # Panics
+    /// If `i >= self.len()`.
+    pub fn diagonal_block(&self, i: usize) -> &[[f64; B]; B] {
+        &self.blocks[self.pattern.diagonal[i]]
+    }
+
+    /// The diagonal block of node `i`, to change in place.
+    ///
+    /// # Panics
+    /// If `i >= self.len()`.
+    pub fn diagonal_block_mut(&mut self, i: usize) -> &mut [[f64; B]; B] {
+        &mut self.blocks[self.pattern.diagonal[i]]
+    }
+
+    /// True when `other` has the same pattern (a pointer comparison when it was made from
+    /// this one by [`Self::zeros_like`] or `clone`).
+    pub fn same_pattern(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.pattern, &other.pattern) || self.pattern == other.pattern
+    }
+
+    pub(super) fn pattern(&self) -> &Arc<Pattern> {
+        &self.pattern
+    }
+
+    /// Adds `scale * blocks[j]` to the diagonal block of node `nodes[j]` (a node may repeat).
+    ///
+    /// # Errors
+    /// [`Error::VectorLength`] unless `blocks` has one block per node; [`Error::NodeIndex`];
+    /// [`Error::NonFinite`] for `blocks`; [`Error::InvalidOption`] for a non-finite scale.
+    pub fn add_diagonal_blocks(
+        &mut self,
+        scale: f64,
+        nodes: &[u32],
+        blocks: &[[[f64; B]; B]],
+    ) -> Result<()> {
+        if !scale.is_finite() {
+            return Err(Error::InvalidOption {
+                argument: "scale",
+                value: scale,
+                expected: "a finite number",
+            });
+        }
+        if blocks.len() != nodes.len() {
+            return Err(Error::VectorLength {
+                argument: "blocks",
+                expected: nodes.len(),
+                got: blocks.len(),
+            });
+        }
+        let n = self.len();
+        if let Some(position) = nodes.iter().position(|&i| i as usize >= n) {
+            return Err(Error::NodeIndex {
+                argument: "nodes",
+                position,
+                index: nodes[position] as usize,
+                n,
+            });
+        }
+        let flat: Vec<[f64; B]> = blocks.iter().flatten().copied().collect();
+        check_finite("blocks", &flat).map_err(|e| match e {
+            Error::NonFinite { argument, row } => Error::NonFinite {
+                argument,
+                row: row / B,
+            },
+            other => other,
+        })?;
+        for (&i, m) in nodes.iter().zip(blocks) {
+            let d = &mut self.blocks[self.pattern.diagonal[i as usize]];
+            for a in 0..B {
+                for b in 0..B {
+                    d[a][b] += scale * m[a][b];
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes `alpha * self` into `out`, a matrix of the same pattern (e.g. from
+    /// [`Self::zeros_like`]); with [`Self::add_diagonal_blocks`] on `out` this assembles
+    /// $\alpha K + \beta D + \gamma I$ without allocating.
+    ///
+    /// # Errors
+    /// [`Error::PatternMismatch`]; [`Error::InvalidOption`] for a non-finite `alpha`.
+    pub fn scale_into(&self, alpha: f64, out: &mut Self) -> Result<()> {
+        if !alpha.is_finite() {
+            return Err(Error::InvalidOption {
+                argument: "alpha",
+                value: alpha,
+                expected: "a finite number",
+            });
+        }
+        if !self.same_pattern(out) {
+            return Err(Error::PatternMismatch {
+                argument: "out",
+                expected: "of the matrix being scaled",
+            });
+        }
+        out.blocks
+            .par_iter_mut()
+            .with_min_len(4096)
+            .zip(&self.blocks)
+            .for_each(|(o, s)| {
+                for a in 0..B {
+                    for b in 0..B {
+                        o[a][b] = alpha * s[a][b];
+                    }
+                }
+            });
+        Ok(())
+    }
+
+    /// $(A x)_i$ for block row `i`.
+    #[inline]
+    pub(super) fn row_product(&self, i: usize, x: &[[f64; B]]) -> [f64; B] {
+        let p = &*self.pattern;
+        let mut y = [0.0; B];
+        for at in p.indptr[i]..p.indptr[i + 1] {
+            let (m, xj) = (&self.blocks[at], &x[p.indices[at] as usize]);
+            for a in 0..B {
+                for b in 0..B {
+                    y[a] += m[a][b] * xj[b];
+                }
+            }
+        }
+        y
+    }
+
+    /// $y = A x$, block rows in parallel.
+    ///
+    /// # Errors
+    /// [`Error::VectorLength`] unless `x` and `y` have $nB$ entries.
+    pub fn mul_into(&self, x: &[f64], y: &mut [f64]) -> Result<()> {
+        for (argument, len) in [("x", x.len()), ("y", y.len())] {
+            if len != self.size() {
+                return Err(Error::VectorLength {
+                    argument,
+                    expected: self.size(),
+                    got: len,
+                });
+            }
+        }
+        self.mul_unchecked(x.as_chunks::<B>().0, y.as_chunks_mut::<B>().0);
+        Ok(())
+    }
+
+    pub(super) fn mul_unchecked(&self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        y.par_iter_mut()
+            .with_min_len(ROWS_PER_TASK)
+            .enumerate()
+            .for_each(|(i, yi)| *yi = self.row_product(i, x));
+    }
+}

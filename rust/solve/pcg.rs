@@ -1,0 +1,298 @@
+//! Preconditioned conjugate gradients (Hestenes & Stiefel 1952; Saad, *Iterative Methods
+//! for Sparse Linear Systems*, Alg. 9.1) on a [`BlockCsr`], warm-started from the given $x$.
+//!
+//! The iteration stops when the relative residual $\|b - A x\| / \|b\|$ falls to the
+//! tolerance. The recursively updated residual drifts from the true one over many
+//! iterations, so convergence is confirmed on the true residual (one extra product); when
+//! they disagree the iteration restarts from the true residual.
+
+use rayon::prelude::*;
+
+use super::block::{Block, BlockCsr, ROWS_PER_TASK};
+use super::upper::Upper;
+use crate::error::{check_finite, Error, Result};
+
+/// Below this many scalar entries, vector updates and dot products run on one thread:
+/// at the paper's size (7,395 unknowns) one pass takes ~5 us, less than waking the pool
+/// (see benches/README.md). The matrix product is always split by block rows.
+const PARALLEL_VECTOR_LEN: usize = 1 << 16;
+
+/// $z = M^{-1} r$ for a symmetric positive definite $M \approx A$.
+pub trait Preconditioner<const B: usize> {
+    /// Writes $M^{-1} r$ into `z` (both of the matrix size).
+    fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]);
+}
+
+/// The block-Jacobi preconditioner: the inverses of the $B \times B$ diagonal blocks.
+#[derive(Debug, Clone)]
+pub struct BlockJacobi<const B: usize> {
+    inverse: Vec<[[f64; B]; B]>,
+}
+
+/// The inverse of a symmetric positive definite block by Cholesky, $M^{-1} = L^{-\top}
+/// L^{-1}$; `Err(pivot)` at the first non-positive (or non-finite) pivot.
+fn spd_inverse<const B: usize>(m: &[[f64; B]; B]) -> std::result::Result<[[f64; B]; B], usize> {
+    let mut l = [[0.0; B]; B];
+    for j in 0..B {
+        let d = m[j][j] - (0..j).map(|t| l[j][t] * l[j][t]).sum::<f64>();
+        // Relative to the block's own scale: a pivot lost to rounding is not positive.
+        if d.is_nan() || d <= 1e-14 * m[j][j].abs() || d.is_infinite() {
+            return Err(j);
+        }
+        l[j][j] = d.sqrt();
+        for i in j + 1..B {
+            l[i][j] = (m[i][j] - (0..j).map(|t| l[i][t] * l[j][t]).sum::<f64>()) / l[j][j];
+        }
+    }
+    // L^{-1}, lower triangular, by forward substitution on the identity.
+    let mut inv_l = [[0.0; B]; B];
+    for i in 0..B {
+        let mut row = [0.0; B];
+        for (c, value) in row.iter_mut().enumerate().take(i + 1) {
+            let identity = if i == c { 1.0 } else { 0.0 };
+            *value = (identity - (c..i).map(|t| l[i][t] * inv_l[t][c]).sum::<f64>()) / l[i][i];
+        }
+        inv_l[i] = row;
+    }
+    let mut inverse = [[0.0; B]; B];
+    for a in 0..B {
+        for b in 0..B {
+            inverse[a][b] = (a.max(b)..B).map(|t| inv_l[t][a] * inv_l[t][b]).sum();
+        }
+    }
+    Ok(inverse)
+}
+
+impl<const B: usize> BlockJacobi<B> {
+    /// Inverts the diagonal blocks of `matrix`.
+    ///
+    /// # Errors
+    /// [`Error::NotPositiveDefinite`] naming the first row whose diagonal block is not
+    /// symmetric positive definite.
+    pub fn new(matrix: &BlockCsr<B>) -> Result<Self> {
+        let mut this = Self {
+            inverse: vec![[[0.0; B]; B]; matrix.len()],
+        };
+        this.update(matrix)?;
+        Ok(this)
+    }
+
+    /// Recomputes the inverses for new values of `matrix` (same number of nodes).
+    ///
+    /// # Errors
+    /// As [`Self::new`]; [`Error::VectorLength`] for a matrix of another size.
+    pub fn update(&mut self, matrix: &BlockCsr<B>) -> Result<()> {
+        if matrix.len() != self.inverse.len() {
+            return Err(Error::VectorLength {
+                argument: "matrix",
+                expected: self.inverse.len() * B,
+                got: matrix.size(),
+            });
+        }
+        let failed = self
+            .inverse
+            .par_iter_mut()
+            .with_min_len(ROWS_PER_TASK)
+            .enumerate()
+            .map(|(i, inv)| {
+                spd_inverse(matrix.diagonal_block(i))
+                    .map(|m| *inv = m)
+                    .map_err(|pivot| i * B + pivot)
+            })
+            .find_first(|r| r.is_err());
+        match failed {
+            Some(Err(row)) => Err(Error::NotPositiveDefinite {
+                argument: "matrix",
+                row,
+                reason: "its diagonal block (inverted by the block-Jacobi preconditioner) has a non-positive pivot",
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
+    fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) {
+        let one = |(zi, (m, ri)): (&mut [f64; B], (&Block<B>, &[f64; B]))| {
+            for a in 0..B {
+                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
+            }
+        };
+        if r.len() * B >= PARALLEL_VECTOR_LEN {
+            z.par_iter_mut()
+                .zip(self.inverse.par_iter().zip(r))
+                .for_each(one);
+        } else {
+            z.iter_mut().zip(self.inverse.iter().zip(r)).for_each(one);
+        }
+    }
+}
+
+/// Outcome of a conjugate-gradient solve; not converging is reported here, not as an error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PcgStatus {
+    /// The true relative residual reached the tolerance.
+    pub converged: bool,
+    /// Iterations run (matrix products, not counting the residual checks).
+    pub iterations: usize,
+    /// $\|b - A x\| / \|b\|$ of the returned $x$, from the true residual (0 for $b = 0$).
+    pub relative_residual: f64,
+}
+
+fn dot<const B: usize>(a: &[[f64; B]], b: &[[f64; B]]) -> f64 {
+    let one = |(x, y): (&[f64; B], &[f64; B])| (0..B).map(|t| x[t] * y[t]).sum::<f64>();
+    if a.len() * B >= PARALLEL_VECTOR_LEN {
+        a.par_iter().zip(b).map(one).sum()
+    } else {
+        a.iter().zip(b).map(one).sum()
+    }
+}
+
+/// `y[i] = f(y[i], x[i])` over blocks, in parallel for long vectors.
+fn update<const B: usize, F>(y: &mut [[f64; B]], x: &[[f64; B]], f: F)
+where
+    F: Fn(&mut [f64; B], &[f64; B]) + Sync + Send,
+{
+    if y.len() * B >= PARALLEL_VECTOR_LEN {
+        y.par_iter_mut().zip(x).for_each(|(a, b)| f(a, b));
+    } else {
+        y.iter_mut().zip(x).for_each(|(a, b)| f(a, b));
+    }
+}
+
+/// Conjugate gradients with its work vectors, kept across solves of one size so that the
+/// per-iteration solve of a fitting loop allocates nothing.
+#[derive(Debug, Clone, Default)]
+pub struct Pcg<const B: usize> {
+    r: Vec<[f64; B]>,
+    z: Vec<[f64; B]>,
+    p: Vec<[f64; B]>,
+    q: Vec<[f64; B]>,
+    upper: Upper<B>,
+}
+
+impl<const B: usize> Pcg<B> {
+    /// Empty work vectors, sized on first use.
+    pub fn new() -> Self {
+        Self {
+            r: Vec::new(),
+            z: Vec::new(),
+            p: Vec::new(),
+            q: Vec::new(),
+            upper: Upper::default(),
+        }
+    }
+
+    /// Solves $A x = b$ from the initial guess in `x`, overwriting it, until
+    /// $\|b - Ax\| \le \text{tolerance}\,\|b\|$ or `max_iterations` iterations.
+    ///
+    /// # Errors
+    /// [`Error::VectorLength`] / [`Error::NonFinite`] for `rhs` and `x`;
+    /// [`Error::InvalidOption`] for a negative or non-finite tolerance;
+    /// [`Error::NotPositiveDefinite`] when a search direction has non-positive curvature
+    /// $p^\top A p \le 0$ (the matrix is not positive definite). Not converging is not an
+    /// error: see [`PcgStatus::converged`].
+    pub fn solve<P: Preconditioner<B> + ?Sized>(
+        &mut self,
+        matrix: &BlockCsr<B>,
+        preconditioner: &mut P,
+        rhs: &[f64],
+        x: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<PcgStatus> {
+        let size = matrix.size();
+        for (argument, len) in [("rhs", rhs.len()), ("x", x.len())] {
+            if len != size {
+                return Err(Error::VectorLength {
+                    argument,
+                    expected: size,
+                    got: len,
+                });
+            }
+        }
+        if !(tolerance.is_finite() && tolerance >= 0.0) {
+            return Err(Error::InvalidOption {
+                argument: "tolerance",
+                value: tolerance,
+                expected: "a finite number >= 0",
+            });
+        }
+        let b = rhs.as_chunks::<B>().0;
+        let x = x.as_chunks_mut::<B>().0;
+        check_finite("rhs", b)?;
+        check_finite("x", x)?;
+        let n = matrix.len();
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.resize(n, [0.0; B]);
+        }
+        let b_norm = dot(b, b).sqrt();
+        if b_norm == 0.0 {
+            x.iter_mut().for_each(|v| *v = [0.0; B]);
+            return Ok(PcgStatus {
+                converged: true,
+                iterations: 0,
+                relative_residual: 0.0,
+            });
+        }
+        let target = tolerance * b_norm;
+        self.upper.load(matrix);
+        let mut iterations = 0;
+        loop {
+            // True residual r = b - A x: at the start and to confirm convergence.
+            self.upper.mul(x, &mut self.q);
+            self.r.copy_from_slice(b);
+            update(&mut self.r, &self.q, |r, q| {
+                for a in 0..B {
+                    r[a] -= q[a];
+                }
+            });
+            let r_norm = dot(&self.r, &self.r).sqrt();
+            if r_norm <= target || iterations >= max_iterations || !r_norm.is_finite() {
+                return Ok(PcgStatus {
+                    converged: r_norm <= target,
+                    iterations,
+                    relative_residual: r_norm / b_norm,
+                });
+            }
+            preconditioner.apply(&self.r, &mut self.z);
+            self.p.copy_from_slice(&self.z);
+            let mut rz = dot(&self.r, &self.z);
+            while iterations < max_iterations {
+                iterations += 1;
+                self.upper.mul(&self.p, &mut self.q);
+                let curvature = dot(&self.p, &self.q);
+                if curvature.is_nan() || curvature <= 0.0 {
+                    return Err(Error::NotPositiveDefinite {
+                        argument: "matrix",
+                        row: 0,
+                        reason: "conjugate gradients met a direction p with p^T A p <= 0",
+                    });
+                }
+                let alpha = rz / curvature;
+                update(x, &self.p, |x, p| {
+                    for a in 0..B {
+                        x[a] += alpha * p[a];
+                    }
+                });
+                update(&mut self.r, &self.q, |r, q| {
+                    for a in 0..B {
+                        r[a] -= alpha * q[a];
+                    }
+                });
+                if dot(&self.r, &self.r).sqrt() <= target {
+                    break;
+                }
+                preconditioner.apply(&self.r, &mut self.z);
+                let rz_next = dot(&self.r, &self.z);
+                let beta = rz_next / rz;
+                rz = rz_next;
+                update(&mut self.p, &self.z, |p, z| {
+                    for a in 0..B {
+                        p[a] = z[a] + beta * p[a];
+                    }
+                });
+            }
+        }
+    }
+}

@@ -1,0 +1,216 @@
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::*;
+use crate::efg::Csr;
+use crate::Error;
+
+/// A random SPD block matrix: a random symmetric pattern with random blocks, made
+/// diagonally dominant per scalar row.
+fn random_spd<const B: usize>(n: usize, density: f64, seed: u64) -> BlockCsr<B> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let adjacency: Vec<Vec<u32>> = (0..n)
+        .map(|i| (0..i as u32).filter(|_| rng.random_bool(density)).collect())
+        .collect();
+    let mut m = BlockCsr::<B>::from_pattern(&adjacency).unwrap();
+    let (indptr, indices) = (m.indptr().to_vec(), m.indices().to_vec());
+    let blocks = m.blocks_mut();
+    // Fill the lower triangle, mirror it into the upper.
+    for i in 0..n {
+        for at in indptr[i]..indptr[i + 1] {
+            let j = indices[at] as usize;
+            if j < i {
+                let value: [[f64; B]; B] =
+                    std::array::from_fn(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)));
+                blocks[at] = value;
+                let mirror = indptr[j]
+                    + indices[indptr[j]..indptr[j + 1]]
+                        .binary_search(&(i as u32))
+                        .unwrap();
+                blocks[mirror] = std::array::from_fn(|a| std::array::from_fn(|b| value[b][a]));
+            }
+        }
+    }
+    let csr = m.to_csr();
+    let row_sums: Vec<f64> = (0..csr.size)
+        .map(|r| {
+            csr.data[csr.indptr[r]..csr.indptr[r + 1]]
+                .iter()
+                .map(|v| v.abs())
+                .sum::<f64>()
+        })
+        .collect();
+    for i in 0..n {
+        let d = m.diagonal_block_mut(i);
+        for a in 0..B {
+            d[a][a] = row_sums[i * B + a] + 1.0;
+        }
+    }
+    m
+}
+
+fn dense<const B: usize>(m: &BlockCsr<B>) -> nalgebra::DMatrix<f64> {
+    let csr = m.to_csr();
+    let mut d = nalgebra::DMatrix::zeros(csr.size, csr.size);
+    for r in 0..csr.size {
+        for at in csr.indptr[r]..csr.indptr[r + 1] {
+            d[(r, csr.indices[at])] = csr.data[at];
+        }
+    }
+    d
+}
+
+fn relative_error(x: &[f64], y: &[f64]) -> f64 {
+    let diff: f64 = x.iter().zip(y).map(|(a, b)| (a - b) * (a - b)).sum();
+    let norm: f64 = y.iter().map(|b| b * b).sum();
+    (diff / norm).sqrt()
+}
+
+fn reference<const B: usize>(m: &BlockCsr<B>, rhs: &[f64]) -> Vec<f64> {
+    let d = dense(m);
+    d.cholesky()
+        .unwrap()
+        .solve(&nalgebra::DVector::from_column_slice(rhs))
+        .as_slice()
+        .to_vec()
+}
+
+fn check_solvers<const B: usize>(n: usize, density: f64, seed: u64) {
+    let m = random_spd::<B>(n, density, seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
+    let rhs: Vec<f64> = (0..m.size()).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let expected = reference(&m, &rhs);
+
+    let mut x = vec![0.0; m.size()];
+    let mut jacobi = BlockJacobi::new(&m).unwrap();
+    let status = Pcg::new()
+        .solve(&m, &mut jacobi, &rhs, &mut x, 1e-12, 10 * m.size())
+        .unwrap();
+    assert!(status.converged, "{status:?}");
+    assert!(status.relative_residual <= 1e-12);
+    assert!(
+        relative_error(&x, &expected) < 1e-9,
+        "pcg {}",
+        relative_error(&x, &expected)
+    );
+
+    let mut cholesky = SparseCholesky::analyse(&m).unwrap();
+    cholesky.factorize(&m).unwrap();
+    let mut y = vec![0.0; m.size()];
+    cholesky.solve_into(&rhs, &mut y).unwrap();
+    assert!(
+        relative_error(&y, &expected) < 1e-10,
+        "cholesky {}",
+        relative_error(&y, &expected)
+    );
+}
+
+#[test]
+fn solvers_agree_with_dense_cholesky() {
+    for seed in 0..4 {
+        check_solvers::<3>(40, 0.1, seed);
+        check_solvers::<2>(50, 0.2, seed);
+        check_solvers::<3>(7, 1.0, seed);
+        check_solvers::<2>(1, 0.0, seed);
+    }
+}
+
+#[test]
+fn csr_round_trip_and_product() {
+    let m = random_spd::<3>(30, 0.2, 7);
+    let csr = m.to_csr();
+    let back = BlockCsr::<3>::from_csr(&csr).unwrap();
+    assert!(back.same_pattern(&m));
+    assert_eq!(back.blocks(), m.blocks());
+    let x: Vec<f64> = (0..m.size()).map(|i| (i as f64).sin()).collect();
+    let mut y = vec![0.0; m.size()];
+    m.mul_into(&x, &mut y).unwrap();
+    let expected = dense(&m) * nalgebra::DVector::from_column_slice(&x);
+    assert!(relative_error(&y, expected.as_slice()) < 1e-14);
+}
+
+#[test]
+fn partial_blocks_and_missing_diagonal_are_filled_with_zeros() {
+    // 4x4 scalar, B = 2: only (0, 3) and (3, 0) off the diagonal blocks' scalars.
+    let csr = Csr {
+        size: 4,
+        indptr: vec![0, 2, 3, 3, 4],
+        indices: vec![0, 3, 1, 0],
+        data: vec![2.0, 1.0, 3.0, 1.0],
+    };
+    let m = BlockCsr::<2>::from_csr(&csr).unwrap();
+    assert_eq!(m.indptr(), &[0, 2, 4]);
+    assert_eq!(m.indices(), &[0, 1, 0, 1]);
+    assert_eq!(m.blocks()[1], [[0.0, 1.0], [0.0, 0.0]]);
+    assert_eq!(*m.diagonal_block(1), [[0.0, 0.0], [0.0, 0.0]]);
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let csr = Csr {
+        size: 4,
+        indptr: vec![0, 1, 2, 3, 4],
+        indices: vec![0, 1, 2, 3],
+        data: vec![1.0; 4],
+    };
+    assert!(matches!(
+        BlockCsr::<3>::from_csr(&csr),
+        Err(Error::BlockSize {
+            size: 4,
+            block: 3,
+            ..
+        })
+    ));
+    let asymmetric = Csr {
+        size: 4,
+        indptr: vec![0, 2, 3, 4, 5],
+        indices: vec![0, 2, 1, 2, 3],
+        data: vec![1.0; 5],
+    };
+    assert!(matches!(
+        BlockCsr::<2>::from_csr(&asymmetric),
+        Err(Error::SparsePattern { row: 0, .. })
+    ));
+    let unsorted = Csr {
+        size: 2,
+        indptr: vec![0, 2, 3],
+        indices: vec![1, 0, 1],
+        data: vec![1.0; 3],
+    };
+    assert!(matches!(
+        BlockCsr::<2>::from_csr(&unsorted),
+        Err(Error::SparsePattern { row: 0, .. })
+    ));
+    let nan = Csr {
+        size: 2,
+        indptr: vec![0, 1, 2],
+        indices: vec![0, 1],
+        data: vec![1.0, f64::NAN],
+    };
+    assert!(matches!(
+        BlockCsr::<2>::from_csr(&nan),
+        Err(Error::NonFinite { row: 1, .. })
+    ));
+    // Indefinite: diag(1, 1, -1, 1) passes nothing.
+    let indefinite = Csr {
+        size: 4,
+        indptr: vec![0, 1, 2, 3, 4],
+        indices: vec![0, 1, 2, 3],
+        data: vec![1.0, 1.0, -1.0, 1.0],
+    };
+    let m = BlockCsr::<2>::from_csr(&indefinite).unwrap();
+    let mut cholesky = SparseCholesky::analyse(&m).unwrap();
+    let failure = cholesky.factorize(&m);
+    assert!(
+        matches!(failure, Err(Error::NotPositiveDefinite { row: 2, .. })),
+        "{failure:?}"
+    );
+    assert!(matches!(
+        cholesky.solve_into(&[1.0; 4], &mut [0.0; 4]),
+        Err(Error::NotFactorized)
+    ));
+    assert!(matches!(
+        BlockJacobi::new(&m),
+        Err(Error::NotPositiveDefinite { row: 2, .. })
+    ));
+}
