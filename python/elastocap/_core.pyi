@@ -138,6 +138,7 @@ class ElasticCore:
     def system(
         self, rotations: NDArray[np.float64]
     ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]: ...
+@final
 class SparseCholesky:
     def __new__(
         cls,
