@@ -1,10 +1,335 @@
 //! Fitting the elastic model through a sequence of target shapes (SPEC 5; the paper's
-//! section 4): per iteration the rotations, the anisotropic surface-distance term with
-//! confidence weights and invalidated associations, the self-intersection term, and one
-//! sparse solve of $(\alpha S + \beta W + \gamma I)\,x = \alpha f + \beta W t + \gamma I x'$.
+//! section 4). Per iteration: the rotations, the anisotropic surface-distance term with
+//! confidence weights and invalidated associations ([`surface`]), the self-intersection
+//! term ([`contact`]), and one sparse solve of
+//! $(\alpha S + \beta W + \gamma I)\,x = \alpha f + \beta W t + \gamma I x'$
+//! (block-Jacobi PCG warm-started from the current positions, [`crate::solve`]).
+//!
+//! Scales: $\beta = 1$ per surface node; $\alpha = $ `stiffness` $/ (\mu \bar h)$ with
+//! $\bar h$ the mean node spacing, so that `stiffness = 1` makes a node's elastic diagonal
+//! about as strong as a fully confident data term, whatever the units and material;
+//! $\gamma = $ `contact` (SPEC 5: $\gamma = \beta$).
 
 pub mod contact;
 pub mod surface;
+
+use crate::efg::Block;
+use crate::elastic::{ElasticModel, Rotation};
+use crate::error::{Error, Result};
+use crate::grid_sample::GridField;
+use crate::solve::{BlockCsr, BlockJacobi, Pcg};
+use contact::find_contacts;
+use surface::{associate, invalidate_collisions, vertex_normals, Association};
+
+/// The knobs of the per-frame iteration.
+#[derive(Debug, Clone, Copy)]
+pub struct FitOptions {
+    /// $\alpha / \beta$ in units of $\mu \bar h$ (see the module docs).
+    pub stiffness: f64,
+    /// $\gamma / \beta$.
+    pub contact: f64,
+    /// Iteration cap per frame (SPEC 5: 10).
+    pub max_iterations: usize,
+    /// Stop when the last decrease of $D$ is below this fraction of the total decrease so
+    /// far (SPEC 5: 1%).
+    pub stop_fraction: f64,
+    /// Drop colliding associations of distant parts.
+    pub invalidate: bool,
+    /// Push penetrating surface nodes out of other parts.
+    pub self_intersection: bool,
+    /// Relative residual of each linear solve.
+    pub solver_tolerance: f64,
+    /// Cap on PCG iterations per solve.
+    pub solver_max_iterations: usize,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        Self {
+            stiffness: 1.0,
+            contact: 1.0,
+            max_iterations: 10,
+            stop_fraction: 0.01,
+            invalidate: true,
+            self_intersection: true,
+            solver_tolerance: 1e-6,
+            solver_max_iterations: 500,
+        }
+    }
+}
+
+/// Figures of one fitted frame (SPEC 5's outputs), at the returned positions.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FrameMetrics {
+    /// $D = \sum_p w_p (x_p - t_p)^\top M_p (x_p - t_p)$.
+    pub distance_term: f64,
+    /// Mean $|d(x_p)|$ over surface nodes, units of the model.
+    pub mean_distance: f64,
+    /// Largest $|d(x_p)|$.
+    pub max_distance: f64,
+    /// Elastic energy.
+    pub elastic_energy: f64,
+    /// Surface nodes penetrating another part.
+    pub penetrating: usize,
+    /// Surface nodes whose association was invalidated (last iteration).
+    pub invalidated: usize,
+    /// Iterations run.
+    pub iterations: usize,
+    /// PCG iterations over all solves.
+    pub solver_iterations: usize,
+    /// Every linear solve reached its tolerance.
+    pub solver_converged: bool,
+}
+
+/// What the iteration keeps across frames: the surface, the stiffness on its fixed pattern,
+/// the system matrix and the solver's work vectors.
+#[derive(Debug)]
+pub struct FitWorkspace {
+    surface: Vec<u32>,
+    faces: Vec<[u32; 3]>,
+    rest_surface: Vec<[f64; 3]>,
+    support: Vec<f64>,
+    stiffness: BlockCsr<3>,
+    system: BlockCsr<3>,
+    pcg: Pcg<3>,
+    spacing: f64,
+}
+
+impl FitWorkspace {
+    /// For `model` with surface nodes `surface` (model node indices) and its triangles
+    /// `faces` (model node indices, each a surface node).
+    ///
+    /// # Errors
+    /// [`Error::Empty`] without surface nodes or faces; [`Error::NodeIndex`] for an index
+    /// that is not a model node or a face corner that is not a surface node.
+    pub fn new(model: &ElasticModel<3>, surface: &[u32], faces: &[[u32; 3]]) -> Result<Self> {
+        let n = model.len();
+        if surface.is_empty() || faces.is_empty() {
+            return Err(Error::Empty {
+                argument: if surface.is_empty() {
+                    "surface_nodes"
+                } else {
+                    "faces"
+                },
+                needed: 1,
+            });
+        }
+        let mut local = vec![u32::MAX; n];
+        for (at, &i) in surface.iter().enumerate() {
+            if i as usize >= n {
+                return Err(Error::NodeIndex {
+                    argument: "surface_nodes",
+                    position: at,
+                    index: i as usize,
+                    n,
+                });
+            }
+            local[i as usize] = at as u32;
+        }
+        let faces = faces
+            .iter()
+            .enumerate()
+            .map(|(position, f)| {
+                let mut out = [0u32; 3];
+                for (o, &i) in out.iter_mut().zip(f) {
+                    match local.get(i as usize) {
+                        Some(&l) if l != u32::MAX => *o = l,
+                        _ => {
+                            return Err(Error::NodeIndex {
+                                argument: "faces",
+                                position,
+                                index: i as usize,
+                                n,
+                            })
+                        }
+                    }
+                }
+                Ok(out)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let pattern = model.pattern();
+        let rows: Vec<&[u32]> = pattern
+            .indptr
+            .windows(2)
+            .map(|w| &pattern.indices[w[0]..w[1]])
+            .collect();
+        let mut stiffness = BlockCsr::<3>::from_pattern(&rows)?;
+        let eye = vec![identity(); n];
+        model.system_blocks(&eye, stiffness.blocks_mut())?;
+        let system = stiffness.zeros_like();
+        let mean_volume = model.volumes().iter().sum::<f64>() / n as f64;
+        Ok(Self {
+            rest_surface: surface.iter().map(|&i| model.rest()[i as usize]).collect(),
+            support: surface
+                .iter()
+                .map(|&i| model.support()[i as usize])
+                .collect(),
+            surface: surface.to_vec(),
+            faces,
+            stiffness,
+            system,
+            pcg: Pcg::new(),
+            spacing: mean_volume.cbrt(),
+        })
+    }
+
+    /// Surface positions out of all positions.
+    fn surface_positions(&self, x: &[[f64; 3]]) -> Vec<[f64; 3]> {
+        self.surface.iter().map(|&i| x[i as usize]).collect()
+    }
+}
+
+/// $D$ of the associations at surface positions `xs`.
+fn distance_term(xs: &[[f64; 3]], found: &[Association]) -> f64 {
+    xs.iter()
+        .zip(found)
+        .map(|(x, a)| {
+            let r: [f64; 3] = std::array::from_fn(|i| x[i] - a.target[i]);
+            (0..3)
+                .map(|i| r[i] * (0..3).map(|j| a.weight[i][j] * r[j]).sum::<f64>())
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+fn identity() -> Block<3> {
+    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+}
+
+/// Fits one frame: from `start` (the neighbouring frame's fit) towards the zero level of
+/// the signed distance field `target`.
+///
+/// # Errors
+/// Bad positions or options; [`Error::NotPositiveDefinite`] if the system loses
+/// definiteness (it cannot with positive stiffness and a surface term; reported, not
+/// hidden).
+pub fn fit_frame(
+    model: &ElasticModel<3>,
+    workspace: &mut FitWorkspace,
+    target: &GridField<'_>,
+    start: &[[f64; 3]],
+    options: &FitOptions,
+) -> Result<(Vec<[f64; 3]>, FrameMetrics)> {
+    model.check_positions(start)?;
+    for (argument, value) in [
+        ("stiffness", options.stiffness),
+        ("contact", options.contact),
+        ("stop_fraction", options.stop_fraction),
+        ("solver_tolerance", options.solver_tolerance),
+    ] {
+        if !(value.is_finite() && value >= 0.0) || (argument == "stiffness" && value <= 0.0) {
+            return Err(Error::InvalidOption {
+                argument,
+                value,
+                expected: "a finite number, positive for stiffness and non-negative otherwise",
+            });
+        }
+    }
+    let (_, mu) = model.lame();
+    let alpha = options.stiffness / (mu * workspace.spacing);
+    let n = model.len();
+    let mut x = start.to_vec();
+    let mut metrics = FrameMetrics {
+        solver_converged: true,
+        ..FrameMetrics::default()
+    };
+    let (mut first, mut previous) = (None::<f64>, None::<f64>);
+    for iteration in 0..options.max_iterations {
+        let rotations = model.rotations(&x)?;
+        let xs = workspace.surface_positions(&x);
+        let normals = vertex_normals(&xs, &workspace.faces);
+        let mut found = associate(target, &xs, &normals, &workspace.support);
+        metrics.invalidated = if options.invalidate {
+            invalidate_collisions(&mut found, &workspace.rest_surface, &workspace.support)
+        } else {
+            0
+        };
+        let contacts = if options.self_intersection {
+            find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support)
+        } else {
+            Vec::new()
+        };
+        // SPEC 5 step 5: stop when the last decrease is a small part of the total so far.
+        let d = distance_term(&xs, &found);
+        if let (Some(d0), Some(last)) = (first, previous) {
+            if d0 - d > 0.0 && last - d < options.stop_fraction * (d0 - d) {
+                break;
+            }
+        }
+        first.get_or_insert(d);
+        previous = Some(d);
+        metrics.iterations = iteration + 1;
+
+        // System: alpha S + W + gamma I (diagonal blocks on surface nodes).
+        if model.rotation() == Rotation::Warped {
+            model.system_blocks(&rotations, workspace.stiffness.blocks_mut())?;
+        }
+        workspace
+            .stiffness
+            .scale_into(alpha, &mut workspace.system)?;
+        let weights: Vec<Block<3>> = found.iter().map(|a| a.weight).collect();
+        workspace
+            .system
+            .add_diagonal_blocks(1.0, &workspace.surface, &weights)?;
+        let contact_nodes: Vec<u32> = contacts.iter().map(|c| workspace.surface[c.node]).collect();
+        let contact_weights: Vec<Block<3>> = contacts.iter().map(|c| c.weight).collect();
+        workspace
+            .system
+            .add_diagonal_blocks(options.contact, &contact_nodes, &contact_weights)?;
+        let mut rhs: Vec<f64> = model
+            .rhs(&rotations)?
+            .into_iter()
+            .flatten()
+            .map(|v| alpha * v)
+            .collect();
+        let mut pull = |node: u32, weight: &Block<3>, t: &[f64; 3], scale: f64| {
+            for r in 0..3 {
+                rhs[node as usize * 3 + r] +=
+                    scale * (0..3).map(|c| weight[r][c] * t[c]).sum::<f64>();
+            }
+        };
+        for (&node, a) in workspace.surface.iter().zip(&found) {
+            pull(node, &a.weight, &a.target, 1.0);
+        }
+        for c in &contacts {
+            pull(
+                workspace.surface[c.node],
+                &c.weight,
+                &c.target,
+                options.contact,
+            );
+        }
+        let mut preconditioner = BlockJacobi::new(&workspace.system)?;
+        let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
+        let status = workspace.pcg.solve(
+            &workspace.system,
+            &mut preconditioner,
+            &rhs,
+            &mut flat,
+            options.solver_tolerance,
+            options.solver_max_iterations,
+        )?;
+        metrics.solver_iterations += status.iterations;
+        metrics.solver_converged &= status.converged;
+        x = flat.as_chunks::<3>().0.to_vec();
+        debug_assert_eq!(x.len(), n);
+    }
+    // Figures at the returned positions.
+    let xs = workspace.surface_positions(&x);
+    let normals = vertex_normals(&xs, &workspace.faces);
+    let found = associate(target, &xs, &normals, &workspace.support);
+    metrics.distance_term = distance_term(&xs, &found);
+    let distances: Vec<f64> = found.iter().map(|a| a.distance.abs()).collect();
+    metrics.mean_distance = distances.iter().sum::<f64>() / distances.len() as f64;
+    metrics.max_distance = distances.iter().copied().fold(0.0, f64::max);
+    metrics.elastic_energy = model.energy(&x, &model.rotations(&x)?)?;
+    metrics.penetrating = if options.self_intersection {
+        find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support).len()
+    } else {
+        0
+    };
+    Ok((x, metrics))
+}
 
 #[cfg(test)]
 mod tests;

@@ -10,6 +10,7 @@ __all__ = [
     "ConvergenceError",
     "efg_energy",
     "ElasticCore",
+    "FitCore",
     "efg_stiffness",
     "ElastocapError",
     "InvalidInputError",
@@ -174,3 +175,25 @@ def conjugate_gradient(
     max_iterations: int,
     preconditioner: SparseCholesky | None = None,
 ) -> tuple[NDArray[np.float64], bool, int, float]: ...
+
+@final
+class FitCore:
+    def __new__(
+        cls, model: ElasticCore, surface_nodes: NDArray[np.int64], faces: NDArray[np.int64]
+    ) -> FitCore: ...
+    def fit_frame(
+        self,
+        values: NDArray[np.float64],
+        origin: tuple[float, float, float] | list[float] | NDArray[np.float64],
+        spacing: float,
+        start: NDArray[np.float64],
+        *,
+        stiffness: float = 1.0,
+        contact: float = 1.0,
+        max_iterations: int = 10,
+        stop_fraction: float = 0.01,
+        invalidate: bool = True,
+        self_intersection: bool = True,
+        solver_tolerance: float = 1e-6,
+        solver_max_iterations: int = 500,
+    ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...

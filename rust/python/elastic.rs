@@ -113,6 +113,16 @@ type Csr<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
+impl ElasticCore {
+    /// The 3-D model, if this is one.
+    pub(super) fn spatial(&self) -> Option<&ElasticModel<3>> {
+        match &self.model {
+            Model::Spatial(m) => Some(m),
+            Model::Planar(_) => None,
+        }
+    }
+}
+
 #[pymethods]
 impl ElasticCore {
     #[new]

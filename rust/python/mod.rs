@@ -5,6 +5,7 @@ mod carve;
 mod efg;
 mod elastic;
 mod errors;
+mod fit;
 mod mls;
 mod neighbors;
 mod polar;
@@ -52,6 +53,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
+    fit::register(m)?;
     carve::register(m)?;
     efg::register(m)?;
     elastic::register(m)?;

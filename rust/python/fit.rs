@@ -1,0 +1,133 @@
+//! Binding of the per-frame fitting: `FitCore` keeps the workspace of one model and surface.
+
+use std::sync::Mutex;
+
+use numpy::{ndarray::Array2, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use super::elastic::ElasticCore;
+use super::{c_slice, invalid_input, rows, to_py};
+use crate::fit::{fit_frame, FitOptions, FitWorkspace};
+use crate::grid_sample::GridField;
+
+/// The fitting state of a 3-D elastic model and its surface (SPEC 5).
+#[pyclass(module = "elastocap._core", frozen)]
+pub struct FitCore {
+    model: Py<ElasticCore>,
+    workspace: Mutex<FitWorkspace>,
+}
+
+fn indices(values: &[i64], argument: &str) -> PyResult<Vec<u32>> {
+    values
+        .iter()
+        .map(|&i| {
+            u32::try_from(i)
+                .map_err(|_| invalid_input(format!("{argument} holds {i}, not a node index")))
+        })
+        .collect()
+}
+
+#[pymethods]
+impl FitCore {
+    #[new]
+    fn new(
+        py: Python<'_>,
+        model: Py<ElasticCore>,
+        surface_nodes: PyReadonlyArray1<'_, i64>,
+        faces: PyReadonlyArray2<'_, i64>,
+    ) -> PyResult<Self> {
+        let core = model.get();
+        let spatial = core
+            .spatial()
+            .ok_or_else(|| invalid_input("fitting needs a 3-D model".into()))?;
+        if faces.shape()[1] != 3 {
+            return Err(invalid_input(format!(
+                "faces must have shape (F, 3), got {:?}",
+                faces.shape()
+            )));
+        }
+        let surface = indices(c_slice(&surface_nodes, "surface_nodes")?, "surface_nodes")?;
+        let flat = indices(c_slice(&faces, "faces")?, "faces")?;
+        let faces: Vec<[u32; 3]> = flat.as_chunks::<3>().0.to_vec();
+        let workspace = py
+            .detach(|| FitWorkspace::new(spatial, &surface, &faces))
+            .map_err(|e| to_py(py, e))?;
+        Ok(Self {
+            model,
+            workspace: Mutex::new(workspace),
+        })
+    }
+
+    /// Fits one frame to the signed distance `values` (nx, ny, nz) of a grid (`origin`,
+    /// `spacing`) from `start` (N, 3): `(positions (N, 3), metrics dict)`.
+    #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
+        max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
+        solver_tolerance = 1e-6, solver_max_iterations = 500))]
+    #[allow(clippy::too_many_arguments)]
+    fn fit_frame<'py>(
+        &self,
+        py: Python<'py>,
+        values: PyReadonlyArray3<'py, f64>,
+        origin: [f64; 3],
+        spacing: f64,
+        start: PyReadonlyArray2<'py, f64>,
+        stiffness: f64,
+        contact: f64,
+        max_iterations: usize,
+        stop_fraction: f64,
+        invalidate: bool,
+        self_intersection: bool,
+        solver_tolerance: f64,
+        solver_max_iterations: usize,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+        let model = self.model.get().spatial().expect("checked at construction");
+        let shape = values.shape();
+        let field = GridField::new(
+            c_slice(&values, "values")?,
+            [shape[0], shape[1], shape[2]],
+            origin,
+            spacing,
+        )
+        .map_err(|e| to_py(py, e))?;
+        let start = rows::<3>(&start, "start")?;
+        let options = FitOptions {
+            stiffness,
+            contact,
+            max_iterations,
+            stop_fraction,
+            invalidate,
+            self_intersection,
+            solver_tolerance,
+            solver_max_iterations,
+        };
+        let mut workspace = self
+            .workspace
+            .lock()
+            .map_err(|_| invalid_input("a previous fit panicked; build a new FitCore".into()))?;
+        let workspace: &mut FitWorkspace = &mut workspace;
+        let (x, m) = py
+            .detach(|| fit_frame(model, workspace, &field, start, &options))
+            .map_err(|e| to_py(py, e))?;
+        let n = x.len();
+        let positions = Array2::from_shape_vec((n, 3), x.into_iter().flatten().collect())
+            .expect("n x 3 positions")
+            .into_pyarray(py);
+        let metrics = PyDict::new(py);
+        metrics.set_item("distance_term", m.distance_term)?;
+        metrics.set_item("mean_distance", m.mean_distance)?;
+        metrics.set_item("max_distance", m.max_distance)?;
+        metrics.set_item("elastic_energy", m.elastic_energy)?;
+        metrics.set_item("penetrating", m.penetrating)?;
+        metrics.set_item("invalidated", m.invalidated)?;
+        metrics.set_item("iterations", m.iterations)?;
+        metrics.set_item("solver_iterations", m.solver_iterations)?;
+        metrics.set_item("solver_converged", m.solver_converged)?;
+        Ok((positions, metrics))
+    }
+}
+
+pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<FitCore>()
+}
