@@ -9,6 +9,8 @@ from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError,
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.efg import stiffness_matrix
+from elastocap.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.fit_stage import run_fit_stage
 from elastocap.elastic import ElasticModel, StaticSolution
 from elastocap.grid import Grid
 from elastocap.hull import Hull, visual_hull
@@ -29,17 +31,20 @@ __all__ = [
     "ElasticModel",
     "ElastocapError",
     "Figure",
+    "FrameFit",
     "Grid",
     "Hull",
     "InvalidInputError",
     "Rig",
     "SDF",
+    "SequenceFit",
     "SolveStatus",
     "SparseCholesky",
     "SpatialIndex",
     "StaticSolution",
     "__version__",
     "clean_mask",
+    "fit_sequence",
     "conjugate_gradient",
     "knn",
     "load_hull",
@@ -48,6 +53,7 @@ __all__ = [
     "radius_neighbors",
     "refine_silhouette",
     "ring_rig",
+    "run_fit_stage",
     "run_hull_stage",
     "segment_dark_background",
     "signed_distance",

@@ -53,6 +53,23 @@ def _hull(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fit(args: argparse.Namespace) -> int:
+    from elastocap.fit_stage import run_fit_stage
+
+    result = run_fit_stage(
+        args.capture,
+        Path(args.out),
+        rest_frame=args.rest_frame,
+        n_nodes=args.nodes,
+        rotation=args.rotation,
+        stiffness=args.stiffness,
+        resolution=args.resolution,
+        progress=not args.quiet,
+    )
+    print(f"fitted {len(result.fits)} frame(s) into {Path(args.out) / 'fit'}; figures in {Path(args.out) / 'metrics.json'}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -100,6 +117,23 @@ def _parser() -> argparse.ArgumentParser:
     hull.add_argument("--footprint", choices=["center", "conservative"], default="center", help="finest-level test")
     hull.add_argument("--quiet", action="store_true", help="no progress bar")
     hull.set_defaults(run=_hull)
+    fit = commands.add_parser(
+        "fit",
+        help="fit an elastic model through all frames of a capture (hulls first if missing)",
+        description="Carve the hulls that are missing, build an element-free elastic model of the "
+        "rest frame's hull (OUT/model/rest.npz), fit it forward and backward through every frame "
+        "and write OUT/fit/<frame>.ply (same vertices and faces every frame) and .npz (node "
+        "positions, metrics), and OUT/metrics.json. Frames already fitted are not refitted.",
+    )
+    fit.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
+    fit.add_argument("--out", required=True, help="output folder")
+    fit.add_argument("--rest-frame", type=int, default=None, help="frame the model is built from (default: first)")
+    fit.add_argument("--nodes", type=int, default=2500, help="nodes of the elastic model (default: 2500)")
+    fit.add_argument("--rotation", choices=["rhs", "warped", "none"], default="rhs", help="rotation compensation")
+    fit.add_argument("--stiffness", type=float, default=1.0, help="elastic stiffness vs. surface pull (default: 1)")
+    fit.add_argument("--resolution", type=int, default=128, help="hull voxels along the longest side (default: 128)")
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
+    fit.set_defaults(run=_fit)
     return parser
 
 
