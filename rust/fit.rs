@@ -234,6 +234,7 @@ pub fn fit_frame(
         ..FrameMetrics::default()
     };
     let (mut first, mut previous) = (None::<f64>, None::<f64>);
+    let mut previous_contacts = 0;
     for iteration in 0..options.max_iterations {
         let rotations = model.rotations(&x)?;
         let xs = workspace.surface_positions(&x);
@@ -249,15 +250,21 @@ pub fn fit_frame(
         } else {
             Vec::new()
         };
-        // SPEC 5 step 5: stop when the last decrease is a small part of the total so far.
+        // SPEC 5 step 5: stop when the last decrease is a small part of the total so far,
+        // unless penetrations are still being resolved (pushing nodes out of another part
+        // moves them off their targets, so D alone would stop those iterations early).
         let d = distance_term(&xs, &found);
         if let (Some(d0), Some(last)) = (first, previous) {
-            if d0 - d > 0.0 && last - d < options.stop_fraction * (d0 - d) {
+            // Contacts present and not stalled (they appeared, or their count still falls).
+            let stalled = previous_contacts > 0 && contacts.len() >= previous_contacts;
+            let resolving = !contacts.is_empty() && !stalled;
+            if !resolving && d0 - d > 0.0 && last - d < options.stop_fraction * (d0 - d) {
                 break;
             }
         }
         first.get_or_insert(d);
         previous = Some(d);
+        previous_contacts = contacts.len();
         metrics.iterations = iteration + 1;
 
         // System: alpha S + W + gamma I (diagonal blocks on surface nodes).
@@ -323,11 +330,9 @@ pub fn fit_frame(
     metrics.mean_distance = distances.iter().sum::<f64>() / distances.len() as f64;
     metrics.max_distance = distances.iter().copied().fold(0.0, f64::max);
     metrics.elastic_energy = model.energy(&x, &model.rotations(&x)?)?;
-    metrics.penetrating = if options.self_intersection {
-        find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support).len()
-    } else {
-        0
-    };
+    // Counted whether or not the term acted, so runs with it off can be compared.
+    metrics.penetrating =
+        find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support).len();
     Ok((x, metrics))
 }
 

@@ -161,3 +161,17 @@ SOLVE_AGREEMENT_RTOL = 1e-8
 # Warm start from spsolve's solution: its residual (~1e-15 relative) already meets the
 # tolerance or one step does (issue 4: 0-1 iterations).
 SOLVE_WARM_START_ITERATIONS = 1
+
+# --- fitting (SPEC 5) --------------------------------------------------------------------
+
+# Fitted surface nodes vs. the hull they were fitted to: issue 5 asks for 2 voxels (mean).
+FIT_HULL_VOXELS = 2.0
+# Volume of the fitted surface vs. the rest surface: issue 5's 5%.
+FIT_VOLUME_RTOL = 0.05
+# A rigidly moved target: elastic energy relative to that of a 5% stretch of the model.
+# Measured 1.3-1.9% (warped mode): the surface nodes settle within the target's voxel
+# rounding (1/100 of the length), which bends the model a little, the same in every frame.
+FIT_RIGID_ENERGY_RTOL = 0.03
+# Resumed vs. uninterrupted runs: same start, same arithmetic up to the order of parallel
+# sums in the solver, so positions agree to rounding.
+FIT_RESUME_RTOL = 1e-9

@@ -129,7 +129,12 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--rest-frame", type=int, default=None, help="frame the model is built from (default: first)")
     fit.add_argument("--nodes", type=int, default=2500, help="nodes of the elastic model (default: 2500)")
-    fit.add_argument("--rotation", choices=["rhs", "warped", "none"], default="rhs", help="rotation compensation")
+    fit.add_argument(
+        "--rotation",
+        choices=["rhs", "warped", "none"],
+        default="warped",
+        help="rotation compensation (default: warped, which tracks rotations without accumulating strain)",
+    )
     fit.add_argument("--stiffness", type=float, default=1.0, help="elastic stiffness vs. surface pull (default: 1)")
     fit.add_argument("--resolution", type=int, default=128, help="hull voxels along the longest side (default: 128)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")

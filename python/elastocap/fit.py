@@ -157,7 +157,7 @@ def fit_sequence(
     rest_volume = model.surface.volume
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
-    order = [(rest_frame, None)]
+    order: list[tuple[int, int | None]] = [(rest_frame, None)]
     order += [(f, f - 1) for f in range(rest_frame + 1, count)]
     order += [(f, f + 1) for f in range(rest_frame - 1, -1, -1)]
     for frame, neighbour in order:

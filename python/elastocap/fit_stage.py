@@ -12,6 +12,7 @@ back and their neighbours start from them).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +60,7 @@ def run_fit_stage(
     rest_frame: int | None = None,
     n_nodes: int = 2500,
     k: int = 20,
-    rotation: str = "rhs",
+    rotation: str = "warped",
     stiffness: float = 1.0,
     resolution: int = 128,
     progress: bool = True,
@@ -130,7 +131,7 @@ def run_fit_stage(
     return result
 
 
-class _LazyHulls:
+class _LazyHulls(Sequence[Any]):
     """The capture's hulls, loaded when the fit reaches them."""
 
     def __init__(self, out: Path, frames: list[int]) -> None:
@@ -139,7 +140,9 @@ class _LazyHulls:
     def __len__(self) -> int:
         return len(self._frames)
 
-    def __getitem__(self, index: int) -> Any:
+    def __getitem__(self, index: Any) -> Any:
+        if isinstance(index, slice):
+            return [self[i] for i in range(len(self))[index]]
         return load_hull(self._out, self._frames[index])
 
 

@@ -1,0 +1,140 @@
+"""Fitting the elastic model through a sequence (issue 5): accuracy against the hulls,
+rigid tracking, self-intersection, resume, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import elastocap
+from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_stage
+from elastocap.fit_stage import load_model
+from elastocap.hull_stage import load_hull
+from elastocap.synth import write_synthetic_capture
+from tolerances import FIT_HULL_VOXELS, FIT_RESUME_RTOL, FIT_RIGID_ENERGY_RTOL, FIT_VOLUME_RTOL
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("fit") / "capture"
+    return write_synthetic_capture(out, frames=4, cameras=8, spacing=0.02, image_size=(320, 240), progress=False)
+
+
+@pytest.fixture(scope="module")
+def fitted(capture: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("fit") / "out"
+    run_fit_stage(capture, out, n_nodes=900, resolution=96, progress=False)
+    return out
+
+
+def test_fitted_surfaces_hug_the_hulls_with_one_topology(fitted: Path) -> None:
+    model, rest = load_model(fitted)
+    assert rest == 0
+    faces = None
+    for frame in range(4):
+        hull = load_hull(fitted, frame)
+        mesh = trimesh.load(fitted / "fit" / f"{frame:06d}.ply", process=False)
+        if faces is None:
+            faces = mesh.faces
+        np.testing.assert_array_equal(mesh.faces, faces)
+        distance = np.abs(hull.sdf().sample(mesh.vertices))
+        assert distance.mean() < FIT_HULL_VOXELS * hull.grid.spacing, (frame, distance.mean(), hull.grid.spacing)
+        assert abs(mesh.volume / model.surface.volume - 1) < FIT_VOLUME_RTOL
+    metrics = json.loads((fitted / "metrics.json").read_text())
+    assert metrics["summary"]["frames"] == 4
+    assert {f["frame"] for f in metrics["frames"]} == {0, 1, 2, 3}
+
+
+def test_resume_refits_only_missing_frames_and_gives_the_same_result(capture: Path, fitted: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(fitted, out)
+    for frame in (2, 3):
+        (out / "fit" / f"{frame:06d}.ply").unlink()
+        (out / "fit" / f"{frame:06d}.npz").unlink()
+    kept = (out / "fit" / "000001.npz").stat().st_mtime_ns
+    run_fit_stage(capture, out, progress=False)
+    assert (out / "fit" / "000001.npz").stat().st_mtime_ns == kept
+    for frame in (2, 3):
+        with np.load(fitted / "fit" / f"{frame:06d}.npz") as a, np.load(out / "fit" / f"{frame:06d}.npz") as b:
+            np.testing.assert_allclose(b["positions"], a["positions"], rtol=0, atol=FIT_RESUME_RTOL * 10)
+
+
+CAPSULE = trimesh.creation.capsule(height=1.0, radius=0.25, count=[24, 24])
+
+
+def test_rigid_motion_is_tracked_without_elastic_energy() -> None:
+    # The corotational mode: measured on this sequence, the paper's rhs mode accumulates
+    # strain with each rotation step (1.3% -> 36% of a 5% stretch's energy over 5 steps)
+    # while the warped mode stays at the rest frame's level (voxel rounding of the target).
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=700, rotation="warped")
+    targets = []
+    for step in range(4):
+        moved = CAPSULE.copy()
+        turn = Rotation.from_euler("xz", [12 * step, 8 * step], degrees=True).as_matrix()
+        transform = np.eye(4)
+        transform[:3, :3] = turn
+        transform[:3, 3] = [0.05 * step, -0.03 * step, 0.02 * step]
+        moved.apply_transform(transform)
+        targets.append(moved)
+    fit = fit_sequence(model, targets)
+    stretch = model.energy(model.nodes * 1.05)
+    rest = fit.fits[0].metrics["elastic_energy"]
+    for frame in fit.frames:
+        metrics = fit.fits[frame].metrics
+        assert metrics["elastic_energy"] < FIT_RIGID_ENERGY_RTOL * stretch, (frame, metrics)
+        assert metrics["elastic_energy"] < 2.0 * rest, (frame, metrics)
+        assert abs(metrics["volume_ratio"] - 1) < FIT_VOLUME_RTOL
+        assert metrics["mean_distance"] < 0.02  # the target grid is 1/100 of the capsule's length
+
+
+def two_blocks(gap: float) -> trimesh.Trimesh:
+    """Two 0.4 x 0.4 x 1 blocks side by side along x with `gap` between them; for a negative
+    gap (overlapping blocks) their union, one block."""
+    if gap <= 0:
+        return trimesh.creation.box(extents=[0.8 + gap, 0.4, 1.0])
+    left = trimesh.creation.box(extents=[0.4, 0.4, 1.0])
+    left.apply_translation([-(0.2 + gap / 2), 0, 0])
+    right = trimesh.creation.box(extents=[0.4, 0.4, 1.0])
+    right.apply_translation([0.2 + gap / 2, 0, 0])
+    return trimesh.util.concatenate([left, right])
+
+
+def test_self_intersection_term_keeps_limbs_apart() -> None:
+    # Two limbs at rest 0.3 apart, pushed together until the hull is one block 0.6 wide: the
+    # limbs (0.8 together) must flatten against each other or pass through each other.
+    model = ElasticModel.from_mesh(two_blocks(0.3), n_nodes=900, rotation="warped")
+    targets = [two_blocks(gap) for gap in (0.3, 0.1, -0.1, -0.2)]
+    on = fit_sequence(model, targets, self_intersection=True)
+    off = fit_sequence(model, targets, self_intersection=False)
+    counts = [(off.fits[f].metrics["penetrating"], on.fits[f].metrics["penetrating"]) for f in on.frames]
+    print("penetrating surface nodes per frame (off, on):", counts)
+    assert counts[0] == (0, 0)
+    last_off, last_on = counts[-1]
+    # Measured 158 without the term and 90 with it: the term removes ~40%, not all (the
+    # hull asks for a 25% squeeze that elasticity resists as much as it resists overlap).
+    assert last_off >= 100
+    assert last_on <= 0.65 * last_off
+
+
+def test_bad_input_is_a_clear_error(capture: Path, tmp_path: Path) -> None:
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=300)
+    with pytest.raises(InvalidInputError, match="rest_frame"):
+        fit_sequence(model, [CAPSULE], rest_frame=3)
+    with pytest.raises(InvalidInputError, match="empty"):
+        fit_sequence(model, [])
+    empty = elastocap.Hull(np.zeros((8, 8, 8), bool), elastocap.Grid([0, 0, 0], 0.1, (8, 8, 8)))
+    with pytest.raises(InvalidInputError, match="empty"):
+        fit_sequence(model, [CAPSULE, empty])
+    planar = ElasticModel.from_mask(np.pad(np.ones((20, 20), bool), 5), n_nodes=100, k=8)
+    with pytest.raises(InvalidInputError, match="3-D"):
+        fit_sequence(planar, [CAPSULE])
+    with pytest.raises(InvalidInputError, match="rest frame 99"):
+        run_fit_stage(capture, tmp_path / "out", rest_frame=99, progress=False)
+    with pytest.raises(InvalidInputError, match="stiffness"):
+        fit_sequence(model, [CAPSULE], stiffness=-1.0)
