@@ -78,14 +78,16 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     demo = commands.add_parser(
         "demo",
-        help="synthetic capture -> visual hulls, plus kernel checks; writes pictures and metrics",
-        description="Write a synthetic capture, carve its visual hulls, draw the first frame's "
-        "hull over the camera images (OUT/hull_views.png), check the kernels against scipy "
-        "and numpy, and write OUT/metrics.json. A second run resumes the first.",
+        help="synthetic capture -> visual hulls -> elastic fit, plus kernel checks; writes a report",
+        description="Write a synthetic capture, carve its visual hulls, fit an elastic model "
+        "through all frames, measure it against the ground truth, draw the fits over the camera "
+        "images (OUT/report.html with fit_views.png, fit_strip.png, fit_plots.png, "
+        "hull_views.png), check the kernels against scipy and numpy, and write "
+        "OUT/metrics.json. A second run resumes the first.",
     )
     demo.add_argument("--out", default="demo-out", help="output folder (default: demo-out)")
     demo.add_argument("--points", type=int, default=100_000, help="points per generated cloud (default: 100000)")
-    demo.add_argument("--frames", type=int, default=10, help="frames of the synthetic capture (default: 10)")
+    demo.add_argument("--frames", type=int, default=30, help="frames of the synthetic capture (default: 30)")
     demo.add_argument("--cameras", type=int, default=8, help="cameras of the synthetic capture (default: 8)")
     demo.add_argument("--quiet", action="store_true", help="no progress bar")
     demo.set_defaults(run=_demo)

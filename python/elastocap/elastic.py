@@ -269,15 +269,18 @@ class ElasticModel:
 
     @property
     def surface(self) -> trimesh.Trimesh:
-        """The rest surface (3-D): vertices are the surface nodes, in node order."""
+        """The rest surface (3-D): vertex ``i`` is node ``surface_nodes[i]``."""
         return self.surface_at(self.nodes)
 
     def surface_at(self, positions: Any) -> trimesh.Trimesh:
-        """The surface mesh (rest topology) with the nodes at ``positions`` (N, 3)."""
+        """The surface mesh (rest topology) with the nodes at ``positions`` (N, 3): vertex
+        ``i`` is node ``surface_nodes[i]``, the same vertices and faces for any positions."""
         if self.dim != 3 or len(self.surface_faces) == 0:
             raise InvalidInputError("this model has no surface mesh (built from nodes, or 2-D)")
         x = self._positions(positions)
-        return trimesh.Trimesh(x, self.surface_faces, process=False)
+        local = np.full(self.n_nodes, -1, dtype=np.int64)
+        local[self.surface_nodes] = np.arange(len(self.surface_nodes))
+        return trimesh.Trimesh(x[self.surface_nodes], local[self.surface_faces], process=False)
 
     # -- mechanics ------------------------------------------------------------------------
 
