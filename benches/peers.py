@@ -349,7 +349,8 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
     return rows
 
 
-CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases, "sdf": sdf_cases, "carve": carve_cases, "memory": memory_cases, "solve": solve_cases}
+CASES = {"knn": knn_cases, "radius": radius_cases, "polar": polar_cases, "sdf": sdf_cases, "carve": carve_cases, "memory": memory_cases}
+CASES["solve"] = solve_cases
 
 
 def main() -> None:

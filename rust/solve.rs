@@ -6,10 +6,35 @@
 //!   symmetric pattern; the pattern is fixed through a sequence, the values are rewritten
 //!   per iteration without allocating.
 //! * [`Pcg`]: preconditioned conjugate gradients, warm-started, with a [`BlockJacobi`]
-//!   preconditioner or any other [`Preconditioner`], returning a [`PcgStatus`].
+//!   preconditioner or any other [`Preconditioner`], returning a [`PcgStatus`]; its
+//!   products read only the upper triangle (half the memory traffic).
 //! * [`SparseCholesky`]: faer's sparse $L L^\top$ with the symbolic analysis (AMD ordering,
 //!   elimination tree, supernodes) done once per pattern; it also serves as the
 //!   preconditioner of CG while the values drift from those it factored.
+//!
+//! The per-iteration solve of the fitting, allocation-free after the first pass:
+//!
+//! ```no_run
+//! # use _core::solve::{Block, BlockCsr, BlockJacobi, Pcg};
+//! # fn fit(stiffness: &_core::efg::Csr, surface: &[u32], metric: &[Block<3>],
+//! #        rhs: &[f64], x: &mut [f64]) -> _core::Result<()> {
+//! let k = BlockCsr::<3>::from_csr(stiffness)?;
+//! let mut a = k.zeros_like(); // shares k's pattern
+//! let mut pcg = Pcg::new();
+//! let (alpha, beta) = (1.0, 10.0);
+//! k.scale_into(alpha, &mut a)?;
+//! a.add_diagonal_blocks(beta, surface, metric)?;
+//! let mut jacobi = BlockJacobi::new(&a)?;
+//! for _iteration in 0..10 {
+//!     // ... new metric blocks and right-hand side ...
+//!     k.scale_into(alpha, &mut a)?;
+//!     a.add_diagonal_blocks(beta, surface, metric)?;
+//!     jacobi.update(&a)?;
+//!     let status = pcg.solve(&a, &mut jacobi, rhs, x, 1e-8, 1000)?; // warm: x is the last fit
+//!     if !status.converged { /* report status.relative_residual */ }
+//! }
+//! # Ok(()) }
+//! ```
 
 mod block;
 mod cholesky;

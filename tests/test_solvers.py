@@ -227,3 +227,15 @@ def test_indefinite_matrix() -> None:
         conjugate_gradient(indefinite, np.array([1.0, 0, 0, -1.0, 0, 0]))
     with pytest.raises(InvalidInputError, match="not positive definite"):
         SparseCholesky(indefinite)
+
+
+def test_int64_indices_give_the_same_solution() -> None:
+    """scipy uses int64 indices for large matrices; both index types are read in place."""
+    matrix = random_spd(20, 2, 0.2, 3)
+    wide = matrix.copy()
+    wide.indptr, wide.indices = wide.indptr.astype(np.int64), wide.indices.astype(np.int64)
+    rhs = np.arange(40.0)
+    narrow_x, _ = conjugate_gradient(matrix, rhs, block=2)
+    wide_x, _ = conjugate_gradient(wide, rhs, block=2)
+    assert np.array_equal(narrow_x, wide_x)
+    assert np.array_equal(SparseCholesky(matrix, block=2).solve(rhs), SparseCholesky(wide, block=2).solve(rhs))

@@ -144,15 +144,15 @@ class SparseCholesky:
     def __new__(
         cls,
         size: int,
-        indptr: NDArray[np.int64],
-        indices: NDArray[np.int64],
+        indptr: NDArray[np.int32] | NDArray[np.int64],
+        indices: NDArray[np.int32] | NDArray[np.int64],
         data: NDArray[np.float64],
         block: int,
     ) -> SparseCholesky: ...
     def factorize(
         self,
-        indptr: NDArray[np.int64],
-        indices: NDArray[np.int64],
+        indptr: NDArray[np.int32] | NDArray[np.int64],
+        indices: NDArray[np.int32] | NDArray[np.int64],
         data: NDArray[np.float64],
     ) -> None: ...
     def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]: ...
@@ -165,8 +165,8 @@ class SparseCholesky:
 
 def conjugate_gradient(
     size: int,
-    indptr: NDArray[np.int64],
-    indices: NDArray[np.int64],
+    indptr: NDArray[np.int32] | NDArray[np.int64],
+    indices: NDArray[np.int32] | NDArray[np.int64],
     data: NDArray[np.float64],
     rhs: NDArray[np.float64],
     x0: NDArray[np.float64],

@@ -21,7 +21,7 @@ from elastocap._validate import as_count, as_float_array
 
 __all__ = ["SolveStatus", "SparseCholesky", "conjugate_gradient"]
 
-_Csr = tuple[int, NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]
+_Csr = tuple[int, NDArray[np.int32] | NDArray[np.int64], NDArray[np.int32] | NDArray[np.int64], NDArray[np.float64]]
 
 
 @dataclass(frozen=True)
@@ -72,10 +72,12 @@ def _as_csr(matrix: Any, block: int) -> _Csr:
     if not csr.has_canonical_format:
         csr = csr.copy()  # never reorder the caller's arrays
         csr.sum_duplicates()  # also sorts the column indices
+    # scipy's int32 indices are read in place; both arrays get one index type.
+    index = np.int32 if csr.indptr.dtype == np.int32 and csr.indices.dtype == np.int32 else np.int64
     return (
         size,
-        np.ascontiguousarray(csr.indptr, dtype=np.int64),
-        np.ascontiguousarray(csr.indices, dtype=np.int64),
+        np.ascontiguousarray(csr.indptr, dtype=index),
+        np.ascontiguousarray(csr.indices, dtype=index),
         np.ascontiguousarray(csr.data, dtype=np.float64),
     )
 

@@ -1,4 +1,4 @@
-//! Binding of the sparse solvers: scalar CSR arrays in (scipy's, sorted, int64), grouped
+//! Binding of the sparse solvers: scalar CSR arrays in (scipy's, sorted, int32 or int64), grouped
 //! into 2x2 / 3x3 blocks by the core; conjugate gradients and a sparse Cholesky object.
 
 use std::sync::Mutex;
@@ -12,30 +12,62 @@ use crate::solve::{BlockCsr, BlockJacobi, Pcg, PcgStatus, SparseCholesky as Chol
 /// `(x, converged, iterations, relative_residual)`.
 type CgOutputs<'py> = (Bound<'py, PyArray1<f64>>, bool, usize, f64);
 
+/// scipy's index arrays: int32 (its default) or int64 (large matrices), read in place.
+enum IndexArrays<'py> {
+    I32(PyReadonlyArray1<'py, i32>, PyReadonlyArray1<'py, i32>),
+    I64(PyReadonlyArray1<'py, i64>, PyReadonlyArray1<'py, i64>),
+}
+
+fn index_arrays<'py>(
+    indptr: &Bound<'py, PyAny>,
+    indices: &Bound<'py, PyAny>,
+) -> PyResult<IndexArrays<'py>> {
+    let narrow = (indptr.extract().ok(), indices.extract().ok());
+    if let (Some(p), Some(i)) = narrow {
+        return Ok(IndexArrays::I32(p, i));
+    }
+    let wide = (indptr.extract().ok(), indices.extract().ok());
+    if let (Some(p), Some(i)) = wide {
+        return Ok(IndexArrays::I64(p, i));
+    }
+    Err(invalid_input(
+        "matrix indptr and indices must be 1-D arrays, both int32 or both int64".to_string(),
+    ))
+}
+
 /// Borrowed scalar CSR arrays (scipy's, sorted); grouped into blocks by the core.
+enum Indices<'a> {
+    I32(&'a [i32], &'a [i32]),
+    I64(&'a [i64], &'a [i64]),
+}
+
 struct CsrArrays<'a> {
     size: usize,
-    indptr: &'a [i64],
-    indices: &'a [i64],
+    indices: Indices<'a>,
     data: &'a [f64],
 }
 
 impl CsrArrays<'_> {
     fn blocks<const B: usize>(&self) -> crate::Result<BlockCsr<B>> {
-        BlockCsr::from_csr_parts(self.size, self.indptr, self.indices, self.data)
+        match self.indices {
+            Indices::I32(p, i) => BlockCsr::from_csr_parts(self.size, p, i, self.data),
+            Indices::I64(p, i) => BlockCsr::from_csr_parts(self.size, p, i, self.data),
+        }
     }
 }
 
 fn csr<'a>(
     size: usize,
-    indptr: &'a PyReadonlyArray1<'_, i64>,
-    indices: &'a PyReadonlyArray1<'_, i64>,
+    indices: &'a IndexArrays<'_>,
     data: &'a PyReadonlyArray1<'_, f64>,
 ) -> PyResult<CsrArrays<'a>> {
+    let indices = match indices {
+        IndexArrays::I32(p, i) => Indices::I32(c_slice(p, "indptr")?, c_slice(i, "indices")?),
+        IndexArrays::I64(p, i) => Indices::I64(c_slice(p, "indptr")?, c_slice(i, "indices")?),
+    };
     Ok(CsrArrays {
         size,
-        indptr: c_slice(indptr, "indptr")?,
-        indices: c_slice(indices, "indices")?,
+        indices,
         data: c_slice(data, "data")?,
     })
 }
@@ -114,13 +146,14 @@ impl SparseCholesky {
     fn new(
         py: Python<'_>,
         size: usize,
-        indptr: PyReadonlyArray1<'_, i64>,
-        indices: PyReadonlyArray1<'_, i64>,
+        indptr: Bound<'_, PyAny>,
+        indices: Bound<'_, PyAny>,
         data: PyReadonlyArray1<'_, f64>,
         block: usize,
     ) -> PyResult<Self> {
         check_block(block)?;
-        let csr = csr(size, &indptr, &indices, &data)?;
+        let index = index_arrays(&indptr, &indices)?;
+        let csr = csr(size, &index, &data)?;
         let factor = py
             .detach(|| match block {
                 2 => analyse_and_factorize::<2>(&csr).map(Factor::Two),
@@ -138,11 +171,12 @@ impl SparseCholesky {
     fn factorize(
         &self,
         py: Python<'_>,
-        indptr: PyReadonlyArray1<'_, i64>,
-        indices: PyReadonlyArray1<'_, i64>,
+        indptr: Bound<'_, PyAny>,
+        indices: Bound<'_, PyAny>,
         data: PyReadonlyArray1<'_, f64>,
     ) -> PyResult<()> {
-        let csr = csr(self.size, &indptr, &indices, &data)?;
+        let index = index_arrays(&indptr, &indices)?;
+        let csr = csr(self.size, &index, &data)?;
         let mut guard = self.lock();
         let factor = &mut *guard;
         py.detach(|| match factor {
@@ -200,8 +234,8 @@ impl SparseCholesky {
 fn conjugate_gradient<'py>(
     py: Python<'py>,
     size: usize,
-    indptr: PyReadonlyArray1<'py, i64>,
-    indices: PyReadonlyArray1<'py, i64>,
+    indptr: Bound<'py, PyAny>,
+    indices: Bound<'py, PyAny>,
     data: PyReadonlyArray1<'py, f64>,
     rhs: PyReadonlyArray1<'py, f64>,
     x0: PyReadonlyArray1<'py, f64>,
@@ -211,7 +245,8 @@ fn conjugate_gradient<'py>(
     preconditioner: Option<&Bound<'py, SparseCholesky>>,
 ) -> PyResult<CgOutputs<'py>> {
     check_block(block)?;
-    let csr = csr(size, &indptr, &indices, &data)?;
+    let index = index_arrays(&indptr, &indices)?;
+    let csr = csr(size, &index, &data)?;
     let rhs = c_slice(&rhs, "rhs")?;
     if x0.len() != size {
         return Err(invalid_input(format!(

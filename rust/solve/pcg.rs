@@ -238,15 +238,20 @@ impl<const B: usize> Pcg<B> {
         let target = tolerance * b_norm;
         self.upper.load(matrix);
         let mut iterations = 0;
+        // A cold start needs no product for its residual.
+        let mut zero_start = x.iter().all(|v| *v == [0.0; B]);
         loop {
             // True residual r = b - A x: at the start and to confirm convergence.
-            self.upper.mul(x, &mut self.q);
             self.r.copy_from_slice(b);
-            update(&mut self.r, &self.q, |r, q| {
-                for a in 0..B {
-                    r[a] -= q[a];
-                }
-            });
+            if !zero_start {
+                self.upper.mul(x, &mut self.q);
+                update(&mut self.r, &self.q, |r, q| {
+                    for a in 0..B {
+                        r[a] -= q[a];
+                    }
+                });
+            }
+            zero_start = false;
             let r_norm = dot(&self.r, &self.r).sqrt();
             if r_norm <= target || iterations >= max_iterations || !r_norm.is_finite() {
                 return Ok(PcgStatus {

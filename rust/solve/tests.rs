@@ -214,3 +214,147 @@ fn bad_input_is_an_error() {
         Err(Error::NotPositiveDefinite { row: 2, .. })
     ));
 }
+
+/// The EFG stiffness of a jittered 5 x 5 x 4 grid (k = 20) and its neighbour lists.
+fn efg_stiffness() -> (Csr, Vec<u32>, usize) {
+    use crate::efg::{Material, NodalElasticity, Plane};
+    const K: usize = 20;
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let points: Vec<[f64; 3]> = (0..100)
+        .map(|i| {
+            let c = [i % 5, (i / 5) % 5, i / 25];
+            std::array::from_fn(|a| c[a] as f64 + rng.random_range(-0.3..0.3))
+        })
+        .collect();
+    let knn = crate::SpatialHash::new(&points)
+        .unwrap()
+        .knn(None, K - 1)
+        .unwrap();
+    let mut neighbors = Vec::new();
+    let mut support = Vec::new();
+    for p in 0..points.len() {
+        neighbors.push(p as u32);
+        neighbors.extend(
+            knn.indices[p * (K - 1)..(p + 1) * (K - 1)]
+                .iter()
+                .map(|&i| i as u32),
+        );
+        support.push(1.1 * knn.distances[(p + 1) * (K - 1) - 1]);
+    }
+    let shapes = crate::mls::shape_functions::<3, 4>(&points, &neighbors, K, &support).unwrap();
+    let volumes = vec![1.0; points.len()];
+    let material = Material {
+        youngs: 1.0,
+        poisson: 0.3,
+        plane: Plane::Strain,
+    };
+    let k = NodalElasticity::<3>::new(&neighbors, K, &shapes.grad, &volumes, &material)
+        .unwrap()
+        .stiffness();
+    (k, neighbors, K)
+}
+
+#[test]
+fn neighbourhood_pattern_is_the_stiffness_pattern() {
+    let (k, neighbors, nk) = efg_stiffness();
+    let stiffness = BlockCsr::<3>::from_csr(&k).unwrap();
+    let pattern = BlockCsr::<3>::from_neighborhoods(stiffness.len(), &neighbors, nk).unwrap();
+    assert!(pattern.same_pattern(&stiffness));
+    assert!(pattern.blocks().iter().all(|b| *b == [[0.0; 3]; 3]));
+    // Round trip through scalar CSR keeps every entry.
+    assert_eq!(stiffness.to_csr(), k);
+}
+
+#[test]
+fn assembly_in_place_matches_a_fresh_matrix() {
+    let (k, _, _) = efg_stiffness();
+    let stiffness = BlockCsr::<3>::from_csr(&k).unwrap();
+    let nodes = [0u32, 7, 7, 42];
+    let blocks = [[[1.0, 0.5, 0.0], [0.5, 2.0, 0.0], [0.0, 0.0, 3.0]]; 4];
+    let mut out = stiffness.zeros_like();
+    for _ in 0..2 {
+        stiffness.scale_into(2.5, &mut out).unwrap();
+        out.add_diagonal_blocks(0.1, &nodes, &blocks).unwrap();
+    }
+    let mut expected = k.clone();
+    expected.data.iter_mut().for_each(|v| *v *= 2.5);
+    let mut fresh = BlockCsr::<3>::from_csr(&expected).unwrap();
+    for (&i, m) in nodes.iter().zip(&blocks) {
+        let d = fresh.diagonal_block_mut(i as usize);
+        for a in 0..3 {
+            for b in 0..3 {
+                d[a][b] += 0.1 * m[a][b];
+            }
+        }
+    }
+    assert_eq!(out.blocks(), fresh.blocks());
+    // A matrix of another pattern is refused; so are bad nodes and blocks.
+    let mut other = random_spd::<3>(stiffness.len(), 0.01, 1);
+    assert!(matches!(
+        stiffness.scale_into(1.0, &mut other),
+        Err(Error::PatternMismatch { .. })
+    ));
+    assert!(matches!(
+        out.add_diagonal_blocks(1.0, &[100], &blocks[..1]),
+        Err(Error::NodeIndex { index: 100, .. })
+    ));
+    assert!(matches!(
+        out.add_diagonal_blocks(1.0, &[1, 2], &blocks[..1]),
+        Err(Error::VectorLength { .. })
+    ));
+    let mut cholesky = SparseCholesky::analyse(&out).unwrap();
+    assert!(matches!(
+        cholesky.factorize(&other),
+        Err(Error::PatternMismatch { .. })
+    ));
+}
+
+#[test]
+fn symmetric_closure_of_an_adjacency() {
+    let m = BlockCsr::<2>::from_pattern(&[vec![2u32], vec![], vec![]]).unwrap();
+    assert_eq!(m.indptr(), &[0, 2, 3, 5]);
+    assert_eq!(m.indices(), &[0, 2, 1, 0, 2]);
+    assert!(matches!(
+        BlockCsr::<2>::from_pattern(&[vec![3u32]]),
+        Err(Error::NodeIndex { index: 3, .. })
+    ));
+}
+
+#[test]
+fn pcg_cap_and_warm_start() {
+    let m = random_spd::<3>(80, 0.1, 9);
+    let rhs: Vec<f64> = (0..m.size()).map(|i| (i as f64 * 0.37).cos()).collect();
+    let exact = reference(&m, &rhs);
+    let mut jacobi = BlockJacobi::new(&m).unwrap();
+    let mut pcg = Pcg::new();
+    let mut x = vec![0.0; m.size()];
+    let capped = pcg.solve(&m, &mut jacobi, &rhs, &mut x, 1e-14, 2).unwrap();
+    assert!(!capped.converged && capped.iterations == 2 && capped.relative_residual > 1e-14);
+    x.copy_from_slice(&exact);
+    let warm = pcg
+        .solve(&m, &mut jacobi, &rhs, &mut x, 1e-10, 100)
+        .unwrap();
+    assert!(warm.converged && warm.iterations <= 1, "{warm:?}");
+}
+
+fn check_upper_product<const B: usize>(n: usize, density: f64) {
+    let m = random_spd::<B>(n, density, 4);
+    let x: Vec<f64> = (0..m.size()).map(|i| (i as f64 * 0.71).sin()).collect();
+    let mut full = vec![0.0; m.size()];
+    m.mul_into(&x, &mut full).unwrap();
+    let mut upper = super::upper::Upper::<B>::default();
+    upper.load(&m);
+    let mut half = vec![[0.0; B]; m.len()];
+    for _ in 0..2 {
+        upper.mul(x.as_chunks::<B>().0, &mut half);
+        assert!(relative_error(half.as_flattened(), &full) < 1e-14);
+    }
+}
+
+#[test]
+fn upper_triangle_product_equals_the_full_one() {
+    // Large enough for one task per thread, and small (one task).
+    check_upper_product::<3>(3000, 0.01);
+    check_upper_product::<2>(4000, 0.01);
+    check_upper_product::<3>(30, 0.2);
+}
