@@ -74,12 +74,9 @@ def _as_csr(matrix: Any, block: int) -> _Csr:
         csr.sum_duplicates()  # also sorts the column indices
     # scipy's int32 indices are read in place; both arrays get one index type.
     index = np.int32 if csr.indptr.dtype == np.int32 and csr.indices.dtype == np.int32 else np.int64
-    return (
-        size,
-        np.ascontiguousarray(csr.indptr, dtype=index),
-        np.ascontiguousarray(csr.indices, dtype=index),
-        np.ascontiguousarray(csr.data, dtype=np.float64),
-    )
+    indptr: Any = np.ascontiguousarray(csr.indptr, dtype=index)
+    indices: Any = np.ascontiguousarray(csr.indices, dtype=index)
+    return size, indptr, indices, np.ascontiguousarray(csr.data, dtype=np.float64)
 
 
 def _as_vector(name: str, value: Any, size: int, block: int) -> tuple[NDArray[np.float64], tuple[int, ...]]:
