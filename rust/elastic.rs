@@ -359,24 +359,31 @@ impl<const D: usize> ElasticModel<D> {
     /// Per node $i$: $\sum_p V_p\, Q_p\, \sigma_p \nabla\Phi_i(x_p)$, with $Q_p = R_p$ when
     /// `rotations` are given, else $I$: the gather of the nodal stresses onto the nodes.
     fn gather(&self, stresses: &[Block<D>], rotations: Option<&[Block<D>]>) -> Vec<[f64; D]> {
+        let mut out = vec![[0.0; D]; self.len()];
+        self.gather_into(stresses, rotations, &mut out);
+        out
+    }
+
+    fn gather_into(
+        &self,
+        stresses: &[Block<D>],
+        rotations: Option<&[Block<D>]>,
+        out: &mut [[f64; D]],
+    ) {
         let k = self.k;
-        (0..self.len())
-            .into_par_iter()
-            .map(|i| {
-                let mut f = [0.0; D];
-                for &(p, a) in self.occurrences.of(i) {
-                    let (p, a) = (p as usize, a as usize);
-                    let mut t = mul_vec(&stresses[p], &self.grad[p * k + a]);
-                    if let Some(r) = rotations {
-                        t = mul_vec(&r[p], &t);
-                    }
-                    for c in 0..D {
-                        f[c] += self.volumes[p] * t[c];
-                    }
+        out.par_iter_mut().enumerate().for_each(|(i, f)| {
+            *f = [0.0; D];
+            for &(p, a) in self.occurrences.of(i) {
+                let (p, a) = (p as usize, a as usize);
+                let mut t = mul_vec(&stresses[p], &self.grad[p * k + a]);
+                if let Some(r) = rotations {
+                    t = mul_vec(&r[p], &t);
                 }
-                f
-            })
-            .collect()
+                for c in 0..D {
+                    f[c] += self.volumes[p] * t[c];
+                }
+            }
+        });
     }
 
     fn warped_rotations<'r>(&self, rotations: &'r [Block<D>]) -> Option<&'r [Block<D>]> {
@@ -461,6 +468,62 @@ impl<const D: usize> ElasticModel<D> {
             })
             .collect();
         Ok(self.gather(&stresses, warped))
+    }
+
+    /// $S u$ into `out` with caller-kept scratch, for the inner loop of an iterative
+    /// solver: no checks (the caller checked the rotations once; `u` comes from the solver).
+    pub fn apply_into(
+        &self,
+        rotations: &[Block<D>],
+        u: &[[f64; D]],
+        stresses: &mut Vec<Block<D>>,
+        out: &mut [[f64; D]],
+    ) {
+        let warped = self.warped_rotations(rotations);
+        stresses.resize(self.len(), [[0.0; D]; D]);
+        stresses.par_iter_mut().enumerate().for_each(|(p, sigma)| {
+            let f = self.deformation_gradient(p, u);
+            let h = match warped {
+                Some(r) => matmul(&transpose(&r[p]), &f),
+                None => f,
+            };
+            *sigma = self.stress(&h);
+        });
+        self.gather_into(stresses, warped, out);
+    }
+
+    /// The diagonal blocks of $S$ (one per node), for a block-Jacobi preconditioner of the
+    /// matrix-free product.
+    ///
+    /// # Errors
+    /// Wrong-length or non-finite rotations.
+    pub fn diagonal_blocks(&self, rotations: &[Block<D>]) -> Result<Vec<Block<D>>> {
+        self.check_rotations(rotations)?;
+        let (lambda, mu) = self.lame;
+        let warped = self.warped_rotations(rotations);
+        let k = self.k;
+        Ok((0..self.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut block = [[0.0; D]; D];
+                for &(p, a) in self.occurrences.of(i) {
+                    let (p, a) = (p as usize, a as usize);
+                    let g = match warped {
+                        Some(r) => mul_vec(&r[p], &self.grad[p * k + a]),
+                        None => self.grad[p * k + a],
+                    };
+                    let v = self.volumes[p];
+                    let dot: f64 = g.iter().map(|x| x * x).sum();
+                    for r in 0..D {
+                        for c in 0..D {
+                            block[r][c] += v * (lambda + mu) * g[r] * g[c];
+                        }
+                        block[r][r] += v * mu * dot;
+                    }
+                }
+                block
+            })
+            .collect())
     }
 
     /// The blocks of the system matrix $S$ on [`Self::pattern`]: $K$, or $K_R$ in the warped

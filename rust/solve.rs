@@ -43,7 +43,7 @@ mod upper;
 
 pub use block::{Block, BlockCsr, CsrIndex};
 pub use cholesky::SparseCholesky;
-pub use pcg::{BlockJacobi, Pcg, PcgStatus, Preconditioner};
+pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 
 #[cfg(test)]
 mod tests;

@@ -196,4 +196,5 @@ class FitCore:
         self_intersection: bool = True,
         solver_tolerance: float = 1e-6,
         solver_max_iterations: int = 500,
+        matrix_free: bool = False,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...

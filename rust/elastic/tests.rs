@@ -231,3 +231,33 @@ fn bad_input_is_an_error() {
         Err(Error::LengthMismatch { .. })
     ));
 }
+
+#[test]
+fn matrix_free_product_and_diagonal_match_the_assembled_matrix() {
+    for rotation in [Rotation::Rhs, Rotation::Warped] {
+        let m = model::<3>(5, rotation, RotationFit::Gradient);
+        let x = perturbed(m.rest(), 9);
+        let rotations = m.rotations(&x).unwrap();
+        let pattern = m.pattern();
+        let mut blocks = vec![[[0.0; 3]; 3]; pattern.nnz()];
+        m.system_blocks(&rotations, &mut blocks).unwrap();
+        let diagonal = m.diagonal_blocks(&rotations).unwrap();
+        for (i, d) in diagonal.iter().enumerate() {
+            let at = (pattern.indptr[i]..pattern.indptr[i + 1])
+                .find(|&at| pattern.indices[at] as usize == i)
+                .unwrap();
+            for r in 0..3 {
+                for c in 0..3 {
+                    assert!(
+                        (d[r][c] - blocks[at][r][c]).abs() < 1e-12 * (1.0 + blocks[at][r][c].abs())
+                    );
+                }
+            }
+        }
+        let mut scratch = Vec::new();
+        let mut out = vec![[0.0; 3]; m.len()];
+        m.apply_into(&rotations, &x, &mut scratch, &mut out);
+        let expected = m.apply(&rotations, &x).unwrap();
+        assert_eq!(out, expected);
+    }
+}

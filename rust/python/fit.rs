@@ -64,7 +64,7 @@ impl FitCore {
     /// `spacing`) from `start` (N, 3): `(positions (N, 3), metrics dict)`.
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
-        solver_tolerance = 1e-6, solver_max_iterations = 500))]
+        solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -81,6 +81,7 @@ impl FitCore {
         self_intersection: bool,
         solver_tolerance: f64,
         solver_max_iterations: usize,
+        matrix_free: bool,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let model = self.model.get().spatial().expect("checked at construction");
         let shape = values.shape();
@@ -101,6 +102,7 @@ impl FitCore {
             self_intersection,
             solver_tolerance,
             solver_max_iterations,
+            matrix_free,
         };
         let mut workspace = self
             .workspace

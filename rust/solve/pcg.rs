@@ -23,6 +23,31 @@ pub trait Preconditioner<const B: usize> {
     fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]);
 }
 
+/// $y = A x$ for a symmetric positive definite $A$ that need not be stored: the matrix-free
+/// products of the elastic model are ~3x cheaper than an assembled one (benches/README.md).
+pub trait LinearOperator<const B: usize> {
+    /// Number of block rows.
+    fn len(&self) -> usize;
+    /// True without rows.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Writes $A x$ into `y` (both `len()` blocks).
+    fn apply(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]);
+}
+
+/// An assembled matrix as an operator, through its upper triangle.
+struct Assembled<'a, const B: usize>(&'a mut Upper<B>, usize);
+
+impl<const B: usize> LinearOperator<B> for Assembled<'_, B> {
+    fn len(&self) -> usize {
+        self.1
+    }
+    fn apply(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        self.0.mul(x, y);
+    }
+}
+
 /// The block-Jacobi preconditioner: the inverses of the $B \times B$ diagonal blocks.
 #[derive(Debug, Clone)]
 pub struct BlockJacobi<const B: usize> {
@@ -75,6 +100,22 @@ impl<const B: usize> BlockJacobi<B> {
         };
         this.update(matrix)?;
         Ok(this)
+    }
+
+    /// Inverts the given diagonal blocks (of an operator that is not assembled).
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn from_diagonal(blocks: &[Block<B>]) -> Result<Self> {
+        let mut inverse = vec![[[0.0; B]; B]; blocks.len()];
+        for (i, (inv, block)) in inverse.iter_mut().zip(blocks).enumerate() {
+            *inv = spd_inverse(block).map_err(|pivot| Error::NotPositiveDefinite {
+                argument: "matrix",
+                row: i * B + pivot,
+                reason: "its diagonal block (inverted by the block-Jacobi preconditioner) has a non-positive pivot",
+            })?;
+        }
+        Ok(Self { inverse })
     }
 
     /// Recomputes the inverses for new values of `matrix` (same number of nodes).
@@ -201,7 +242,34 @@ impl<const B: usize> Pcg<B> {
         tolerance: f64,
         max_iterations: usize,
     ) -> Result<PcgStatus> {
-        let size = matrix.size();
+        let mut upper = std::mem::take(&mut self.upper);
+        upper.load(matrix);
+        let result = self.solve_operator(
+            &mut Assembled(&mut upper, matrix.len()),
+            preconditioner,
+            rhs,
+            x,
+            tolerance,
+            max_iterations,
+        );
+        self.upper = upper;
+        result
+    }
+
+    /// [`Self::solve`] for any operator.
+    ///
+    /// # Errors
+    /// As [`Self::solve`].
+    pub fn solve_operator<O: LinearOperator<B> + ?Sized, P: Preconditioner<B> + ?Sized>(
+        &mut self,
+        operator: &mut O,
+        preconditioner: &mut P,
+        rhs: &[f64],
+        x: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<PcgStatus> {
+        let size = operator.len() * B;
         for (argument, len) in [("rhs", rhs.len()), ("x", x.len())] {
             if len != size {
                 return Err(Error::VectorLength {
@@ -222,7 +290,7 @@ impl<const B: usize> Pcg<B> {
         let x = x.as_chunks_mut::<B>().0;
         check_finite("rhs", b)?;
         check_finite("x", x)?;
-        let n = matrix.len();
+        let n = operator.len();
         for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
             v.resize(n, [0.0; B]);
         }
@@ -236,7 +304,6 @@ impl<const B: usize> Pcg<B> {
             });
         }
         let target = tolerance * b_norm;
-        self.upper.load(matrix);
         let mut iterations = 0;
         // A cold start needs no product for its residual.
         let mut zero_start = x.iter().all(|v| *v == [0.0; B]);
@@ -244,7 +311,7 @@ impl<const B: usize> Pcg<B> {
             // True residual r = b - A x: at the start and to confirm convergence.
             self.r.copy_from_slice(b);
             if !zero_start {
-                self.upper.mul(x, &mut self.q);
+                operator.apply(x, &mut self.q);
                 update(&mut self.r, &self.q, |r, q| {
                     for a in 0..B {
                         r[a] -= q[a];
@@ -265,7 +332,7 @@ impl<const B: usize> Pcg<B> {
             let mut rz = dot(&self.r, &self.z);
             while iterations < max_iterations {
                 iterations += 1;
-                self.upper.mul(&self.p, &mut self.q);
+                operator.apply(&self.p, &mut self.q);
                 let curvature = dot(&self.p, &self.q);
                 if curvature.is_nan() || curvature <= 0.0 {
                     return Err(Error::NotPositiveDefinite {
