@@ -4,11 +4,13 @@
 //! maturin turns on.
 #![warn(missing_docs)]
 
+pub mod body;
 pub mod camera;
 pub mod carve;
 pub mod efg;
 pub mod error;
 pub mod grid_sample;
+pub mod lm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;

@@ -6,6 +6,7 @@ the public API, orchestration, I/O and the command line.
 """
 
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
+from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_body
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.efg import stiffness_matrix
@@ -20,6 +21,10 @@ from elastocap.silhouette import clean_mask, subtract_background, threshold_dark
 from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
+    "BodyFit",
+    "BodyModel",
+    "BodyObservations",
+    "BodyState",
     "Camera",
     "Capture",
     "ConvergenceError",
@@ -33,6 +38,7 @@ __all__ = [
     "SpatialIndex",
     "__version__",
     "clean_mask",
+    "fit_body",
     "knn",
     "load_hull",
     "mls_shape_functions",

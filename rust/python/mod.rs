@@ -1,6 +1,7 @@
 //! Thin Python bindings: extract and check arrays, release the GIL around the core,
 //! map errors, return numpy arrays. No algorithm lives here.
 
+mod body;
 mod carve;
 mod efg;
 mod errors;
@@ -50,6 +51,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
+    body::register(m)?;
     carve::register(m)?;
     efg::register(m)?;
     mls::register(m)?;

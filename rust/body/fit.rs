@@ -1,0 +1,377 @@
+//! The body fit as a block-arrowhead least-squares problem: per-frame motion, shared shape
+//! (SPEC 6), with part assignment and outlier rejection redone every few iterations.
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::field::Field;
+use super::observe::{Observations, Residual, SKIN_LEVEL};
+use super::skeleton::{check_vector, Skeleton};
+use crate::lm::{levenberg_marquardt, ArrowNormal, ArrowProblem, LmOptions, LmReport};
+use crate::Result;
+
+/// Shape coefficients are kept in this range: a part cannot shrink to nothing.
+pub const SHAPE_RANGE: (f64, f64) = (0.2, 5.0);
+
+/// Options of [`fit`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitOptions {
+    /// Levenberg-Marquardt stopping rules and refresh period.
+    pub lm: LmOptions,
+    /// Estimate the shape (true) or keep the given one (false).
+    pub fit_shape: bool,
+    /// Points and rays whose approximate distance to the skin, `|F - T| / |∇F|`, exceeds
+    /// this (metres) are rejected at each refresh after the first; `None`: three robust
+    /// standard deviations (1.4826 MAD) of the current distances, at least 5 mm.
+    pub outlier_distance: Option<f64>,
+}
+
+/// The fitted state and what the fit decided about each observation.
+#[derive(Debug, Clone)]
+pub struct FitResult {
+    /// Motion per frame, `frames * n_motion`.
+    pub motion: Vec<f64>,
+    /// Shape, `2 P`.
+    pub shape: Vec<f64>,
+    /// Solver outcome.
+    pub report: LmReport,
+    /// Part assigned to each point (largest field contribution).
+    pub point_part: Vec<usize>,
+    /// Whether each point was kept (not an outlier).
+    pub point_inlier: Vec<bool>,
+    /// Part assigned to each ray.
+    pub ray_part: Vec<usize>,
+    /// Whether each ray was kept.
+    pub ray_inlier: Vec<bool>,
+}
+
+/// The problem the solver sees.
+pub struct BodyProblem<'a> {
+    skeleton: &'a Skeleton,
+    obs: &'a Observations,
+    by_frame: Vec<Vec<Residual>>,
+    fixed_shape: Option<Vec<f64>>,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    outlier_distance: Option<f64>,
+    point_part: Vec<usize>,
+    point_inlier: Vec<bool>,
+    ray_part: Vec<usize>,
+    ray_inlier: Vec<bool>,
+}
+
+impl<'a> BodyProblem<'a> {
+    fn m(&self) -> usize {
+        self.skeleton.n_motion
+    }
+
+    fn s(&self) -> usize {
+        if self.fixed_shape.is_some() {
+            0
+        } else {
+            self.skeleton.n_shape()
+        }
+    }
+
+    fn shape<'x>(&'x self, x: &'x [f64]) -> &'x [f64] {
+        match &self.fixed_shape {
+            Some(shape) => shape,
+            None => &x[self.obs.frames * self.m()..],
+        }
+    }
+
+    fn field(&self, x: &[f64], f: usize) -> Result<Field<'a>> {
+        let m = self.m();
+        let pose = self.skeleton.pose(self.shape(x), &x[f * m..(f + 1) * m])?;
+        Ok(Field::new(self.skeleton, pose))
+    }
+
+    fn kept(&self, r: &Residual) -> bool {
+        match *r {
+            Residual::Point(i) => self.point_inlier[i],
+            Residual::Ray(i) => self.ray_inlier[i],
+            Residual::Joint(..) => true,
+        }
+    }
+}
+
+/// Per-frame accumulator of the normal blocks.
+struct Blocks {
+    a: Vec<f64>,
+    b: Vec<f64>,
+    c: Vec<f64>,
+    g: Vec<f64>,
+    cost: f64,
+    row: Vec<f64>,
+    nz: Vec<usize>,
+}
+
+impl Blocks {
+    fn new(m: usize, s: usize, width: usize) -> Self {
+        Self {
+            a: vec![0.0; m * m],
+            b: vec![0.0; m * s],
+            c: vec![0.0; s * s],
+            g: vec![0.0; m + s],
+            cost: 0.0,
+            row: vec![0.0; width],
+            nz: Vec::with_capacity(width),
+        }
+    }
+
+    fn add(mut self, other: Self) -> Self {
+        for (x, y) in [
+            (&mut self.a, &other.a),
+            (&mut self.b, &other.b),
+            (&mut self.c, &other.c),
+            (&mut self.g, &other.g),
+        ] {
+            x.iter_mut().zip(y).for_each(|(u, v)| *u += v);
+        }
+        self.cost += other.cost;
+        self
+    }
+
+    /// Adds one weighted row `j` and residual `r`: `A += j j^T`, `g += j r`.
+    fn accumulate(&mut self, r: f64, m: usize, s: usize) {
+        self.cost += 0.5 * r * r;
+        self.nz.clear();
+        // Shape columns sit after the motion columns of the row; with the shape fixed they
+        // are dropped (s = 0).
+        let used = m + s;
+        self.nz
+            .extend((0..used).filter(|&k| self.row[k] != 0.0));
+        for (ia, &ka) in self.nz.iter().enumerate() {
+            let va = self.row[ka];
+            self.g[ka] += va * r;
+            for &kb in &self.nz[ia..] {
+                let p = va * self.row[kb];
+                match (ka < m, kb < m) {
+                    (true, true) => {
+                        self.a[ka * m + kb] += p;
+                        if ka != kb {
+                            self.a[kb * m + ka] += p;
+                        }
+                    }
+                    (true, false) => self.b[ka * s + (kb - m)] += p,
+                    (false, false) => {
+                        let (i, j) = (ka - m, kb - m);
+                        self.c[i * s + j] += p;
+                        if i != j {
+                            self.c[j * s + i] += p;
+                        }
+                    }
+                    (false, true) => unreachable!("nz is ascending"),
+                }
+            }
+        }
+    }
+}
+
+impl ArrowProblem for BodyProblem<'_> {
+    fn dims(&self) -> (usize, usize, usize) {
+        (self.obs.frames, self.m(), self.s())
+    }
+
+    fn cost(&self, x: &[f64]) -> Result<f64> {
+        let mut cost = 0.0;
+        for f in 0..self.obs.frames {
+            let field = self.field(x, f)?;
+            cost += self.by_frame[f]
+                .par_iter()
+                .with_min_len(256)
+                .filter(|r| self.kept(r))
+                .map(|r| {
+                    let v = r.evaluate(self.obs, &field, None);
+                    0.5 * v * v
+                })
+                .sum::<f64>();
+        }
+        Ok(cost)
+    }
+
+    fn linearize(&self, x: &[f64], normal: &mut ArrowNormal) -> Result<f64> {
+        normal.clear();
+        let (m, s) = (self.m(), self.s());
+        let width = self.skeleton.n_motion + self.skeleton.n_shape();
+        let mut cost = 0.0;
+        for f in 0..self.obs.frames {
+            let field = self.field(x, f)?;
+            let blocks = self.by_frame[f]
+                .par_iter()
+                .with_min_len(1024)
+                .filter(|r| self.kept(r))
+                .fold(
+                    || Blocks::new(m, s, width),
+                    |mut acc, residual| {
+                        let mut row = std::mem::take(&mut acc.row);
+                        let r = residual.evaluate(self.obs, &field, Some(&mut row));
+                        acc.row = row;
+                        acc.accumulate(r, m, s);
+                        acc
+                    },
+                )
+                .reduce(|| Blocks::new(m, s, 0), Blocks::add);
+            normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
+            normal.b[f * m * s..(f + 1) * m * s].copy_from_slice(&blocks.b);
+            normal.c.iter_mut().zip(&blocks.c).for_each(|(u, v)| *u += v);
+            normal.g[f * m..(f + 1) * m].copy_from_slice(&blocks.g[..m]);
+            let fm = self.obs.frames * m;
+            normal.g[fm..].iter_mut().zip(&blocks.g[m..]).for_each(|(u, v)| *u += v);
+            cost += blocks.cost;
+        }
+        Ok(cost)
+    }
+
+    fn project(&self, x: &mut [f64]) {
+        let m = self.m();
+        let fm = self.obs.frames * m;
+        for (i, v) in x[..fm].iter_mut().enumerate() {
+            let k = i % m;
+            *v = v.clamp(self.lower[k], self.upper[k]);
+        }
+        for v in x[fm..].iter_mut() {
+            *v = v.clamp(SHAPE_RANGE.0, SHAPE_RANGE.1);
+        }
+    }
+
+    fn refresh(&mut self, x: &[f64], round: usize) -> Result<()> {
+        let frames = self.obs.frames;
+        let fields: Vec<Field<'_>> = (0..frames).map(|f| self.field(x, f)).collect::<Result<_>>()?;
+        // (part, approximate distance |F - T| / |∇F|) per point and per ray.
+        let measure = |field: &Field<'_>, x: Vector3<f64>| {
+            let (part, _) = field.strongest_part(&x);
+            let (f, g, _) = field.value_gradient_hessian(&x);
+            let distance = if f < 1e-8 {
+                f64::INFINITY
+            } else {
+                (f - SKIN_LEVEL).abs() / g.norm().max(1e-300)
+            };
+            (part, distance)
+        };
+        let points: Vec<(usize, f64)> = (0..self.obs.points.len())
+            .into_par_iter()
+            .map(|i| measure(&fields[self.obs.point_frame[i]], Vector3::from(self.obs.points[i])))
+            .collect();
+        let rays: Vec<(usize, f64)> = (0..self.obs.origins.len())
+            .into_par_iter()
+            .map(|i| {
+                let field = &fields[self.obs.ray_frame[i]];
+                let o = Vector3::from(self.obs.origins[i]);
+                let r = Vector3::from(self.obs.directions[i]);
+                let max = ray_maximum_point(field, &o, &r);
+                match max {
+                    Some(x) => measure(field, x),
+                    None => (0, f64::INFINITY),
+                }
+            })
+            .collect();
+        self.point_part = points.iter().map(|p| p.0).collect();
+        self.ray_part = rays.iter().map(|p| p.0).collect();
+        if round >= 1 {
+            let limit = |set: &[(usize, f64)]| {
+                self.outlier_distance
+                    .unwrap_or_else(|| (3.0 * 1.4826 * median(set.iter().map(|p| p.1))).max(5e-3))
+            };
+            let (lp, lr) = (limit(&points), limit(&rays));
+            self.point_inlier = points.iter().map(|p| p.1 <= lp).collect();
+            self.ray_inlier = rays.iter().map(|p| p.1 <= lr).collect();
+        }
+        Ok(())
+    }
+}
+
+fn ray_maximum_point(field: &Field<'_>, o: &Vector3<f64>, r: &Vector3<f64>) -> Option<Vector3<f64>> {
+    let max = super::ray::ray_maximum(field, o, r);
+    max.hit.then_some(max.point)
+}
+
+fn median(values: impl Iterator<Item = f64>) -> f64 {
+    let mut v: Vec<f64> = values.filter(|d| d.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// A problem set up for the solver (exposed for the benchmark of one iteration).
+///
+/// # Errors
+/// Invalid observations, limits or initial state.
+pub fn problem<'a>(
+    skeleton: &'a Skeleton,
+    obs: &'a Observations,
+    shape: &[f64],
+    limits: (&[f64], &[f64]),
+    options: &FitOptions,
+) -> Result<BodyProblem<'a>> {
+    obs.validate(skeleton)?;
+    check_vector("shape", shape, skeleton.n_shape())?;
+    check_vector("lower", limits.0, skeleton.n_motion)?;
+    check_vector("upper", limits.1, skeleton.n_motion)?;
+    let mut by_frame: Vec<Vec<Residual>> = (0..obs.frames).map(|_| Vec::new()).collect();
+    for (i, &f) in obs.point_frame.iter().enumerate() {
+        by_frame[f].push(Residual::Point(i));
+    }
+    for (i, &f) in obs.ray_frame.iter().enumerate() {
+        by_frame[f].push(Residual::Ray(i));
+    }
+    for (i, &f) in obs.joint_frame.iter().enumerate() {
+        for k in 0..3 {
+            by_frame[f].push(Residual::Joint(i, k));
+        }
+    }
+    Ok(BodyProblem {
+        skeleton,
+        obs,
+        by_frame,
+        fixed_shape: (!options.fit_shape).then(|| shape.to_vec()),
+        lower: limits.0.to_vec(),
+        upper: limits.1.to_vec(),
+        outlier_distance: options.outlier_distance,
+        point_part: vec![0; obs.points.len()],
+        point_inlier: vec![true; obs.points.len()],
+        ray_part: vec![0; obs.origins.len()],
+        ray_inlier: vec![true; obs.origins.len()],
+    })
+}
+
+/// Fits shape (shared) and motion (per frame) to the observations from the initial
+/// `shape` and `motion` (`frames * n_motion`), within the motion limits `lower..upper`
+/// (per parameter, applied to every frame).
+///
+/// # Errors
+/// Bad input (see [`Observations::validate`], [`Skeleton::pose`]); non-convergence is
+/// reported in [`FitResult::report`].
+pub fn fit(
+    skeleton: &Skeleton,
+    obs: &Observations,
+    shape: &[f64],
+    motion: &[f64],
+    limits: (&[f64], &[f64]),
+    options: &FitOptions,
+) -> Result<FitResult> {
+    check_vector("motion", motion, obs.frames * skeleton.n_motion)?;
+    let mut problem = problem(skeleton, obs, shape, limits, options)?;
+    let mut x = motion.to_vec();
+    if options.fit_shape {
+        x.extend_from_slice(shape);
+    }
+    let report = levenberg_marquardt(&mut problem, &mut x, &options.lm)?;
+    let fm = obs.frames * skeleton.n_motion;
+    let shape = if options.fit_shape {
+        x[fm..].to_vec()
+    } else {
+        shape.to_vec()
+    };
+    Ok(FitResult {
+        motion: x[..fm].to_vec(),
+        shape,
+        report,
+        point_part: problem.point_part,
+        point_inlier: problem.point_inlier,
+        ray_part: problem.ray_part,
+        ray_inlier: problem.ray_inlier,
+    })
+}

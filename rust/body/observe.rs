@@ -1,0 +1,161 @@
+//! Observations of a body for the fit (SPEC 6): 3-D points on the skin, silhouette rays
+//! tangent to it, optional 3-D joint positions, each type weighted by its a-priori sigma.
+
+use nalgebra::Vector3;
+
+use super::field::{Cutoff, Field};
+use super::ray::ray_maximum;
+use super::skeleton::Skeleton;
+use crate::error::check_finite;
+use crate::{Error, Result};
+
+/// The skin level `T` of SPEC 6: the skin is `F = T`.
+pub const SKIN_LEVEL: f64 = 0.5;
+
+/// Everything observed, over all frames.
+#[derive(Debug, Clone, Default)]
+pub struct Observations {
+    /// Number of frames.
+    pub frames: usize,
+    /// 3-D points on the skin (world).
+    pub points: Vec<[f64; 3]>,
+    /// Frame of each point.
+    pub point_frame: Vec<usize>,
+    /// Silhouette ray origins (world).
+    pub origins: Vec<[f64; 3]>,
+    /// Silhouette ray directions (world, any length but not zero).
+    pub directions: Vec<[f64; 3]>,
+    /// Frame of each ray.
+    pub ray_frame: Vec<usize>,
+    /// Observed joint positions (world): the origin of a part's frame.
+    pub joints: Vec<[f64; 3]>,
+    /// Part whose joint each joint observation sees.
+    pub joint_part: Vec<usize>,
+    /// Frame of each joint observation.
+    pub joint_frame: Vec<usize>,
+    /// A-priori standard deviations `[point, ray, joint]`: points and rays in field units
+    /// (F - T), joints in metres. Weights are `1 / sigma^2`.
+    pub sigma: [f64; 3],
+}
+
+fn check_index(argument: &'static str, values: &[usize], bound: usize) -> Result<()> {
+    match values.iter().position(|&v| v >= bound) {
+        Some(row) => Err(Error::IndexOutOfRange {
+            argument,
+            row,
+            value: values[row] as i64,
+            bound,
+        }),
+        None => Ok(()),
+    }
+}
+
+fn check_len(argument: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::WrongLength {
+            argument,
+            expected,
+            got,
+        })
+    }
+}
+
+impl Observations {
+    /// Checks lengths, indices, finiteness and sigmas.
+    ///
+    /// # Errors
+    /// [`Error::WrongLength`], [`Error::IndexOutOfRange`], [`Error::NonFinite`],
+    /// [`Error::BadRay`], [`Error::Empty`] (nothing observed), [`Error::InvalidMaterial`]
+    /// is not used; a non-positive sigma gives [`Error::BadModel`].
+    pub fn validate(&self, skeleton: &Skeleton) -> Result<()> {
+        check_len("point_frame", self.point_frame.len(), self.points.len())?;
+        check_len("directions", self.directions.len(), self.origins.len())?;
+        check_len("ray_frame", self.ray_frame.len(), self.origins.len())?;
+        check_len("joint_part", self.joint_part.len(), self.joints.len())?;
+        check_len("joint_frame", self.joint_frame.len(), self.joints.len())?;
+        check_index("point_frame", &self.point_frame, self.frames)?;
+        check_index("ray_frame", &self.ray_frame, self.frames)?;
+        check_index("joint_frame", &self.joint_frame, self.frames)?;
+        check_index("joint_part", &self.joint_part, skeleton.n_parts())?;
+        check_finite("points", &self.points)?;
+        check_finite("joints", &self.joints)?;
+        super::check_rays(&self.origins, &self.directions)?;
+        if self.points.len() + self.origins.len() + self.joints.len() == 0 || self.frames == 0 {
+            return Err(Error::Empty {
+                argument: "observations",
+                needed: 1,
+            });
+        }
+        if !self.sigma.iter().all(|s| s.is_finite() && *s > 0.0) {
+            return Err(Error::BadModel {
+                reason: format!("sigmas must be positive and finite, got {:?}", self.sigma),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One observation's residual and (optionally) its Jacobian row, weighted by
+/// `sqrt(p)`. `row` has `n_motion + n_shape` entries.
+pub enum Residual {
+    /// A point: `F(x) - T`.
+    Point(usize),
+    /// A ray: `max_s F(o + s r) - T`.
+    Ray(usize),
+    /// Axis `k` of a joint: `o_b[k] - observed[k]`.
+    Joint(usize, usize),
+}
+
+impl Residual {
+    /// The weighted residual; fills `row` (weighted Jacobian) when given.
+    pub fn evaluate(&self, obs: &Observations, field: &Field<'_>, row: Option<&mut [f64]>) -> f64 {
+        match *self {
+            Residual::Point(i) => {
+                let w = 1.0 / obs.sigma[0];
+                let x = Vector3::from(obs.points[i]);
+                let f = match row {
+                    Some(row) => {
+                        let f = field.state_derivative(&x, Cutoff::Bounded, row);
+                        row.iter_mut().for_each(|v| *v *= w);
+                        f
+                    }
+                    None => field.value(&x),
+                };
+                w * (f - SKIN_LEVEL)
+            }
+            Residual::Ray(i) => {
+                let w = 1.0 / obs.sigma[1];
+                let o = Vector3::from(obs.origins[i]);
+                let r = Vector3::from(obs.directions[i]);
+                let max = ray_maximum(field, &o, &r);
+                if let Some(row) = row {
+                    row.iter_mut().for_each(|v| *v = 0.0);
+                    if max.hit {
+                        field.state_derivative(&max.point, Cutoff::Bounded, row);
+                        row.iter_mut().for_each(|v| *v *= w);
+                    }
+                }
+                w * (max.value - SKIN_LEVEL)
+            }
+            Residual::Joint(i, k) => {
+                let w = 1.0 / obs.sigma[2];
+                let b = obs.joint_part[i];
+                let pose = &field.pose;
+                let origin = pose.origin[b];
+                if let Some(row) = row {
+                    row.iter_mut().for_each(|v| *v = 0.0);
+                    let n_motion = field.skeleton.n_motion;
+                    for &j in &field.skeleton.motion_of_part[b] {
+                        row[j] = w * pose.twists[j].velocity(&origin)[k];
+                    }
+                    for (j, u) in &pose.offset_derivatives[b] {
+                        row[n_motion + j] += w * u[k];
+                    }
+                }
+                w * (origin[k] - obs.joints[i][k])
+            }
+        }
+    }
+}
