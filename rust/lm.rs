@@ -22,6 +22,11 @@ pub trait ArrowProblem {
     fn linearize(&self, x: &[f64], normal: &mut ArrowNormal) -> Result<f64>;
     /// Puts `x` back into its admissible set (e.g. joint limits).
     fn project(&self, x: &mut [f64]);
+    /// Whether a step is short enough to trust the linearisation (a trust region in the
+    /// problem's own units); longer steps are damped further instead of tried.
+    fn trusted(&self, _step: &[f64]) -> bool {
+        true
+    }
     /// Re-decides data association (part assignment, outlier rejection) at `x`; `round`
     /// counts the calls.
     fn refresh(&mut self, x: &[f64], round: usize) -> Result<()>;
@@ -122,12 +127,17 @@ pub fn levenberg_marquardt<P: ArrowProblem>(
         }
         let mut accepted = false;
         let mut stop = None;
-        for _ in 0..40 {
+        for _ in 0..60 {
             let Some(step) = solver.solve(&normal, lambda) else {
                 lambda *= nu;
                 nu *= 2.0;
                 continue;
             };
+            if !problem.trusted(&step) {
+                lambda *= nu;
+                nu *= 2.0;
+                continue;
+            }
             let step_norm = step.iter().map(|v| v * v).sum::<f64>().sqrt();
             let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
             for (c, (xi, di)) in candidate.iter_mut().zip(x.iter().zip(&step)) {

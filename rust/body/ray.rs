@@ -1,10 +1,14 @@
 //! The silhouette ray search of SPEC 6: the point `x*` of a ray `o + s r` (s >= 0) where
 //! the field is largest, by a 1-D search over candidate peaks followed by safeguarded
 //! Newton steps on `φ(s) = F(o + s r)`.
+//!
+//! Along a ray each ball's `d_i` is exactly quadratic in s: `d_i(s) = m_i + c_i (s - p_i)^2`
+//! (`q = q0 + s q1`, `p = -q0·q1 / |q1|²`, `c = |q1|²`, `m = |q0 + p q1|²`). The search
+//! therefore runs on three numbers per ball, with no 3-D work after setting them up.
 
 use nalgebra::Vector3;
 
-use super::field::{Field, PlacedBall};
+use super::field::{Field, BOUND};
 
 /// The maximum of the field along one ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -13,61 +17,60 @@ pub struct RayMaximum {
     pub s: f64,
     /// The maximising point `x*` (world).
     pub point: Vector3<f64>,
-    /// `F(x*)`, summed over the balls whose bounding sphere the ray meets.
+    /// `F(x*)`, summed over the balls that the ray passes within `|q| <= BOUND` of.
     pub value: f64,
-    /// False when the ray meets no ball's bounding sphere in front of its origin: then
-    /// `value` is 0 and `point` is the origin.
+    /// False when the ray passes no ball within `|q| <= BOUND` in front of its origin:
+    /// then `value` is 0 and `point` is the origin.
     pub hit: bool,
 }
 
-/// Value, slope and curvature of `φ` at `x`, over the balls in `hit`.
-fn along(field: &Field<'_>, hit: &[usize], x: &Vector3<f64>, r: &Vector3<f64>) -> (f64, f64, f64) {
-    let mut f = 0.0;
-    let mut slope = 0.0;
-    let mut curvature = 0.0;
-    for &i in hit {
-        let ball: &PlacedBall = &field.balls[i];
-        let t = Field::term(ball, x);
-        let radii = ball.radii.component_mul(&ball.scale);
-        // In the part frame: d = |q|², dq/ds = R^T r / radii.
-        let rq = (ball.rotation.transpose() * r).component_div(&radii);
-        let dd = 2.0 * t.q.dot(&rq);
-        let ddd = 2.0 * rq.norm_squared();
-        f += t.value;
-        slope += -2.0 * t.value * dd;
-        curvature += t.value * (4.0 * dd * dd - 2.0 * ddd);
+/// One ball's `d(s) = m + c (s - p)^2` along the ray.
+#[derive(Debug, Clone, Copy)]
+struct Quadratic {
+    m: f64,
+    c: f64,
+    p: f64,
+}
+
+/// `(φ, φ', φ'')` at `s`.
+fn along(balls: &[Quadratic], s: f64) -> (f64, f64, f64) {
+    let (mut f, mut slope, mut curvature) = (0.0, 0.0, 0.0);
+    for b in balls {
+        let t = s - b.p;
+        let e = (-2.0 * (b.m + b.c * t * t)).exp();
+        let dd = 2.0 * b.c * t;
+        f += e;
+        slope -= 2.0 * e * dd;
+        curvature += e * (4.0 * dd * dd - 4.0 * b.c);
     }
     (f, slope, curvature)
 }
 
 /// The maximum of the field along `origin + s direction`, `s >= 0`.
 ///
-/// Candidates are each met ball's own peak along the ray (d_i is quadratic in s, so its
-/// minimiser is closed-form) and the midpoints between neighbouring peaks; Newton steps,
-/// limited to half the smallest met radius and backtracked when they descend, climb from
-/// the best candidate to the stationary point `φ'(s*) = 0`.
+/// Candidates are each met ball's own peak along the ray and the midpoints between
+/// neighbouring peaks; Newton steps, limited to half the narrowest met ball's extent along
+/// the ray and backtracked when they descend, climb from the best candidate to the
+/// stationary point `φ'(s*) = 0`.
 pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3<f64>) -> RayMaximum {
-    let rr = direction.norm_squared();
-    let mut hit = Vec::new();
-    let mut peaks = Vec::new();
+    let mut met: Vec<Quadratic> = Vec::with_capacity(16);
     let mut step_limit = f64::INFINITY;
-    for (i, ball) in field.balls.iter().enumerate() {
-        // Ray-sphere test against the bounding sphere.
-        let oc = origin - ball.world_centre;
-        let b = oc.dot(direction) / rr;
-        let c = (oc.norm_squared() - ball.bound_radius * ball.bound_radius) / rr;
-        let disc = b * b - c;
-        if disc < 0.0 || -b + disc.sqrt() < 0.0 {
-            continue;
-        }
-        hit.push(i);
+    for ball in &field.balls {
         let radii = ball.radii.component_mul(&ball.scale);
         let q0 = (ball.rotation.transpose() * (origin - ball.world_centre)).component_div(&radii);
         let q1 = (ball.rotation.transpose() * direction).component_div(&radii);
-        peaks.push((-q0.dot(&q1) / q1.norm_squared()).max(0.0));
-        step_limit = step_limit.min(0.5 * radii.min() / rr.sqrt());
+        let c = q1.norm_squared();
+        let p = -q0.dot(&q1) / c;
+        let m = (q0 + p * q1).norm_squared();
+        // Skip balls the ray never comes near, and balls wholly behind the origin.
+        if m > BOUND * BOUND || (p < 0.0 && q0.norm_squared() > BOUND * BOUND) {
+            continue;
+        }
+        met.push(Quadratic { m, c, p });
+        // |q| changes by 1 over 1/sqrt(c) in s: half of that is a safe Newton step.
+        step_limit = step_limit.min(0.5 / c.sqrt());
     }
-    if hit.is_empty() {
+    if met.is_empty() {
         return RayMaximum {
             s: 0.0,
             point: *origin,
@@ -75,16 +78,24 @@ pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3
             hit: false,
         };
     }
-    peaks.sort_by(f64::total_cmp);
-    let mut candidates = peaks.clone();
-    candidates.extend(peaks.windows(2).map(|w| 0.5 * (w[0] + w[1])));
-    let at = |s: f64| origin + s * direction;
-    let (mut s, mut phi) = candidates
+    // Only balls whose own peak is within a factor 1e-3 of the strongest are candidates:
+    // the others still add to φ but cannot host its maximum on their own, and evaluating
+    // every candidate costs k evaluations of k terms.
+    let strongest = met.iter().map(|b| b.m).fold(f64::INFINITY, f64::min);
+    let mut peaks: Vec<f64> = met
         .iter()
-        .map(|&s| (s, along(field, &hit, &at(s), direction).0))
+        .filter(|b| b.m <= strongest + 3.5)
+        .map(|b| b.p.max(0.0))
+        .collect();
+    peaks.sort_by(f64::total_cmp);
+    let midpoints: Vec<f64> = peaks.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+    let (mut s, mut phi) = peaks
+        .iter()
+        .chain(&midpoints)
+        .map(|&s| (s, along(&met, s).0))
         .fold((0.0, f64::NEG_INFINITY), |best, c| if c.1 > best.1 { c } else { best });
     for _ in 0..100 {
-        let (_, slope, curvature) = along(field, &hit, &at(s), direction);
+        let (_, slope, curvature) = along(&met, s);
         let mut step = if curvature < 0.0 {
             -slope / curvature
         } else {
@@ -98,7 +109,7 @@ pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3
         // rounding), so a short Newton step is taken on the strength of the curvature alone.
         if curvature < 0.0 && step.abs() < 1e-3 * step_limit {
             s += step;
-            phi = along(field, &hit, &at(s), direction).0;
+            phi = along(&met, s).0;
             // Quadratic convergence: the next step would be ~1e-20 of the scale.
             if step.abs() <= 1e-10 * step_limit {
                 break;
@@ -107,7 +118,7 @@ pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3
         }
         let mut accepted = false;
         for _ in 0..40 {
-            let value = along(field, &hit, &at(s + step), direction).0;
+            let value = along(&met, s + step).0;
             if value >= phi {
                 s += step;
                 phi = value;
@@ -122,7 +133,7 @@ pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3
     }
     RayMaximum {
         s,
-        point: at(s),
+        point: origin + s * direction,
         value: phi,
         hit: true,
     }

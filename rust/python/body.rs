@@ -343,6 +343,10 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         joint_part: index(d, "joint_part", usize::MAX)?,
         joint_frame: index(d, "joint_frame", frames)?,
         sigma: [sigma[0], sigma[1], sigma[2]],
+        log_epsilon: match d.get_item("log_epsilon")? {
+            Some(v) if !v.is_none() => Some(v.extract()?),
+            _ => None,
+        },
     })
 }
 

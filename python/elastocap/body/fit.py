@@ -168,6 +168,8 @@ def fit_body(
     refresh_every: int = 5,
     outlier_distance: float | None = None,
     max_rays_per_mask: int | None = None,
+    residual: str = "log",
+    log_epsilon: float = 0.01,
 ) -> BodyFit:
     """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
     silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
@@ -199,6 +201,14 @@ def fit_body(
         always rejected (they carry no information).
     max_rays_per_mask : int, optional, keyword-only
         Subsample each mask's outline rays.
+    residual : {"log", "field"}, keyword-only
+        "field": SPEC 6's ``F - 0.5``. "log" (default): ``(0.5 + eps) ln((F + eps) / (0.5 +
+        eps))``, equal to first order on the skin, but it keeps pulling parts that start a
+        few centimetres off where ``F - 0.5`` is flat (``benches/README.md``: from a 10%
+        wrong shape "field" lets feet swell and diverges, "log" recovers the truth).
+    log_epsilon : float, keyword-only
+        ``eps`` of the "log" residual: below ``F ~ eps`` it flattens again, so far
+        outliers do not pull.
 
     Returns
     -------
@@ -236,6 +246,8 @@ def fit_body(
     def frame_of(k: int) -> NDArray[np.int64]:
         return np.concatenate([np.full(len(p[k]), f, dtype=np.int64) for f, p in enumerate(per_frame)])
 
+    if residual not in ("log", "field"):
+        raise InvalidInputError(f"residual must be 'log' or 'field', got {residual!r}")
     observations = {
         "points": stack(0),
         "point_frame": frame_of(0),
@@ -245,6 +257,7 @@ def fit_body(
         "joints": stack(3),
         "joint_part": np.concatenate([p[4] for p in per_frame]).astype(np.int64),
         "joint_frame": frame_of(3),
+        "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
     result = model._core.fit(

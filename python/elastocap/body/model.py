@@ -34,7 +34,7 @@ from skimage import measure
 
 from elastocap import _core
 from elastocap._core import InvalidInputError
-from elastocap._validate import as_float_array, as_points, as_positive
+from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description
 from elastocap.camera import Camera
 
@@ -119,15 +119,18 @@ class BodyModel:
         axes /= np.linalg.norm(axes, axis=1, keepdims=True)
         counts = np.array([len(p["joints"]) for p in parts], dtype=np.int64)
         balls = [(i, b) for i, p in enumerate(parts) for b in p["balls"]]
+        self._balls = (
+            np.array([i for i, _ in balls], dtype=np.int64),
+            np.array([b["centre"] for _, b in balls], dtype=float).reshape(-1, 3),
+            np.array([b["radii"] for _, b in balls], dtype=float).reshape(-1, 3),
+        )
         self._core = _core.BodySkeleton(
             parent,
             np.ascontiguousarray(offset),
             np.ascontiguousarray(rest),
             np.ascontiguousarray(axes),
             counts,
-            np.array([i for i, _ in balls], dtype=np.int64),
-            np.array([b["centre"] for _, b in balls], dtype=float).reshape(-1, 3),
-            np.array([b["radii"] for _, b in balls], dtype=float).reshape(-1, 3),
+            *self._balls,
         )
         self.part_names: list[str] = [p["name"] for p in parts]
         self.n_motion: int = self._core.n_motion
@@ -239,11 +242,21 @@ class BodyModel:
 
     # -- pictures -------------------------------------------------------------------------
 
+    def ball_centres(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """World centres ``(M, 3)`` and largest scaled radius ``(M,)`` of the metaballs."""
+        shape, _ = self.check_state(state)
+        rotations, origins = self.pose(state)
+        part, centre, radii = self._balls
+        scale = np.stack([shape[2 * part + 1], shape[2 * part + 1], shape[2 * part]], axis=1)
+        world = origins[part] + np.einsum("mij,mj->mi", rotations[part], centre * scale)
+        return world, (radii * scale).max(axis=1)
+
     def bounds(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """A box (lower, upper corners, metres) that holds the skin."""
-        _, origins = self.pose(state)
-        reach = 0.6 * float(np.max(self.check_state(state)[0])) + 0.3
-        return origins.min(axis=0) - reach, origins.max(axis=0) + reach
+        """A box (lower, upper corners, metres) that holds the skin: every ball's centre
+        plus its largest radius (a lone ball's skin reaches 0.59 of it; overlaps a little
+        more)."""
+        centres, reach = self.ball_centres(state)
+        return (centres - reach[:, None]).min(axis=0), (centres + reach[:, None]).max(axis=0)
 
     def skin_mesh(self, state: BodyState, *, spacing: float = 0.01) -> trimesh.Trimesh:
         """The skin ``F = 0.5`` as a triangle mesh (marching cubes, world metres).
@@ -265,10 +278,41 @@ class BodyModel:
         # skimage winds faces for a field increasing outwards; F decreases outwards.
         return trimesh.Trimesh(vertices + lower, faces[:, ::-1], process=True)
 
+    def skin_points(self, state: BodyState, n: int, *, seed: int = 0, spacing: float = 0.01) -> NDArray[np.float64]:
+        """``n`` points on the skin ``F = 0.5`` (world metres): random vertices of
+        :meth:`skin_mesh`, moved onto the level set by Newton steps along the gradient
+        (to rounding level, so they are exact synthetic observations)."""
+        count = as_count("n", n)
+        mesh = self.skin_mesh(state, spacing=spacing)
+        rng = np.random.default_rng(seed)
+        points = np.ascontiguousarray(mesh.vertices[rng.choice(len(mesh.vertices), count, replace=count > len(mesh.vertices))])
+        shape, motion = self.check_state(state)
+        for _ in range(8):
+            f, g, _ = self._core.field(shape, motion, points)
+            points = np.ascontiguousarray(points - ((f - SKIN_LEVEL) / np.maximum((g * g).sum(axis=1), 1e-300))[:, None] * g)
+        return points
+
     def silhouette(self, state: BodyState, camera: Camera) -> NDArray[np.bool_]:
         """The model's silhouette in ``camera``: ``(height, width)`` bool, True where the
         pixel's ray meets the skin (the field maximum along the ray reaches 0.5)."""
-        v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+        mask = np.zeros((camera.height, camera.width), dtype=bool)
+        lower, upper = self.bounds(state)
+        corners = np.array([[(lower, upper)[k >> a & 1][a] for a in range(3)] for k in range(8)])
+        uv_box, depth = camera.project(corners)
+        if (depth > 0).all() and np.isfinite(uv_box).all():
+            # Rays outside the projected box cannot meet the skin (distortion moves the box
+            # by less than the margin of 2 pixels only for mild lenses; else cast all).
+            u0, v0 = np.floor(uv_box.min(axis=0)).astype(int) - 2
+            u1, v1 = np.ceil(uv_box.max(axis=0)).astype(int) + 2
+            u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, camera.width), min(v1, camera.height)
+            if not camera.has_distortion:
+                if u0 >= u1 or v0 >= v1:
+                    return mask
+                v, u = np.mgrid[v0:v1, u0:u1]
+            else:
+                v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+        else:
+            v, u = np.mgrid[0 : camera.height, 0 : camera.width]
         uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(float)
         origins, directions = camera.rays(uv)
         ok = np.isfinite(directions).all(axis=1)
@@ -279,7 +323,8 @@ class BodyModel:
             np.ascontiguousarray(directions[ok]),
             SKIN_LEVEL,
         )
-        return inside.reshape(camera.height, camera.width)
+        mask[v.ravel(), u.ravel()] = inside
+        return mask
 
 
 def _normalise(description: Any) -> dict[str, Any]:
