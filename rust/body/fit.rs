@@ -283,15 +283,19 @@ impl ArrowProblem for BodyProblem<'_> {
             .collect();
         self.point_part = points.iter().map(|p| p.0).collect();
         self.ray_part = rays.iter().map(|p| p.0).collect();
-        if round >= 1 {
-            let limit = |set: &[(usize, f64)]| {
+        // The first round only drops what carries no information (no field there: zero
+        // gradient); distances are judged once the state has moved towards the data.
+        let limit = |set: &[(usize, f64)]| {
+            if round == 0 {
+                f64::MAX
+            } else {
                 self.outlier_distance
                     .unwrap_or_else(|| (3.0 * 1.4826 * median(set.iter().map(|p| p.1))).max(5e-3))
-            };
-            let (lp, lr) = (limit(&points), limit(&rays));
-            self.point_inlier = points.iter().map(|p| p.1 <= lp).collect();
-            self.ray_inlier = rays.iter().map(|p| p.1 <= lr).collect();
-        }
+            }
+        };
+        let (lp, lr) = (limit(&points), limit(&rays));
+        self.point_inlier = points.iter().map(|p| p.1 <= lp).collect();
+        self.ray_inlier = rays.iter().map(|p| p.1 <= lr).collect();
         Ok(())
     }
 }
@@ -391,6 +395,8 @@ pub fn fit(
         };
         problem = joint;
     }
+    // The assignment and inliers reported are those of the final state.
+    problem.refresh(&x, usize::MAX)?;
     let fm = obs.frames * skeleton.n_motion;
     let shape = if options.fit_shape {
         x[fm..].to_vec()
