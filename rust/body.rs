@@ -24,6 +24,9 @@ pub use field::{Cutoff, Field};
 pub use ray::{ray_maximum, RayMaximum};
 pub use skeleton::{Metaball, PartSpec, Skeleton};
 
+/// `F`, `∇F` and `∇²F` (row-major 3x3) per point.
+pub type FieldSamples = (Vec<f64>, Vec<[f64; 3]>, Vec<[f64; 9]>);
+
 /// `F`, `∇F` and `∇²F` at each point (world) for one state.
 ///
 /// # Errors
@@ -33,7 +36,7 @@ pub fn field_at(
     shape: &[f64],
     motion: &[f64],
     points: &[[f64; 3]],
-) -> Result<(Vec<f64>, Vec<[f64; 3]>, Vec<[f64; 9]>)> {
+) -> Result<FieldSamples> {
     check_finite("points", points)?;
     let field = Field::new(skeleton, skeleton.pose(shape, motion)?);
     let out: Vec<(f64, [f64; 3], [f64; 9])> = points
@@ -44,10 +47,10 @@ pub fn field_at(
             (f, g.into(), std::array::from_fn(|k| h[k]))
         })
         .collect();
-    Ok(itertools_unzip3(out))
+    Ok(unzip3(out))
 }
 
-fn itertools_unzip3<A, B, C>(v: Vec<(A, B, C)>) -> (Vec<A>, Vec<B>, Vec<C>) {
+fn unzip3<A, B, C>(v: Vec<(A, B, C)>) -> (Vec<A>, Vec<B>, Vec<C>) {
     let mut a = Vec::with_capacity(v.len());
     let mut b = Vec::with_capacity(v.len());
     let mut c = Vec::with_capacity(v.len());
@@ -112,7 +115,7 @@ pub fn ray_jacobian(
         .map(|((o, r), row)| {
             let m = ray_maximum(&field, &Vector3::from(*o), &Vector3::from(*r));
             if m.hit {
-                field.state_derivative(&m.point, Cutoff::Bounded, row);
+                field.state_derivative(&m.point, Cutoff::Exact, row);
             }
             m
         })
@@ -143,7 +146,9 @@ pub fn ray_inside(
     Ok(origins
         .par_iter()
         .zip(directions)
-        .map(|(o, r)| ray_maximum(&field, &Vector3::from(*o), &Vector3::from(*r)).value >= threshold)
+        .map(|(o, r)| {
+            ray_maximum(&field, &Vector3::from(*o), &Vector3::from(*r)).value >= threshold
+        })
         .collect())
 }
 

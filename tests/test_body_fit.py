@@ -159,5 +159,6 @@ def test_missing_rays_and_unobserved_parts_are_reported_not_raised() -> None:
     fit = fit_body(MODEL, [BodyObservations(points=points[keep], origins=far, directions=directions)], init=state)
     assert not fit.ray_inlier.any()
     assert "head" in fit.unobserved_parts
-    np.testing.assert_array_equal(fit.shape[2 * head : 2 * head + 2], [1.0, 1.0])
+    # only the far tails of the head's balls reach other parts' points
+    np.testing.assert_allclose(fit.shape[2 * head : 2 * head + 2], [1.0, 1.0], atol=1e-6)
     assert np.isfinite(fit.motion).all()

@@ -1,6 +1,8 @@
 //! The body fit as a block-arrowhead least-squares problem: per-frame motion, shared shape
 //! (SPEC 6), with part assignment and outlier rejection redone every few iterations.
 
+use std::sync::atomic::AtomicU64;
+
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -64,7 +66,17 @@ pub struct BodyProblem<'a> {
     point_inlier: Vec<bool>,
     ray_part: Vec<usize>,
     ray_inlier: Vec<bool>,
+    point_balls: Vec<Vec<u16>>,
+    ray_balls: Vec<Vec<u16>>,
+    /// `s*` of each ray at the last linearisation (f64 bits; NaN: search from scratch).
+    ray_start: Vec<AtomicU64>,
 }
+
+/// Balls farther than `BOUND + BALL_MARGIN` radii from an observation at a refresh are left
+/// out of its residual until the next one: the state moves far less than that in
+/// `refresh_every` trust-region-limited iterations, and a point near a limb then sums a
+/// handful of balls instead of all of them.
+pub const BALL_MARGIN: f64 = 0.5;
 
 impl<'a> BodyProblem<'a> {
     fn m(&self) -> usize {
@@ -90,6 +102,21 @@ impl<'a> BodyProblem<'a> {
         let m = self.m();
         let pose = self.skeleton.pose(self.shape(x), &x[f * m..(f + 1) * m])?;
         Ok(Field::new(self.skeleton, pose))
+    }
+
+    fn subset(&self, r: &Residual) -> Option<&[u16]> {
+        match *r {
+            Residual::Point(i) => self.point_balls.get(i).map(|v| v.as_slice()),
+            Residual::Ray(i) => self.ray_balls.get(i).map(|v| v.as_slice()),
+            Residual::Joint(..) => None,
+        }
+    }
+
+    fn start(&self, r: &Residual) -> Option<&AtomicU64> {
+        match *r {
+            Residual::Ray(i) => self.ray_start.get(i),
+            _ => None,
+        }
     }
 
     fn kept(&self, r: &Residual) -> bool {
@@ -145,8 +172,7 @@ impl Blocks {
         // Shape columns sit after the motion columns of the row; with the shape fixed they
         // are dropped (s = 0).
         let used = m + s;
-        self.nz
-            .extend((0..used).filter(|&k| self.row[k] != 0.0));
+        self.nz.extend((0..used).filter(|&k| self.row[k] != 0.0));
         for (ia, &ka) in self.nz.iter().enumerate() {
             let va = self.row[ka];
             self.g[ka] += va * r;
@@ -188,7 +214,7 @@ impl ArrowProblem for BodyProblem<'_> {
                 .with_min_len(256)
                 .filter(|r| self.kept(r))
                 .map(|r| {
-                    let v = r.evaluate(self.obs, &field, None);
+                    let v = r.evaluate(self.obs, &field, self.subset(r), self.start(r), None);
                     0.5 * v * v
                 })
                 .sum::<f64>();
@@ -211,7 +237,13 @@ impl ArrowProblem for BodyProblem<'_> {
                     || Blocks::new(m, s, width),
                     |mut acc, residual| {
                         let mut row = std::mem::take(&mut acc.row);
-                        let r = residual.evaluate(self.obs, &field, Some(&mut row));
+                        let r = residual.evaluate(
+                            self.obs,
+                            &field,
+                            self.subset(residual),
+                            self.start(residual),
+                            Some(&mut row),
+                        );
                         acc.row = row;
                         acc.accumulate(r, m, s);
                         acc
@@ -220,10 +252,17 @@ impl ArrowProblem for BodyProblem<'_> {
                 .reduce(|| Blocks::new(m, s, 0), Blocks::add);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
             normal.b[f * m * s..(f + 1) * m * s].copy_from_slice(&blocks.b);
-            normal.c.iter_mut().zip(&blocks.c).for_each(|(u, v)| *u += v);
+            normal
+                .c
+                .iter_mut()
+                .zip(&blocks.c)
+                .for_each(|(u, v)| *u += v);
             normal.g[f * m..(f + 1) * m].copy_from_slice(&blocks.g[..m]);
             let fm = self.obs.frames * m;
-            normal.g[fm..].iter_mut().zip(&blocks.g[m..]).for_each(|(u, v)| *u += v);
+            normal.g[fm..]
+                .iter_mut()
+                .zip(&blocks.g[m..])
+                .for_each(|(u, v)| *u += v);
             cost += blocks.cost;
         }
         Ok(cost)
@@ -252,7 +291,27 @@ impl ArrowProblem for BodyProblem<'_> {
 
     fn refresh(&mut self, x: &[f64], round: usize) -> Result<()> {
         let frames = self.obs.frames;
-        let fields: Vec<Field<'_>> = (0..frames).map(|f| self.field(x, f)).collect::<Result<_>>()?;
+        let fields: Vec<Field<'_>> = (0..frames)
+            .map(|f| self.field(x, f))
+            .collect::<Result<_>>()?;
+        for start in &self.ray_start {
+            start.store(f64::NAN.to_bits(), std::sync::atomic::Ordering::Relaxed);
+        }
+        self.point_balls = (0..self.obs.points.len())
+            .into_par_iter()
+            .map(|i| {
+                fields[self.obs.point_frame[i]]
+                    .near_balls(&Vector3::from(self.obs.points[i]), BALL_MARGIN)
+            })
+            .collect();
+        self.ray_balls = (0..self.obs.origins.len())
+            .into_par_iter()
+            .map(|i| {
+                let o = Vector3::from(self.obs.origins[i]);
+                let r = Vector3::from(self.obs.directions[i]);
+                super::ray::ray_near_balls(&fields[self.obs.ray_frame[i]], &o, &r, BALL_MARGIN)
+            })
+            .collect();
         // (part, approximate distance |F - T| / |∇F|) per point and per ray.
         let measure = |field: &Field<'_>, x: Vector3<f64>| {
             let (part, _) = field.strongest_part(&x);
@@ -266,7 +325,12 @@ impl ArrowProblem for BodyProblem<'_> {
         };
         let points: Vec<(usize, f64)> = (0..self.obs.points.len())
             .into_par_iter()
-            .map(|i| measure(&fields[self.obs.point_frame[i]], Vector3::from(self.obs.points[i])))
+            .map(|i| {
+                measure(
+                    &fields[self.obs.point_frame[i]],
+                    Vector3::from(self.obs.points[i]),
+                )
+            })
             .collect();
         let rays: Vec<(usize, f64)> = (0..self.obs.origins.len())
             .into_par_iter()
@@ -300,7 +364,11 @@ impl ArrowProblem for BodyProblem<'_> {
     }
 }
 
-fn ray_maximum_point(field: &Field<'_>, o: &Vector3<f64>, r: &Vector3<f64>) -> Option<Vector3<f64>> {
+fn ray_maximum_point(
+    field: &Field<'_>,
+    o: &Vector3<f64>,
+    r: &Vector3<f64>,
+) -> Option<Vector3<f64>> {
     let max = super::ray::ray_maximum(field, o, r);
     max.hit.then_some(max.point)
 }
@@ -353,6 +421,11 @@ pub fn problem<'a>(
         point_inlier: vec![true; obs.points.len()],
         ray_part: vec![0; obs.origins.len()],
         ray_inlier: vec![true; obs.origins.len()],
+        point_balls: Vec::new(),
+        ray_balls: Vec::new(),
+        ray_start: (0..obs.origins.len())
+            .map(|_| AtomicU64::new(f64::NAN.to_bits()))
+            .collect(),
     })
 }
 

@@ -4,7 +4,7 @@
 use nalgebra::Vector3;
 
 use super::field::{Cutoff, Field};
-use super::ray::ray_maximum;
+use super::ray::ray_maximum_over;
 use super::skeleton::Skeleton;
 use crate::error::check_finite;
 use crate::{Error, Result};
@@ -108,7 +108,10 @@ impl Observations {
         }
         if !self.log_epsilon.is_none_or(|e| e.is_finite() && e > 0.0) {
             return Err(Error::BadModel {
-                reason: format!("log_epsilon must be positive and finite, got {:?}", self.log_epsilon),
+                reason: format!(
+                    "log_epsilon must be positive and finite, got {:?}",
+                    self.log_epsilon
+                ),
             });
         }
         if !self.sigma.iter().all(|s| s.is_finite() && *s > 0.0) {
@@ -132,32 +135,49 @@ pub enum Residual {
 }
 
 impl Residual {
-    /// The weighted residual; fills `row` (weighted Jacobian) when given.
-    pub fn evaluate(&self, obs: &Observations, field: &Field<'_>, row: Option<&mut [f64]>) -> f64 {
+    /// The weighted residual; fills `row` (weighted Jacobian) when given. `subset` (ascending
+    /// ball indices) limits the field to the balls that matter for this observation.
+    pub fn evaluate(
+        &self,
+        obs: &Observations,
+        field: &Field<'_>,
+        subset: Option<&[u16]>,
+        start: Option<&std::sync::atomic::AtomicU64>,
+        row: Option<&mut [f64]>,
+    ) -> f64 {
         match *self {
             Residual::Point(i) => {
                 let w = 1.0 / obs.sigma[0];
                 let x = Vector3::from(obs.points[i]);
                 match row {
                     Some(row) => {
-                        let f = field.state_derivative(&x, Cutoff::Bounded, row);
+                        let f = field.state_derivative_over(&x, subset, Cutoff::Bounded, row);
                         let (r, slope) = field_residual(f, obs.log_epsilon);
                         row.iter_mut().for_each(|v| *v *= w * slope);
                         w * r
                     }
-                    None => w * field_residual(field.value(&x), obs.log_epsilon).0,
+                    None => w * field_residual(field.value_over(&x, subset), obs.log_epsilon).0,
                 }
             }
             Residual::Ray(i) => {
                 let w = 1.0 / obs.sigma[1];
                 let o = Vector3::from(obs.origins[i]);
                 let r = Vector3::from(obs.directions[i]);
-                let max = ray_maximum(field, &o, &r);
+                use std::sync::atomic::Ordering::Relaxed;
+                // Warm start from the last linearisation's maximum; a linearisation (the
+                // accepted state) stores its own for the next iteration.
+                let previous = start
+                    .map(|s| f64::from_bits(s.load(Relaxed)))
+                    .filter(|s| s.is_finite());
+                let max = ray_maximum_over(field, subset, &o, &r, previous);
+                if let (Some(start), true, true) = (start, row.is_some(), max.hit) {
+                    start.store(max.s.to_bits(), Relaxed);
+                }
                 let (residual, slope) = field_residual(max.value, obs.log_epsilon);
                 if let Some(row) = row {
                     row.iter_mut().for_each(|v| *v = 0.0);
                     if max.hit {
-                        field.state_derivative(&max.point, Cutoff::Bounded, row);
+                        field.state_derivative_over(&max.point, subset, Cutoff::Bounded, row);
                         row.iter_mut().for_each(|v| *v *= w * slope);
                     }
                 }

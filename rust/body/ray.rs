@@ -52,18 +52,71 @@ fn along(balls: &[Quadratic], s: f64) -> (f64, f64, f64) {
 /// neighbouring peaks; Newton steps, limited to half the narrowest met ball's extent along
 /// the ray and backtracked when they descend, climb from the best candidate to the
 /// stationary point `φ'(s*) = 0`.
-pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3<f64>) -> RayMaximum {
+pub fn ray_maximum(
+    field: &Field<'_>,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+) -> RayMaximum {
+    ray_maximum_over(field, None, origin, direction, None)
+}
+
+/// Ball `i`'s `d(s)` along the ray and `|q0|²` (at the origin).
+fn quadratic(
+    field: &Field<'_>,
+    i: usize,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+) -> (Quadratic, f64) {
+    let ball = &field.balls[i];
+    let radii = ball.radii.component_mul(&ball.scale);
+    let q0 = (ball.rotation.transpose() * (origin - ball.world_centre)).component_div(&radii);
+    let q1 = (ball.rotation.transpose() * direction).component_div(&radii);
+    let c = q1.norm_squared();
+    let p = -q0.dot(&q1) / c;
+    let m = (q0 + p * q1).norm_squared();
+    (Quadratic { m, c, p }, q0.norm_squared())
+}
+
+/// The balls (ascending) that the ray passes within `|q| <= BOUND + margin` of.
+pub fn ray_near_balls(
+    field: &Field<'_>,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+    margin: f64,
+) -> Vec<u16> {
+    let reach = (BOUND + margin) * (BOUND + margin);
+    (0..field.balls.len())
+        .filter(|&i| {
+            let (b, q0) = quadratic(field, i, origin, direction);
+            b.m <= reach && (b.p >= 0.0 || q0 <= reach)
+        })
+        .map(|i| i as u16)
+        .collect()
+}
+
+/// [`ray_maximum`] over the balls in `subset` (or all); with `start`, the 1-D search is
+/// skipped and Newton climbs from there (a warm start from the previous state's `s*`).
+pub fn ray_maximum_over(
+    field: &Field<'_>,
+    subset: Option<&[u16]>,
+    origin: &Vector3<f64>,
+    direction: &Vector3<f64>,
+    start: Option<f64>,
+) -> RayMaximum {
     let mut met: Vec<Quadratic> = Vec::with_capacity(16);
     let mut step_limit = f64::INFINITY;
-    for ball in &field.balls {
-        let radii = ball.radii.component_mul(&ball.scale);
-        let q0 = (ball.rotation.transpose() * (origin - ball.world_centre)).component_div(&radii);
-        let q1 = (ball.rotation.transpose() * direction).component_div(&radii);
-        let c = q1.norm_squared();
-        let p = -q0.dot(&q1) / c;
-        let m = (q0 + p * q1).norm_squared();
+    let all: Vec<u16>;
+    let indices = match subset {
+        Some(s) => s,
+        None => {
+            all = (0..field.balls.len() as u16).collect();
+            &all
+        }
+    };
+    for &i in indices {
+        let (Quadratic { m, c, p }, q0) = quadratic(field, i as usize, origin, direction);
         // Skip balls the ray never comes near, and balls wholly behind the origin.
-        if m > BOUND * BOUND || (p < 0.0 && q0.norm_squared() > BOUND * BOUND) {
+        if m > BOUND * BOUND || (p < 0.0 && q0 > BOUND * BOUND) {
             continue;
         }
         met.push(Quadratic { m, c, p });
@@ -82,18 +135,27 @@ pub fn ray_maximum(field: &Field<'_>, origin: &Vector3<f64>, direction: &Vector3
     // the others still add to φ but cannot host its maximum on their own, and evaluating
     // every candidate costs k evaluations of k terms.
     let strongest = met.iter().map(|b| b.m).fold(f64::INFINITY, f64::min);
-    let mut peaks: Vec<f64> = met
-        .iter()
-        .filter(|b| b.m <= strongest + 3.5)
-        .map(|b| b.p.max(0.0))
-        .collect();
+    let mut peaks: Vec<f64> = match start {
+        Some(s) => vec![s.max(0.0)],
+        None => met
+            .iter()
+            .filter(|b| b.m <= strongest + 3.5)
+            .map(|b| b.p.max(0.0))
+            .collect(),
+    };
     peaks.sort_by(f64::total_cmp);
     let midpoints: Vec<f64> = peaks.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
     let (mut s, mut phi) = peaks
         .iter()
         .chain(&midpoints)
         .map(|&s| (s, along(&met, s).0))
-        .fold((0.0, f64::NEG_INFINITY), |best, c| if c.1 > best.1 { c } else { best });
+        .fold((0.0, f64::NEG_INFINITY), |best, c| {
+            if c.1 > best.1 {
+                c
+            } else {
+                best
+            }
+        });
     for _ in 0..100 {
         let (_, slope, curvature) = along(&met, s);
         let mut step = if curvature < 0.0 {

@@ -115,7 +115,16 @@ impl Skeleton {
     /// naming no part, or a model without parts or balls.
     pub fn new(parts: Vec<PartSpec>, balls: Vec<Metaball>) -> Result<Self> {
         if parts.is_empty() || balls.is_empty() {
-            return Err(bad("a body model needs at least one part and one metaball".into()));
+            return Err(bad(
+                "a body model needs at least one part and one metaball".into()
+            ));
+        }
+        if balls.len() > u16::MAX as usize {
+            return Err(bad(format!(
+                "{} metaballs: at most {} are supported",
+                balls.len(),
+                u16::MAX
+            )));
         }
         let mut first_angle = Vec::with_capacity(parts.len());
         let mut n_motion = 6;
@@ -165,6 +174,9 @@ impl Skeleton {
                 )));
             }
         }
+        let mut balls = balls;
+        // The field sums each part's balls in one run (see `Field::state_derivative`).
+        balls.sort_by_key(|b| b.part);
         Ok(Self {
             parts,
             balls,
@@ -194,7 +206,8 @@ impl Skeleton {
     pub fn pose(&self, shape: &[f64], motion: &[f64]) -> Result<Pose> {
         check_vector("shape", shape, self.n_shape())?;
         check_vector("motion", motion, self.n_motion)?;
-        if let Some(b) = (0..self.n_parts()).find(|&b| shape[2 * b] <= 0.0 || shape[2 * b + 1] <= 0.0)
+        if let Some(b) =
+            (0..self.n_parts()).find(|&b| shape[2 * b] <= 0.0 || shape[2 * b + 1] <= 0.0)
         {
             return Err(bad(format!(
                 "shape coefficients of part {b} must be positive, got length {} and width {}",
@@ -213,9 +226,18 @@ impl Skeleton {
         for (k, twist) in twists.iter_mut().take(3).enumerate() {
             *twist = Twist::Translation(Vector3::ith(k, 1.0));
         }
-        twists[3] = Twist::Rotation { axis: Vector3::z(), pivot: t };
-        twists[4] = Twist::Rotation { axis: rz * Vector3::y(), pivot: t };
-        twists[5] = Twist::Rotation { axis: (rz * ry) * Vector3::x(), pivot: t };
+        twists[3] = Twist::Rotation {
+            axis: Vector3::z(),
+            pivot: t,
+        };
+        twists[4] = Twist::Rotation {
+            axis: rz * Vector3::y(),
+            pivot: t,
+        };
+        twists[5] = Twist::Rotation {
+            axis: (rz * ry) * Vector3::x(),
+            pivot: t,
+        };
         let root = (rz * ry * rx).into_inner();
 
         let n = self.n_parts();

@@ -102,11 +102,12 @@ impl ArrowSolver {
             col_ptr.push(row_idx.len() as u32);
         }
         let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
-        let symbolic = SymbolicLlt::try_new(pattern, Side::Lower).map_err(|_| Error::TooManyPoints {
-            argument: "normal matrix",
-            got: nnz,
-            max: u32::MAX as usize,
-        })?;
+        let symbolic =
+            SymbolicLlt::try_new(pattern, Side::Lower).map_err(|_| Error::TooManyPoints {
+                argument: "normal matrix",
+                got: nnz,
+                max: u32::MAX as usize,
+            })?;
         Ok(Self {
             n,
             values: vec![0.0; row_idx.len()],
@@ -126,7 +127,9 @@ impl ArrowSolver {
     pub fn solve(&mut self, normal: &ArrowNormal, lambda: f64) -> Option<Vec<f64>> {
         let (frames, m, s) = (normal.frames, normal.m, normal.s);
         let fm = frames * m;
-        let largest = (0..self.n).map(|i| normal.diagonal(i)).fold(0.0f64, f64::max);
+        let largest = (0..self.n)
+            .map(|i| normal.diagonal(i))
+            .fold(0.0f64, f64::max);
         // A parameter no residual depends on has a zero column; the floor keeps the system
         // definite and its step zero (its gradient is zero too).
         let floor = 1e-9 * largest.max(f64::MIN_POSITIVE);
@@ -158,8 +161,13 @@ impl ArrowSolver {
             let diagonal = self.col_ptr[col] as usize;
             self.values[diagonal] += lambda * self.scaling[col];
         }
-        let pattern =
-            SymbolicSparseColMatRef::new_checked(self.n, self.n, &self.col_ptr, None, &self.row_idx);
+        let pattern = SymbolicSparseColMatRef::new_checked(
+            self.n,
+            self.n,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
         let matrix = SparseColMatRef::new(pattern, &self.values);
         let llt = Llt::try_new_with_symbolic(self.symbolic.clone(), matrix, Side::Lower).ok()?;
         let mut step: Vec<f64> = normal.g.iter().map(|g| -g).collect();

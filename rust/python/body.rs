@@ -2,8 +2,8 @@
 //! silhouette rays, pose) and `body_fit`.
 
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1,
-    PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -40,6 +40,10 @@ type Rays<'py> = (
     Bound<'py, PyArray1<bool>>,
     Bound<'py, PyArray2<f64>>,
 );
+
+type PoseArrays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>);
+
+type ValuesJacobian<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 
 type FieldArrays<'py> = (
     Bound<'py, PyArray1<f64>>,
@@ -120,7 +124,8 @@ impl BodySkeleton {
                 radii: radii[i],
             })
             .collect();
-        let skeleton = Skeleton::new(parts, balls).map_err(|e| Python::attach(|py| to_py(py, e)))?;
+        let skeleton =
+            Skeleton::new(parts, balls).map_err(|e| Python::attach(|py| to_py(py, e)))?;
         Ok(Self { skeleton })
     }
 
@@ -142,7 +147,7 @@ impl BodySkeleton {
         py: Python<'py>,
         shape: PyReadonlyArray1<'py, f64>,
         motion: PyReadonlyArray1<'py, f64>,
-    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<PoseArrays<'py>> {
         let pose = self
             .skeleton
             .pose(c_slice(&shape, "shape")?, c_slice(&motion, "motion")?)
@@ -193,18 +198,25 @@ impl BodySkeleton {
         motion: PyReadonlyArray1<'py, f64>,
         points: PyReadonlyArray2<'py, f64>,
         exact: bool,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    ) -> PyResult<ValuesJacobian<'py>> {
         let (s, m, p) = (
             c_slice(&shape, "shape")?,
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let cutoff = if exact { Cutoff::Exact } else { Cutoff::Bounded };
+        let cutoff = if exact {
+            Cutoff::Exact
+        } else {
+            Cutoff::Bounded
+        };
         let (f, j) = py
             .detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))
             .map_err(|e| to_py(py, e))?;
         let n = f.len();
-        Ok((f.into_pyarray(py), j.into_pyarray(py).reshape([n, self.width()])?))
+        Ok((
+            f.into_pyarray(py),
+            j.into_pyarray(py).reshape([n, self.width()])?,
+        ))
     }
 
     /// `(s (N,), x* (N, 3), F(x*) (N,), hit (N,), J (N, width))` of the field maximum along
@@ -218,7 +230,10 @@ impl BodySkeleton {
         directions: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Rays<'py>> {
         let (s, m) = (c_slice(&shape, "shape")?, c_slice(&motion, "motion")?);
-        let (o, r) = (rows::<3>(&origins, "origins")?, rows::<3>(&directions, "directions")?);
+        let (o, r) = (
+            rows::<3>(&origins, "origins")?,
+            rows::<3>(&directions, "directions")?,
+        );
         let (t, x, f, hit, j) = py
             .detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))
             .map_err(|e| to_py(py, e))?;
@@ -243,7 +258,10 @@ impl BodySkeleton {
         threshold: f64,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
         let (s, m) = (c_slice(&shape, "shape")?, c_slice(&motion, "motion")?);
-        let (o, r) = (rows::<3>(&origins, "origins")?, rows::<3>(&directions, "directions")?);
+        let (o, r) = (
+            rows::<3>(&origins, "origins")?,
+            rows::<3>(&directions, "directions")?,
+        );
         let inside = py
             .detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))
             .map_err(|e| to_py(py, e))?;
@@ -285,7 +303,10 @@ impl BodySkeleton {
         let frames = obs.frames;
         out.set_item(
             "motion",
-            result.motion.into_pyarray(py).reshape([frames, self.skeleton.n_motion])?,
+            result
+                .motion
+                .into_pyarray(py)
+                .reshape([frames, self.skeleton.n_motion])?,
         )?;
         out.set_item("shape", result.shape.into_pyarray(py))?;
         let status = match result.report.status {

@@ -65,7 +65,8 @@ class BodyFit:
         Observations kept by the last outlier test.
     unobserved_parts : list of str
         Parts that no kept observation is assigned to: their shape coefficients keep their
-        initial values.
+        initial values (up to the pull of the far tails of their balls on other parts'
+        observations, ~1e-10 for a part 0.3 m from any).
     """
 
     states: list[BodyState]
