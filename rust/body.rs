@@ -14,6 +14,8 @@ pub mod fit;
 pub mod observe;
 pub mod ray;
 pub mod skeleton;
+#[cfg(test)]
+mod tests;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;

@@ -7,6 +7,8 @@
 //! last, the arrowhead factorises without fill.
 
 mod arrow;
+#[cfg(test)]
+mod tests;
 
 pub use arrow::{ArrowNormal, ArrowSolver};
 
