@@ -165,35 +165,46 @@ impl Blocks {
         self
     }
 
-    /// Adds one weighted row `j` and residual `r`: `A += j j^T`, `g += j r`.
+    /// Adds one weighted row `j` and residual `r`: `A += j j^T` (upper triangles of the
+    /// frame and shape blocks only; [`Blocks::mirror`] fills the rest), `g += j r`.
     fn accumulate(&mut self, r: f64, m: usize, s: usize) {
         self.cost += 0.5 * r * r;
         self.nz.clear();
         // Shape columns sit after the motion columns of the row; with the shape fixed they
         // are dropped (s = 0).
-        let used = m + s;
-        self.nz.extend((0..used).filter(|&k| self.row[k] != 0.0));
-        for (ia, &ka) in self.nz.iter().enumerate() {
-            let va = self.row[ka];
-            self.g[ka] += va * r;
-            for &kb in &self.nz[ia..] {
-                let p = va * self.row[kb];
-                match (ka < m, kb < m) {
-                    (true, true) => {
-                        self.a[ka * m + kb] += p;
-                        if ka != kb {
-                            self.a[kb * m + ka] += p;
-                        }
-                    }
-                    (true, false) => self.b[ka * s + (kb - m)] += p,
-                    (false, false) => {
-                        let (i, j) = (ka - m, kb - m);
-                        self.c[i * s + j] += p;
-                        if i != j {
-                            self.c[j * s + i] += p;
-                        }
-                    }
-                    (false, true) => unreachable!("nz is ascending"),
+        self.nz.extend((0..m + s).filter(|&k| self.row[k] != 0.0));
+        let split = self.nz.partition_point(|&k| k < m);
+        let (motion, shape) = self.nz.split_at(split);
+        let row = &self.row;
+        for &k in self.nz.iter() {
+            self.g[k] += row[k] * r;
+        }
+        for (ia, &ka) in motion.iter().enumerate() {
+            let va = row[ka];
+            let a = &mut self.a[ka * m..(ka + 1) * m];
+            for &kb in &motion[ia..] {
+                a[kb] += va * row[kb];
+            }
+            let b = &mut self.b[ka * s..(ka + 1) * s];
+            for &kb in shape {
+                b[kb - m] += va * row[kb];
+            }
+        }
+        for (ia, &ka) in shape.iter().enumerate() {
+            let va = row[ka];
+            let c = &mut self.c[(ka - m) * s..(ka - m + 1) * s];
+            for &kb in &shape[ia..] {
+                c[kb - m] += va * row[kb];
+            }
+        }
+    }
+
+    /// Copies the upper triangles of the frame and shape blocks onto the lower ones.
+    fn mirror(&mut self, m: usize, s: usize) {
+        for (block, n) in [(&mut self.a, m), (&mut self.c, s)] {
+            for i in 0..n {
+                for j in 0..i {
+                    block[i * n + j] = block[j * n + i];
                 }
             }
         }
@@ -250,6 +261,8 @@ impl ArrowProblem for BodyProblem<'_> {
                     },
                 )
                 .reduce(|| Blocks::new(m, s, 0), Blocks::add);
+            let mut blocks = blocks;
+            blocks.mirror(m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
             normal.b[f * m * s..(f + 1) * m * s].copy_from_slice(&blocks.b);
             normal
