@@ -289,8 +289,8 @@ def body_cases(repeats: int) -> list[dict[str, Any]]:
     pattern = np.concatenate(
         [model._core.jacobian(init.shape, init.motion, points, False)[1], model.ray_maxima(origins, directions, init)["jacobian"]]
     ) != 0
-    lower = np.concatenate([model.lower, np.full(model.n_shape, 0.2)])
-    upper = np.concatenate([model.upper, np.full(model.n_shape, 5.0)])
+    lower = np.concatenate([model.lower, np.full(model.n_shape, 0.5)])
+    upper = np.concatenate([model.upper, np.full(model.n_shape, 2.0)])
 
     def ours() -> np.ndarray:
         fit = fit_body(model, [BodyObservations(points=points, origins=origins, directions=directions)], init=init, outlier_distance=1.0)

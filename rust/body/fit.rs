@@ -12,8 +12,9 @@ use super::skeleton::{check_vector, Skeleton};
 use crate::lm::{levenberg_marquardt, ArrowNormal, ArrowProblem, LmOptions, LmReport};
 use crate::Result;
 
-/// Shape coefficients are kept in this range: a part cannot shrink to nothing.
-pub const SHAPE_RANGE: (f64, f64) = (0.2, 5.0);
+/// Shape coefficients are kept in this range (half to twice the described part): a part
+/// cannot shrink to nothing, nor swell over its neighbours' observations.
+pub const SHAPE_RANGE: (f64, f64) = (0.5, 2.0);
 
 /// Largest trusted change per iteration of a translation (metres), an angle (radians) and
 /// a shape coefficient: the field is exponential in the state, so a Gauss-Newton step
