@@ -248,6 +248,40 @@ pub enum Error {
         /// faer's reason.
         reason: String,
     },
+    /// A body model description that cannot be used.
+    #[error("bad body model: {reason}")]
+    BadModel {
+        /// What is wrong.
+        reason: String,
+    },
+    /// A vector of the wrong length.
+    #[error("{argument} has {got} entries where {expected} are needed")]
+    WrongLength {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// Entries needed.
+        expected: usize,
+        /// Entries given.
+        got: usize,
+    },
+    /// A ray with a zero direction.
+    #[error("directions row {row} is zero: a ray needs a direction")]
+    BadRay {
+        /// The row.
+        row: usize,
+    },
+    /// An observation index (frame or part) out of range.
+    #[error("{argument}[{row}] = {value} is out of range: it must be in 0..{bound}")]
+    IndexOutOfRange {
+        /// Name of the offending argument.
+        argument: &'static str,
+        /// The row.
+        row: usize,
+        /// The value given.
+        value: i64,
+        /// Exclusive upper bound.
+        bound: usize,
+    },
 }
 
 impl Error {
@@ -280,6 +314,10 @@ impl Error {
                 | Error::NotPositiveDefinite { .. }
                 | Error::InvalidOption { .. }
                 | Error::NotFactorized
+                | Error::BadModel { .. }
+                | Error::WrongLength { .. }
+                | Error::BadRay { .. }
+                | Error::IndexOutOfRange { .. }
         )
     }
 }

@@ -4,6 +4,7 @@
 //! maturin turns on.
 #![warn(missing_docs)]
 
+pub mod body;
 pub mod camera;
 pub mod carve;
 pub mod efg;
@@ -11,6 +12,7 @@ pub mod elastic;
 pub mod error;
 pub mod fit;
 pub mod grid_sample;
+pub mod lm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;

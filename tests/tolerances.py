@@ -175,3 +175,23 @@ FIT_RIGID_ENERGY_RTOL = 0.03
 # Resumed vs. uninterrupted runs: same start, same arithmetic up to the order of parallel
 # sums in the solver, so positions agree to rounding.
 FIT_RESUME_RTOL = 1e-9
+# --- body model (SPEC 6) ----------------------------------------------------------------
+
+# Analytic derivatives vs central differences, per entry relative to |entry| + the row's
+# largest entry (the brief asks 1e-6 relative). With step BODY_FD_STEP, truncation is
+# ~h^2 |F'''| ~ 1e-12 * (1 / r^3 ~ 1e3) and rounding ~eps / h ~ 1e-10; measured <= 2e-9.
+BODY_FD_RTOL = 1e-6
+# Central-difference step in metres / radians / coefficient units.
+BODY_FD_STEP = 1e-6
+# grad F . r at the ray maximum x* (1/m): Newton stops at steps of 1e-10 of the narrowest
+# ball's extent, so the slope left is ~|F''| 1e-11 m; measured ~2e-10.
+BODY_RAY_STATIONARY_ATOL = 1e-7
+# Recovery of a random pose from skin points + silhouettes (the issue's figures).
+BODY_ANGLE_RMS_DEG = 1.0
+BODY_SHAPE_RTOL = 0.01
+# ... with 1 cm point noise and 10% outliers.
+BODY_NOISY_ANGLE_RMS_DEG = 3.0
+BODY_NOISY_SHAPE_RTOL = 0.03
+# The papers' experiment: one-sided stereo alone inflates the widths by more than this;
+# with silhouettes the widths come back within BODY_NOISY_SHAPE_RTOL.
+BODY_STEREO_INFLATION_MIN = 0.03

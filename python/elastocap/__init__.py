@@ -6,6 +6,7 @@ the public API, orchestration, I/O and the command line.
 """
 
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
+from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_body
 from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.efg import stiffness_matrix
@@ -25,6 +26,10 @@ from elastocap.solvers import SolveStatus, SparseCholesky, conjugate_gradient
 from elastocap.synth import Figure, ring_rig, write_synthetic_capture
 
 __all__ = [
+    "BodyFit",
+    "BodyModel",
+    "BodyObservations",
+    "BodyState",
     "Camera",
     "Capture",
     "ConvergenceError",
@@ -46,6 +51,7 @@ __all__ = [
     "clean_mask",
     "fit_sequence",
     "conjugate_gradient",
+    "fit_body",
     "knn",
     "load_hull",
     "mls_shape_functions",

@@ -2,9 +2,12 @@
 
 import numpy as np
 from numpy.typing import NDArray
+from typing import Any
+
 from typing_extensions import final
 
 __all__ = [
+    "BodySkeleton",
     "carve",
     "conjugate_gradient",
     "ConvergenceError",
@@ -198,3 +201,62 @@ class FitCore:
         solver_max_iterations: int = 500,
         matrix_free: bool = False,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
+class BodySkeleton:
+    def __new__(
+        cls,
+        parent: NDArray[np.int64],
+        offset: NDArray[np.float64],
+        rest: NDArray[np.float64],
+        axes: NDArray[np.float64],
+        axis_count: NDArray[np.int64],
+        ball_part: NDArray[np.int64],
+        ball_centre: NDArray[np.float64],
+        ball_radii: NDArray[np.float64],
+    ) -> BodySkeleton: ...
+    @property
+    def n_motion(self) -> int: ...
+    @property
+    def n_shape(self) -> int: ...
+    def pose(
+        self, shape: NDArray[np.float64], motion: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def field(
+        self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
+    def jacobian(
+        self,
+        shape: NDArray[np.float64],
+        motion: NDArray[np.float64],
+        points: NDArray[np.float64],
+        exact: bool = True,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def rays(
+        self,
+        shape: NDArray[np.float64],
+        motion: NDArray[np.float64],
+        origins: NDArray[np.float64],
+        directions: NDArray[np.float64],
+    ) -> tuple[
+        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]
+    ]: ...
+    def rays_inside(
+        self,
+        shape: NDArray[np.float64],
+        motion: NDArray[np.float64],
+        origins: NDArray[np.float64],
+        directions: NDArray[np.float64],
+        threshold: float,
+    ) -> NDArray[np.bool_]: ...
+    def fit(
+        self,
+        observations: dict[str, Any],
+        shape: NDArray[np.float64],
+        motion: NDArray[np.float64],
+        lower: NDArray[np.float64],
+        upper: NDArray[np.float64],
+        *,
+        fit_shape: bool,
+        max_iterations: int,
+        refresh_every: int,
+        outlier_distance: float | None,
+    ) -> dict[str, Any]: ...

@@ -70,6 +70,17 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _body(args: argparse.Namespace) -> int:
+    from elastocap.body.stage import run_body_stage
+    from elastocap.capture import Capture
+    from elastocap.hull_stage import parse_frames
+
+    capture = Capture.open(args.capture)
+    written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
+    print(f"wrote {written}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -141,6 +152,18 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--resolution", type=int, default=128, help="hull voxels along the longest side (default: 128)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_fit)
+    body = commands.add_parser(
+        "body",
+        help="fit the articulated body model to every frame's silhouettes",
+        description="Fit the default human body model (SPEC 6) to the capture's masks: "
+        "OUT/body/fit.json (shape, joint angles per frame), OUT/body/<frame>.ply (skin meshes) "
+        "and OUT/body_views.png. A finished run is not redone.",
+    )
+    body.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
+    body.add_argument("--out", required=True, help="output folder")
+    body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    body.add_argument("--quiet", action="store_true", help="no progress bar")
+    body.set_defaults(run=_body)
     return parser
 
 

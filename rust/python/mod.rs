@@ -1,6 +1,7 @@
 //! Thin Python bindings: extract and check arrays, release the GIL around the core,
 //! map errors, return numpy arrays. No algorithm lives here.
 
+mod body;
 mod carve;
 mod efg;
 mod elastic;
@@ -54,6 +55,7 @@ pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     fit::register(m)?;
+    body::register(m)?;
     carve::register(m)?;
     efg::register(m)?;
     elastic::register(m)?;

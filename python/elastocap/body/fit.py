@@ -1,0 +1,292 @@
+"""Fitting the body model to observations (SPEC 6): :func:`fit_body`, :class:`BodyFit`,
+:class:`BodyObservations` and :func:`silhouette_rays`."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap._core import InvalidInputError
+from elastocap._validate import as_count, as_float_array, as_positive
+from elastocap.body.model import BodyModel, BodyState
+from elastocap.camera import Camera
+
+__all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays"]
+
+
+@dataclass(frozen=True)
+class BodyObservations:
+    """What one frame shows of the body.
+
+    Attributes
+    ----------
+    points : (N, 3) array_like or None
+        3-D points on the skin (world, metres), e.g. from stereo.
+    origins, directions : (R, 3) array_like or None
+        Silhouette rays (world): each should graze the skin (SPEC 6).
+    masks : sequence of (H, W) array_like or None
+        Silhouette masks, one per camera of ``fit_body(cameras=...)``; turned into rays by
+        :func:`silhouette_rays`.
+    joints : mapping of part name to (3,) array_like, optional
+        Observed joint positions (the origin of the named part's frame), metres.
+    """
+
+    points: Any = None
+    origins: Any = None
+    directions: Any = None
+    masks: Any = None
+    joints: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BodyFit:
+    """The result of :func:`fit_body`.
+
+    Attributes
+    ----------
+    states : list of BodyState
+        One per frame, sharing ``shape``.
+    shape : (2 P,) float64
+    motion : (F, n_motion) float64
+    status : str
+        "cost converged", "step converged", "gradient converged", "maximum iterations" or
+        "no descent" (reported, not raised).
+    iterations : int
+    initial_cost, final_cost : float
+        ``1/2 sum p_i r_i^2`` over the kept observations.
+    point_part, ray_part : (N,) int64
+        Part assigned to each point / ray (largest field contribution), all frames
+        concatenated in frame order.
+    point_inlier, ray_inlier : (N,) bool
+        Observations kept by the last outlier test.
+    unobserved_parts : list of str
+        Parts that no kept observation is assigned to: their shape coefficients keep their
+        initial values (up to the pull of the far tails of their balls on other parts'
+        observations, ~1e-10 for a part 0.3 m from any).
+    """
+
+    states: list[BodyState]
+    shape: NDArray[np.float64]
+    motion: NDArray[np.float64]
+    status: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    point_part: NDArray[np.int64]
+    point_inlier: NDArray[np.bool_]
+    ray_part: NDArray[np.int64]
+    ray_inlier: NDArray[np.bool_]
+    unobserved_parts: list[str]
+
+
+def silhouette_rays(mask: Any, camera: Camera, *, max_rays: int | None = None, seed: int = 0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rays grazing a silhouette: through the midpoint of every pair of neighbouring pixels
+    (horizontal and vertical) of which one is inside the mask and one outside.
+
+    The midpoint is the unbiased sub-pixel estimate of the outline (a boundary pixel centre
+    would sit half a pixel inside it on average).
+
+    Parameters
+    ----------
+    mask : (height, width) array_like
+        Non-zero = body.
+    camera : Camera
+    max_rays : int, optional, keyword-only
+        Keep a random subset of at most this many rays.
+    seed : int, keyword-only
+        Seed of that subset.
+
+    Returns
+    -------
+    origins, directions : (R, 3) float64
+    """
+    m = np.asarray(mask) != 0
+    if m.shape != (camera.height, camera.width):
+        raise InvalidInputError(f"mask must have shape ({camera.height}, {camera.width}) like its camera, got {m.shape}")
+    rows, cols = np.nonzero(m[:, 1:] != m[:, :-1])
+    horizontal = np.stack([cols + 0.5, rows], axis=1)
+    rows, cols = np.nonzero(m[1:, :] != m[:-1, :])
+    vertical = np.stack([cols, rows + 0.5], axis=1)
+    uv = np.concatenate([horizontal, vertical]).astype(float)
+    if max_rays is not None and len(uv) > as_count("max_rays", max_rays):
+        uv = uv[np.random.default_rng(seed).choice(len(uv), max_rays, replace=False)]
+    if len(uv) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    origins, directions = camera.rays(uv)
+    ok = np.isfinite(directions).all(axis=1)
+    return np.ascontiguousarray(origins[ok]), np.ascontiguousarray(directions[ok])
+
+
+def _rows3(name: str, value: Any) -> NDArray[np.float64]:
+    if value is None:
+        return np.zeros((0, 3))
+    array = as_float_array(name, value)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise InvalidInputError(f"{name} must have shape (N, 3), got {array.shape}")
+    return array
+
+
+def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None, max_rays: int | None) -> tuple[NDArray[np.float64], ...]:
+    if isinstance(obs, Mapping):
+        obs = BodyObservations(**obs)
+    if not isinstance(obs, BodyObservations):
+        raise InvalidInputError(f"frames[{f}] must be a BodyObservations or a dict, got {type(obs).__name__}")
+    points = _rows3(f"frames[{f}].points", obs.points)
+    origins = _rows3(f"frames[{f}].origins", obs.origins)
+    directions = _rows3(f"frames[{f}].directions", obs.directions)
+    if len(origins) != len(directions):
+        raise InvalidInputError(f"frames[{f}]: origins and directions must have as many rows, got {len(origins)} and {len(directions)}")
+    if obs.masks is not None:
+        if cameras is None or len(cameras) != len(obs.masks):
+            raise InvalidInputError(f"frames[{f}].masks needs one camera per mask in fit_body(cameras=...)")
+        rays = [silhouette_rays(mask, cam, max_rays=max_rays, seed=f) for mask, cam in zip(obs.masks, cameras)]
+        origins = np.concatenate([origins] + [o for o, _ in rays])
+        directions = np.concatenate([directions] + [d for _, d in rays])
+    names = {n: i for i, n in enumerate(model.part_names)}
+    unknown = [n for n in obs.joints if n not in names]
+    if unknown:
+        raise InvalidInputError(f"frames[{f}].joints names unknown parts {unknown}; parts are {model.part_names}")
+    joints = _rows3(f"frames[{f}].joints", [obs.joints[n] for n in obs.joints] if obs.joints else None)
+    joint_part = np.array([names[n] for n in obs.joints], dtype=np.int64)
+    return points, origins, directions, joints, joint_part
+
+
+def fit_body(
+    model: BodyModel,
+    frames: Sequence[Any],
+    *,
+    cameras: Sequence[Camera] | None = None,
+    shape: Any = None,
+    init: BodyState | Sequence[BodyState] | None = None,
+    sigma_point: float = 0.05,
+    sigma_ray: float = 0.05,
+    sigma_joint: float = 0.01,
+    max_iterations: int = 100,
+    refresh_every: int = 5,
+    outlier_distance: float | None = None,
+    max_rays_per_mask: int | None = None,
+    residual: str = "log",
+    log_epsilon: float = 0.01,
+) -> BodyFit:
+    """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
+    silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
+
+    Parameters
+    ----------
+    model : BodyModel
+    frames : sequence of BodyObservations (or dicts of its fields)
+        One per frame.
+    cameras : sequence of Camera, optional, keyword-only
+        The cameras of the frames' ``masks``.
+    shape : (2 P,) array_like, optional, keyword-only
+        A known shape, held fixed; default: estimate it, starting from ``init``'s shape.
+    init : BodyState or sequence of BodyState, optional, keyword-only
+        Starting state(s); default ``model.rest_state()``. The fit is local: start within
+        tens of degrees and centimetres of the answer (e.g. from the previous frame).
+    sigma_point, sigma_ray : float, keyword-only
+        A-priori standard deviations of the point and ray residuals ``F - 0.5`` (field
+        units); weights are ``1 / sigma^2`` (SPEC 6: ``p_i / p_j = sigma_j^2 / sigma_i^2``).
+    sigma_joint : float, keyword-only
+        Standard deviation of joint positions, metres.
+    max_iterations, refresh_every : int, keyword-only
+        Iteration cap; part assignment and outlier rejection are redone every
+        ``refresh_every`` iterations.
+    outlier_distance : float, optional, keyword-only
+        Reject points and rays farther than this (metres, approximated by
+        ``|F - 0.5| / |grad F|``) from the skin; default: three robust standard deviations
+        of the current distances, at least 5 mm. Points where the field vanishes are
+        always rejected (they carry no information).
+    max_rays_per_mask : int, optional, keyword-only
+        Subsample each mask's outline rays.
+    residual : {"log", "field"}, keyword-only
+        "field": SPEC 6's ``F - 0.5``. "log" (default): ``(0.5 + eps) ln((F + eps) / (0.5 +
+        eps))``, equal to first order on the skin, but it keeps pulling parts that start a
+        few centimetres off where ``F - 0.5`` is flat (``benches/README.md``: from a 10%
+        wrong shape "field" lets feet swell and diverges, "log" recovers the truth).
+    log_epsilon : float, keyword-only
+        ``eps`` of the "log" residual: below ``F ~ eps`` it flattens again, so far
+        outliers do not pull.
+
+    Returns
+    -------
+    BodyFit
+
+    Raises
+    ------
+    InvalidInputError
+        For malformed observations (wrong shapes, NaN, zero ray directions, unknown joint
+        names), no observations at all, a state of the wrong length, non-positive sigmas.
+        Rays that miss the model are kept with residual ``-0.5`` and zero Jacobian until
+        the outlier test drops them; non-convergence is reported in ``status``.
+    """
+    if not isinstance(model, BodyModel):
+        raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
+    if isinstance(frames, (BodyObservations, Mapping)) or not isinstance(frames, Sequence) or len(frames) == 0:
+        raise InvalidInputError("frames must be a non-empty sequence of BodyObservations, one per frame")
+    n = len(frames)
+    if init is None:
+        inits = [model.rest_state()] * n
+    elif isinstance(init, BodyState):
+        inits = [init] * n
+    else:
+        inits = list(init)
+        if len(inits) != n:
+            raise InvalidInputError(f"init must hold one state per frame ({n}), got {len(inits)}")
+    checked = [model.check_state(s) for s in inits]
+    motion = np.ascontiguousarray(np.stack([m for _, m in checked]))
+    start_shape = checked[0][0] if shape is None else model.check_state(BodyState(as_float_array("shape", shape), checked[0][1]))[0]
+    per_frame = [_frame(model, obs, f, cameras, max_rays_per_mask) for f, obs in enumerate(frames)]
+
+    def stack(k: int) -> NDArray[np.float64]:
+        return np.ascontiguousarray(np.concatenate([p[k] for p in per_frame]).reshape(-1, 3))
+
+    def frame_of(k: int) -> NDArray[np.int64]:
+        return np.concatenate([np.full(len(p[k]), f, dtype=np.int64) for f, p in enumerate(per_frame)])
+
+    if residual not in ("log", "field"):
+        raise InvalidInputError(f"residual must be 'log' or 'field', got {residual!r}")
+    observations = {
+        "points": stack(0),
+        "point_frame": frame_of(0),
+        "origins": stack(1),
+        "directions": stack(2),
+        "ray_frame": frame_of(1),
+        "joints": stack(3),
+        "joint_part": np.concatenate([p[4] for p in per_frame]).astype(np.int64),
+        "joint_frame": frame_of(3),
+        "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
+        "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
+    }
+    result = model._core.fit(
+        observations,
+        np.ascontiguousarray(start_shape),
+        motion,
+        np.ascontiguousarray(model.lower),
+        np.ascontiguousarray(model.upper),
+        fit_shape=shape is None,
+        max_iterations=as_count("max_iterations", max_iterations),
+        refresh_every=as_count("refresh_every", refresh_every, minimum=0),
+        outlier_distance=None if outlier_distance is None else as_positive("outlier_distance", outlier_distance),
+    )
+    seen = np.zeros(len(model.part_names), dtype=bool)
+    seen[result["point_part"][result["point_inlier"]]] = True
+    seen[result["ray_part"][result["ray_inlier"]]] = True
+    seen[observations["joint_part"]] = True
+    return BodyFit(
+        states=[BodyState(result["shape"], m) for m in result["motion"]],
+        shape=result["shape"],
+        motion=result["motion"],
+        status=result["status"],
+        iterations=int(result["iterations"]),
+        initial_cost=float(result["initial_cost"]),
+        final_cost=float(result["final_cost"]),
+        point_part=result["point_part"],
+        point_inlier=result["point_inlier"],
+        ray_part=result["ray_part"],
+        ray_inlier=result["ray_inlier"],
+        unobserved_parts=[name for name, s in zip(model.part_names, seen) if not s],
+    )

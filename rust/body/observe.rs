@@ -1,0 +1,205 @@
+//! Observations of a body for the fit (SPEC 6): 3-D points on the skin, silhouette rays
+//! tangent to it, optional 3-D joint positions, each type weighted by its a-priori sigma.
+
+use nalgebra::Vector3;
+
+use super::field::{Cutoff, Field};
+use super::ray::ray_maximum_over;
+use super::skeleton::Skeleton;
+use crate::error::check_finite;
+use crate::{Error, Result};
+
+/// The skin level `T` of SPEC 6: the skin is `F = T`.
+pub const SKIN_LEVEL: f64 = 0.5;
+
+/// Everything observed, over all frames.
+#[derive(Debug, Clone, Default)]
+pub struct Observations {
+    /// Number of frames.
+    pub frames: usize,
+    /// 3-D points on the skin (world).
+    pub points: Vec<[f64; 3]>,
+    /// Frame of each point.
+    pub point_frame: Vec<usize>,
+    /// Silhouette ray origins (world).
+    pub origins: Vec<[f64; 3]>,
+    /// Silhouette ray directions (world, any length but not zero).
+    pub directions: Vec<[f64; 3]>,
+    /// Frame of each ray.
+    pub ray_frame: Vec<usize>,
+    /// Observed joint positions (world): the origin of a part's frame.
+    pub joints: Vec<[f64; 3]>,
+    /// Part whose joint each joint observation sees.
+    pub joint_part: Vec<usize>,
+    /// Frame of each joint observation.
+    pub joint_frame: Vec<usize>,
+    /// A-priori standard deviations `[point, ray, joint]`: points and rays in field units
+    /// (F - T), joints in metres. Weights are `1 / sigma^2`.
+    pub sigma: [f64; 3],
+    /// `Some(ε)`: points and rays use `g(F) = (T + ε) ln((F + ε) / (T + ε))` instead of
+    /// `F - T`. Both vanish on the skin and agree to first order there (so sigmas keep
+    /// their meaning), but `F - T` goes flat a few radii from a ball, where a part that
+    /// starts a few centimetres off feels no pull; `g` keeps pulling (like a squared
+    /// distance) until `F` falls well below `ε`. `benches/README.md` has the measurement.
+    pub log_epsilon: Option<f64>,
+}
+
+/// The residual of a field value `F` (weighted by `w`) and its derivative in `F`.
+#[inline]
+pub fn field_residual(f: f64, log_epsilon: Option<f64>) -> (f64, f64) {
+    match log_epsilon {
+        None => (f - SKIN_LEVEL, 1.0),
+        Some(eps) => {
+            let scale = SKIN_LEVEL + eps;
+            (scale * ((f + eps) / scale).ln(), scale / (f + eps))
+        }
+    }
+}
+
+fn check_index(argument: &'static str, values: &[usize], bound: usize) -> Result<()> {
+    match values.iter().position(|&v| v >= bound) {
+        Some(row) => Err(Error::IndexOutOfRange {
+            argument,
+            row,
+            value: values[row] as i64,
+            bound,
+        }),
+        None => Ok(()),
+    }
+}
+
+fn check_len(argument: &'static str, got: usize, expected: usize) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::WrongLength {
+            argument,
+            expected,
+            got,
+        })
+    }
+}
+
+impl Observations {
+    /// Checks lengths, indices, finiteness and sigmas.
+    ///
+    /// # Errors
+    /// [`Error::WrongLength`], [`Error::IndexOutOfRange`], [`Error::NonFinite`],
+    /// [`Error::BadRay`], [`Error::Empty`] (nothing observed), [`Error::InvalidMaterial`]
+    /// is not used; a non-positive sigma gives [`Error::BadModel`].
+    pub fn validate(&self, skeleton: &Skeleton) -> Result<()> {
+        check_len("point_frame", self.point_frame.len(), self.points.len())?;
+        check_len("directions", self.directions.len(), self.origins.len())?;
+        check_len("ray_frame", self.ray_frame.len(), self.origins.len())?;
+        check_len("joint_part", self.joint_part.len(), self.joints.len())?;
+        check_len("joint_frame", self.joint_frame.len(), self.joints.len())?;
+        check_index("point_frame", &self.point_frame, self.frames)?;
+        check_index("ray_frame", &self.ray_frame, self.frames)?;
+        check_index("joint_frame", &self.joint_frame, self.frames)?;
+        check_index("joint_part", &self.joint_part, skeleton.n_parts())?;
+        check_finite("points", &self.points)?;
+        check_finite("joints", &self.joints)?;
+        super::check_rays(&self.origins, &self.directions)?;
+        if self.points.len() + self.origins.len() + self.joints.len() == 0 || self.frames == 0 {
+            return Err(Error::Empty {
+                argument: "observations",
+                needed: 1,
+            });
+        }
+        if !self.log_epsilon.is_none_or(|e| e.is_finite() && e > 0.0) {
+            return Err(Error::BadModel {
+                reason: format!(
+                    "log_epsilon must be positive and finite, got {:?}",
+                    self.log_epsilon
+                ),
+            });
+        }
+        if !self.sigma.iter().all(|s| s.is_finite() && *s > 0.0) {
+            return Err(Error::BadModel {
+                reason: format!("sigmas must be positive and finite, got {:?}", self.sigma),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One observation's residual and (optionally) its Jacobian row, weighted by
+/// `sqrt(p)`. `row` has `n_motion + n_shape` entries.
+pub enum Residual {
+    /// A point: `F(x) - T`.
+    Point(usize),
+    /// A ray: `max_s F(o + s r) - T`.
+    Ray(usize),
+    /// Axis `k` of a joint: `o_b[k] - observed[k]`.
+    Joint(usize, usize),
+}
+
+impl Residual {
+    /// The weighted residual; fills `row` (weighted Jacobian) when given. `subset` (ascending
+    /// ball indices) limits the field to the balls that matter for this observation.
+    pub fn evaluate(
+        &self,
+        obs: &Observations,
+        field: &Field<'_>,
+        subset: Option<&[u16]>,
+        start: Option<&std::sync::atomic::AtomicU64>,
+        row: Option<&mut [f64]>,
+    ) -> f64 {
+        match *self {
+            Residual::Point(i) => {
+                let w = 1.0 / obs.sigma[0];
+                let x = Vector3::from(obs.points[i]);
+                match row {
+                    Some(row) => {
+                        let f = field.state_derivative_over(&x, subset, Cutoff::Bounded, row);
+                        let (r, slope) = field_residual(f, obs.log_epsilon);
+                        row.iter_mut().for_each(|v| *v *= w * slope);
+                        w * r
+                    }
+                    None => w * field_residual(field.value_over(&x, subset), obs.log_epsilon).0,
+                }
+            }
+            Residual::Ray(i) => {
+                let w = 1.0 / obs.sigma[1];
+                let o = Vector3::from(obs.origins[i]);
+                let r = Vector3::from(obs.directions[i]);
+                use std::sync::atomic::Ordering::Relaxed;
+                // Warm start from the last linearisation's maximum; a linearisation (the
+                // accepted state) stores its own for the next iteration.
+                let previous = start
+                    .map(|s| f64::from_bits(s.load(Relaxed)))
+                    .filter(|s| s.is_finite());
+                let max = ray_maximum_over(field, subset, &o, &r, previous);
+                if let (Some(start), true, true) = (start, row.is_some(), max.hit) {
+                    start.store(max.s.to_bits(), Relaxed);
+                }
+                let (residual, slope) = field_residual(max.value, obs.log_epsilon);
+                if let Some(row) = row {
+                    row.iter_mut().for_each(|v| *v = 0.0);
+                    if max.hit {
+                        field.state_derivative_over(&max.point, subset, Cutoff::Bounded, row);
+                        row.iter_mut().for_each(|v| *v *= w * slope);
+                    }
+                }
+                w * residual
+            }
+            Residual::Joint(i, k) => {
+                let w = 1.0 / obs.sigma[2];
+                let b = obs.joint_part[i];
+                let pose = &field.pose;
+                let origin = pose.origin[b];
+                if let Some(row) = row {
+                    row.iter_mut().for_each(|v| *v = 0.0);
+                    let n_motion = field.skeleton.n_motion;
+                    for &j in &field.skeleton.motion_of_part[b] {
+                        row[j] = w * pose.twists[j].velocity(&origin)[k];
+                    }
+                    for (j, u) in &pose.offset_derivatives[b] {
+                        row[n_motion + j] += w * u[k];
+                    }
+                }
+                w * (origin[k] - obs.joints[i][k])
+            }
+        }
+    }
+}
