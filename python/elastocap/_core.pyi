@@ -201,6 +201,8 @@ class FitCore:
         solver_max_iterations: int = 500,
         matrix_free: bool = False,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
+
+@final
 class BodySkeleton:
     def __new__(
         cls,
