@@ -1,10 +1,12 @@
-"""``elastocap demo``: a synthetic capture carved into visual hulls, and the kernels
-checked against scipy and numpy.
+"""``elastocap demo``: the capture chain end to end on a synthetic capture, measured against
+its ground truth, and the kernels checked against scipy and numpy.
 
 Writes ``OUT/capture/`` (the synthetic capture), ``OUT/hull/`` (hull surfaces and signed
-distances per frame), ``OUT/hull_views.png`` (the first frame's hull over the camera
-images) and ``OUT/metrics.json`` (what was measured). Rerunning resumes: finished frames
-are not redone. It grows into the full capture chain as the later stages land.
+distances per frame), ``OUT/model/`` and ``OUT/fit/`` (the elastic model and its fit through
+every frame), ``OUT/report.html`` with ``fit_views.png`` (fitted surfaces over camera
+images), ``fit_strip.png`` (the sequence), ``fit_plots.png`` (error and volume per frame)
+and ``hull_views.png``, and ``OUT/metrics.json`` (what was measured). Rerunning resumes:
+finished frames are not redone.
 """
 
 from __future__ import annotations
@@ -116,9 +118,8 @@ def _hull_picture(capture: Capture, out: Path, frame: int) -> Path:
     return path
 
 
-def _truth_distance(capture_dir: Path, frame: int, vertices: np.ndarray, spacing: float) -> float:
-    """Mean |distance| of ``vertices`` to the frame's ground-truth surface (exact distance
-    field of the truth voxelised at ``spacing``)."""
+def _truth_field(capture_dir: Path, frame: int, spacing: float) -> Any:
+    """The exact distance field of the frame's ground-truth solid voxelised at ``spacing``."""
     import trimesh
 
     from elastocap._voxelize import solid_voxels
@@ -128,8 +129,12 @@ def _truth_distance(capture_dir: Path, frame: int, vertices: np.ndarray, spacing
     truth = trimesh.load_mesh(capture_dir / "ground_truth" / f"{frame:06d}.ply")
     lo, hi = truth.bounds
     grid = Grid(lo - 4 * spacing, spacing, tuple(int(v) for v in np.ceil((hi - lo) / spacing).astype(int) + 9))
-    sdf = SDF.from_occupancy(solid_voxels(truth, grid), grid)
-    return float(np.abs(sdf.sample(vertices)).mean())
+    return SDF.from_occupancy(solid_voxels(truth, grid), grid)
+
+
+def _truth_distance(capture_dir: Path, frame: int, vertices: np.ndarray, spacing: float) -> float:
+    """Mean |distance| of ``vertices`` to the frame's ground-truth surface."""
+    return float(np.abs(_truth_field(capture_dir, frame, spacing).sample(vertices)).mean())
 
 
 def _fit(capture: Capture, capture_dir: Path, out: Path, resolution: int, n_nodes: int, progress: bool) -> dict[str, Any]:
@@ -144,9 +149,9 @@ def _fit(capture: Capture, capture_dir: Path, out: Path, resolution: int, n_node
     for index in fit.frames:
         frame = frames[index]
         hull = load_hull(out, frame)
-        spacing = hull.grid.spacing / 2
-        fitted = _truth_distance(capture_dir, frame, fit.surface(index).vertices, spacing)
-        hull_surface = _truth_distance(capture_dir, frame, hull.mesh().vertices, spacing)
+        truth = _truth_field(capture_dir, frame, hull.grid.spacing / 2)
+        fitted = float(np.abs(truth.sample(fit.surface(index).vertices)).mean())
+        hull_surface = float(np.abs(truth.sample(hull.mesh().vertices)).mean())
         rows.append({"frame": frame, "fit_to_truth_mean_m": fitted, "hull_to_truth_mean_m": hull_surface, **fit.fits[index].metrics})
     summary = {
         "frames fitted": len(rows),
