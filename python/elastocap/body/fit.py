@@ -130,7 +130,7 @@ def _rows3(name: str, value: Any) -> NDArray[np.float64]:
     return array
 
 
-def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None, max_rays: int | None) -> tuple[NDArray[np.float64], ...]:
+def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None, max_rays: int | None) -> tuple[NDArray[Any], ...]:
     if isinstance(obs, Mapping):
         obs = BodyObservations(**obs)
     if not isinstance(obs, BodyObservations):
@@ -273,9 +273,9 @@ def fit_body(
         outlier_distance=None if outlier_distance is None else as_positive("outlier_distance", outlier_distance),
     )
     seen = np.zeros(len(model.part_names), dtype=bool)
-    seen[result["point_part"][result["point_inlier"]]] = True
-    seen[result["ray_part"][result["ray_inlier"]]] = True
-    seen[observations["joint_part"]] = True
+    seen[np.asarray(result["point_part"])[np.asarray(result["point_inlier"])]] = True
+    seen[np.asarray(result["ray_part"])[np.asarray(result["ray_inlier"])]] = True
+    seen[np.asarray(observations["joint_part"], dtype=np.int64)] = True
     return BodyFit(
         states=[BodyState(result["shape"], m) for m in result["motion"]],
         shape=result["shape"],

@@ -16,7 +16,7 @@ from elastocap._core import InvalidInputError
 from elastocap._io import save_image, save_mesh
 from elastocap.body.fit import BodyObservations, fit_body
 from elastocap.body.model import BodyModel, BodyState
-from elastocap.camera import Camera
+from elastocap.camera import Camera, Rig
 from elastocap.capture import Capture
 from elastocap.pictures import contact_sheet
 
@@ -27,7 +27,7 @@ __all__ = ["run_body_stage"]
 _Z_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]).T
 
 
-def _centre(masks: dict[str, NDArray[np.bool_]], cameras: dict[str, Camera]) -> NDArray[np.float64]:
+def _centre(masks: dict[str, NDArray[np.bool_]], cameras: Rig | dict[str, Camera]) -> NDArray[np.float64]:
     """The point nearest (least squares) to the rays through the masks' centroids."""
     a, b = np.zeros((3, 3)), np.zeros(3)
     for name, mask in masks.items():
@@ -40,7 +40,7 @@ def _centre(masks: dict[str, NDArray[np.bool_]], cameras: dict[str, Camera]) -> 
         b += projector @ origin[0]
     if np.linalg.matrix_rank(a) < 3:
         raise InvalidInputError("the masks do not locate the body: fewer than two cameras see it")
-    return np.linalg.solve(a, b)
+    return np.asarray(np.linalg.solve(a, b), dtype=np.float64)
 
 
 def run_body_stage(
