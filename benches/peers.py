@@ -463,6 +463,45 @@ def fit_cases(repeats: int) -> list[dict[str, Any]]:
 
 CASES["fit"] = fit_cases
 
+_ELASTIC_MEMORY_SCRIPT = """
+import json, numpy as np
+from elastocap import _core
+def peak_mb():
+    return int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM:")).split()[1]) / 1024
+n = {n}; side = int(np.ceil(n ** (1 / 3))); i = np.arange(n)
+cells = np.stack([i % side, (i // side) % side, i // (side * side)], 1).astype(float)
+points = np.ascontiguousarray(cells + np.random.default_rng(11).uniform(-0.3, 0.3, cells.shape))
+before = peak_mb()
+model = _core.ElasticCore(points, 20, np.ones(n), 1.0, 0.3, "strain", "rhs")
+built = peak_mb()
+indptr, indices, data = model.system(np.ascontiguousarray(np.broadcast_to(np.eye(3), (n, 3, 3))))
+print(json.dumps({{"before_mb": before, "model_mb": built, "with_stiffness_mb": peak_mb(), "entries": len(data)}}))
+"""
+
+
+def elastic_memory_cases(repeats: int) -> list[dict[str, Any]]:
+    """Peak resident memory (VmHWM, fresh process) of the elastic model at 64k nodes, k = 20:
+    after the build, and after exporting its stiffness as a scalar CSR (issue 4: <= 2 GB)."""
+    import subprocess
+    import sys
+
+    n = 64_000
+    out = subprocess.run([sys.executable, "-c", _ELASTIC_MEMORY_SCRIPT.format(n=n)], capture_output=True, text=True, check=True)
+    row = json.loads(out.stdout.strip().splitlines()[-1])
+    return [
+        {
+            "case": "peak_memory_elastic_model_64k",
+            "n": n,
+            "input_mb": round(row["before_mb"], 1),
+            "model_mb": round(row["model_mb"], 1),
+            "with_stiffness_csr_mb": round(row["with_stiffness_mb"], 1),
+            "stiffness_entries": row["entries"],
+        }
+    ]
+
+
+CASES["elastic_memory"] = elastic_memory_cases
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
