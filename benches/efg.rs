@@ -72,6 +72,7 @@ fn efg(c: &mut Criterion) {
                 &volumes,
                 elasticity.lame(),
                 None,
+                None,
                 &mut blocks,
             )
         })

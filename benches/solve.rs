@@ -1,6 +1,7 @@
-//! The linear system of the elastic fitting (SPEC 5, step 4) at the paper's size: EFG
-//! stiffness of 2,465 jittered-grid nodes (k = 20) plus anisotropic 3x3 blocks on the
-//! boundary nodes, $(K + D) x = f$. Block-Jacobi PCG cold and warm, Cholesky analysis,
+//! The linear system of the elastic fitting (SPEC 5, step 4) at the paper's size: the
+//! elastic model's stiffness (EFG, k = 20, with its stabilising consistency penalty) of
+//! 2,465 jittered-grid nodes plus anisotropic 3x3 blocks on the boundary nodes,
+//! $(K + D) x = f$. Block-Jacobi and two-level PCG cold and warm, Cholesky analysis,
 //! factorisation and solve, and CG preconditioned by the factor of a nearby matrix.
 //!
 //! `SOLVE_SCALING=1 cargo bench --bench solve -- scaling` adds one solve per solver at
@@ -11,16 +12,24 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
 
-use _core::efg::{Material, NodalElasticity, Plane};
-use _core::mls::shape_functions;
-use _core::solve::{BlockCsr, BlockJacobi, Pcg, SparseCholesky};
-use _core::SpatialHash;
+use _core::efg::{Material, Plane};
+use _core::elastic::{ElasticModel, Rotation, RotationFit};
+use _core::solve::{BlockCsr, BlockJacobi, Pcg, SparseCholesky, TwoLevel, STRENGTH};
 
 const K: usize = 20;
 const TOLERANCE: f64 = 1e-8;
 
-/// Stiffness, surface nodes, their 3x3 blocks, right-hand side.
-type System = (BlockCsr<3>, Vec<u32>, Vec<[[f64; 3]; 3]>, Vec<f64>);
+/// The consistency penalty of `python/elastocap/elastic.py`'s default.
+const STABILIZATION: f64 = 0.1;
+
+/// Stiffness, surface nodes, their 3x3 blocks, right-hand side, node positions.
+type System = (
+    BlockCsr<3>,
+    Vec<u32>,
+    Vec<[[f64; 3]; 3]>,
+    Vec<f64>,
+    Vec<[f64; 3]>,
+);
 
 /// The fitting system of `n` nodes: the first `n` points of a jittered cubic grid (unit
 /// spacing, unit volumes), its stiffness, and on the nodes of the grid's outer layer the
@@ -37,29 +46,33 @@ pub fn fitting_system(n: usize, seed: u64) -> System {
         .map(|c| std::array::from_fn(|a| c[a] as f64 + rng.random_range(-0.3..0.3)))
         .collect();
     let layers = n.div_ceil(side * side);
-    let knn = SpatialHash::new(&points).unwrap().knn(None, K - 1).unwrap();
-    let mut neighbors = Vec::with_capacity(n * K);
-    let mut support = Vec::with_capacity(n);
-    for p in 0..n {
-        neighbors.push(p as u32);
-        neighbors.extend(
-            knn.indices[p * (K - 1)..(p + 1) * (K - 1)]
-                .iter()
-                .map(|&i| i as u32),
-        );
-        support.push(1.1 * knn.distances[(p + 1) * (K - 1) - 1]);
-    }
-    let shapes = shape_functions::<3, 4>(&points, &neighbors, K, &support).unwrap();
-    let volumes = vec![1.0; n];
     let material = Material {
         youngs: 1.0,
         poisson: 0.3,
         plane: Plane::Strain,
     };
-    let stiffness = NodalElasticity::<3>::new(&neighbors, K, &shapes.grad, &volumes, &material)
-        .unwrap()
-        .stiffness();
-    let matrix = BlockCsr::<3>::from_csr(&stiffness).unwrap();
+    let model = ElasticModel::<3>::new(
+        points.clone(),
+        K,
+        vec![1.0; n],
+        &material,
+        Rotation::Rhs,
+        RotationFit::Gradient,
+    )
+    .unwrap()
+    .with_stabilization(STABILIZATION)
+    .unwrap();
+    let pattern = model.pattern();
+    let rows: Vec<&[u32]> = pattern
+        .indptr
+        .windows(2)
+        .map(|w| &pattern.indices[w[0]..w[1]])
+        .collect();
+    let mut matrix = BlockCsr::<3>::from_pattern(&rows).unwrap();
+    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    model
+        .system_blocks(&vec![identity; n], matrix.blocks_mut())
+        .unwrap();
     let scale = (0..n)
         .map(|i| (0..3).map(|a| matrix.diagonal_block(i)[a][a]).sum::<f64>())
         .sum::<f64>()
@@ -83,7 +96,7 @@ pub fn fitting_system(n: usize, seed: u64) -> System {
         })
         .collect();
     let rhs: Vec<f64> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
-    (matrix, surface, blocks, rhs)
+    (matrix, surface, blocks, rhs, points)
 }
 
 fn assemble(
@@ -99,9 +112,10 @@ fn assemble(
 }
 
 fn solve(c: &mut Criterion) {
-    let (stiffness, surface, blocks, rhs) = fitting_system(2465, 7);
+    let (stiffness, surface, blocks, rhs, points) = fitting_system(2465, 7);
     let a = assemble(&stiffness, &surface, &blocks, 1.0);
     let size = a.size();
+    let mut two_level = TwoLevel::new(&a, &points, STRENGTH).unwrap();
     let csr = a.to_csr();
     let mut pcg = Pcg::new();
     let mut jacobi = BlockJacobi::new(&a).unwrap();
@@ -130,12 +144,21 @@ fn solve(c: &mut Criterion) {
         .solve(&a, &mut jacobi, &rhs, &mut x, TOLERANCE, 100 * size)
         .unwrap();
     x.fill(0.0);
+    let two_cold = pcg
+        .solve(&a, &mut two_level, &rhs, &mut x, TOLERANCE, 100 * size)
+        .unwrap();
+    x.copy_from_slice(&perturbed);
+    let two_warm = pcg
+        .solve(&a, &mut two_level, &rhs, &mut x, TOLERANCE, 100 * size)
+        .unwrap();
+    x.fill(0.0);
     let chol_pcg = pcg
         .solve(&next, &mut cholesky, &rhs, &mut x, TOLERANCE, 100 * size)
         .unwrap();
     eprintln!(
         "n = 2465: {} surface nodes, {} blocks, factor {} entries (supernodal: {}); \
-         PCG iterations: reference {} , cold {}, warm {}, Cholesky-preconditioned {}",
+         PCG iterations: reference {} , cold {}, warm {}, Cholesky-preconditioned {}; \
+         two-level ({} aggregates, {} coarse unknowns) cold {}, warm {}",
         surface.len(),
         a.blocks().len(),
         cholesky.factor_len(),
@@ -143,7 +166,11 @@ fn solve(c: &mut Criterion) {
         status.iterations,
         cold.iterations,
         warm.iterations,
-        chol_pcg.iterations
+        chol_pcg.iterations,
+        two_level.aggregates(),
+        two_level.coarse_size(),
+        two_cold.iterations,
+        two_warm.iterations
     );
 
     let mut group = c.benchmark_group("solve_2465_nodes_k20");
@@ -192,6 +219,48 @@ fn solve(c: &mut Criterion) {
             .unwrap()
         })
     });
+    group.bench_function("two_level_setup", |b| {
+        b.iter(|| TwoLevel::new(black_box(&a), &points, STRENGTH).unwrap())
+    });
+    group.bench_function("two_level_update", |b| {
+        b.iter(|| {
+            two_level.set_positions(&points).unwrap();
+            two_level.update(black_box(&a)).unwrap()
+        })
+    });
+    // One solve of a fitting iteration: new rigid modes and coarse matrix, then PCG.
+    group.bench_function("pcg_two_level_cold", |b| {
+        b.iter(|| {
+            x.fill(0.0);
+            two_level.set_positions(&points).unwrap();
+            two_level.update(&a).unwrap();
+            pcg.solve(
+                &a,
+                &mut two_level,
+                black_box(&rhs),
+                &mut x,
+                TOLERANCE,
+                100 * size,
+            )
+            .unwrap()
+        })
+    });
+    group.bench_function("pcg_two_level_warm", |b| {
+        b.iter(|| {
+            x.copy_from_slice(&perturbed);
+            two_level.set_positions(&points).unwrap();
+            two_level.update(&a).unwrap();
+            pcg.solve(
+                &a,
+                &mut two_level,
+                black_box(&rhs),
+                &mut x,
+                TOLERANCE,
+                100 * size,
+            )
+            .unwrap()
+        })
+    });
     group.bench_function("cholesky_analyse", |b| {
         b.iter(|| SparseCholesky::analyse(black_box(&a)).unwrap())
     });
@@ -225,7 +294,7 @@ fn scaling(c: &mut Criterion) {
     let mut group = c.benchmark_group("solve_scaling");
     group.sample_size(10);
     for n in [1000, 2465, 4000, 16000, 64000] {
-        let (stiffness, surface, blocks, rhs) = fitting_system(n, 7);
+        let (stiffness, surface, blocks, rhs, points) = fitting_system(n, 7);
         let a = assemble(&stiffness, &surface, &blocks, 1.0);
         let mut x = vec![0.0; a.size()];
         let mut pcg = Pcg::new();
@@ -233,7 +302,26 @@ fn scaling(c: &mut Criterion) {
         let status = pcg
             .solve(&a, &mut jacobi, &rhs, &mut x, TOLERANCE, 100 * a.size())
             .unwrap();
-        eprintln!("n = {n}: block-Jacobi PCG {} iterations", status.iterations);
+        let mut two_level = TwoLevel::new(&a, &points, STRENGTH).unwrap();
+        x.fill(0.0);
+        let two = pcg
+            .solve(&a, &mut two_level, &rhs, &mut x, TOLERANCE, 100 * a.size())
+            .unwrap();
+        eprintln!(
+            "n = {n}: PCG iterations block-Jacobi {}, two-level {} ({} coarse unknowns)",
+            status.iterations,
+            two.iterations,
+            two_level.coarse_size()
+        );
+        group.bench_with_input(BenchmarkId::new("pcg_two_level_cold", n), &n, |b, _| {
+            b.iter(|| {
+                x.fill(0.0);
+                two_level.set_positions(&points).unwrap();
+                two_level.update(&a).unwrap();
+                pcg.solve(&a, &mut two_level, &rhs, &mut x, TOLERANCE, 100 * a.size())
+                    .unwrap()
+            })
+        });
         group.bench_with_input(BenchmarkId::new("pcg_block_jacobi_cold", n), &n, |b, _| {
             b.iter(|| {
                 x.fill(0.0);

@@ -13,14 +13,16 @@
 //!   and forces $-K u = -\sum_p B_p^\top V_p C \varepsilon_p$, both matrix-free.
 //!
 //! Nodal integration evaluates the strain only at the nodes, so $K$ may have zero-energy
-//! modes beyond the rigid motions; `tests/test_efg.py` measures them (a stabilisation is a
-//! later step of issue 4).
+//! modes beyond the rigid motions; `tests/test_efg.py` measures them. This module is the
+//! plain nodal integration; the elastic model adds the stabilising penalty of
+//! [`consistency`].
 
 use rayon::prelude::*;
 
 use crate::error::{check_finite, Error, Result};
 
 pub mod assembly;
+pub mod consistency;
 pub use assembly::{Block, BlockPattern, Occurrences};
 
 /// 2-D idealisation of a 3-D body.
@@ -297,7 +299,14 @@ impl<'a, const D: usize> NodalElasticity<'a, D> {
     pub fn stiffness(&self) -> Csr {
         let pattern = BlockPattern::new(self.neighbors, self.k, self.len());
         let mut blocks = vec![[[0.0; D]; D]; pattern.nnz()];
-        pattern.assemble(self.grad, self.volumes, self.lame(), None, &mut blocks);
+        pattern.assemble(
+            self.grad,
+            self.volumes,
+            self.lame(),
+            None,
+            None,
+            &mut blocks,
+        );
         let (indptr, indices, data) = pattern.to_scalar_csr(&blocks);
         Csr {
             size: D * self.len(),

@@ -28,6 +28,7 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 
 use crate::efg::assembly::mul_vec;
+use crate::efg::consistency::Consistency;
 use crate::efg::{elasticity_matrix, Block, BlockPattern, Material, Occurrences};
 use crate::error::{check_finite, Error, Result};
 use crate::mls::shape_functions;
@@ -77,6 +78,11 @@ pub struct ElasticModel<const D: usize> {
     weights: Vec<f64>,
     occurrences: Occurrences,
     pattern: OnceLock<BlockPattern>,
+    /// The penalty's $s_p L_p$ summed per block of the pattern (built on first use).
+    penalty_blocks: OnceLock<Vec<f64>>,
+    /// The stabilising consistency penalty and its strength $\epsilon$ (none at 0).
+    consistency: Option<Consistency<D>>,
+    stabilization: f64,
 }
 
 impl<const D: usize> ElasticModel<D> {
@@ -180,7 +186,44 @@ impl<const D: usize> ElasticModel<D> {
             weights,
             occurrences,
             pattern: OnceLock::new(),
+            penalty_blocks: OnceLock::new(),
+            consistency: None,
+            stabilization: 0.0,
         })
+    }
+
+    /// Adds the consistency penalty of [`crate::efg::consistency`] with strength `epsilon`
+    /// (relative to the shear modulus; 0 removes it). It is part of the energy, forces and
+    /// system matrix of every rotation mode and zero for every affine motion.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for a negative or non-finite `epsilon`.
+    pub fn with_stabilization(mut self, epsilon: f64) -> Result<Self> {
+        if !(epsilon.is_finite() && epsilon >= 0.0) {
+            return Err(Error::InvalidOption {
+                argument: "stabilization",
+                value: epsilon,
+                expected: "a finite number >= 0",
+            });
+        }
+        self.stabilization = epsilon;
+        self.penalty_blocks = OnceLock::new();
+        self.consistency = (epsilon > 0.0).then(|| {
+            Consistency::new(
+                &self.rest,
+                &self.neighbors,
+                self.k,
+                &self.volumes,
+                self.lame.1,
+                epsilon,
+            )
+        });
+        Ok(self)
+    }
+
+    /// The consistency penalty's strength $\epsilon$ (0: none).
+    pub fn stabilization(&self) -> f64 {
+        self.stabilization
     }
 
     /// Number of nodes.
@@ -237,6 +280,18 @@ impl<const D: usize> ElasticModel<D> {
     pub fn pattern(&self) -> &BlockPattern {
         self.pattern
             .get_or_init(|| BlockPattern::new(&self.neighbors, self.k, self.len()))
+    }
+
+    /// The penalty's scalar per block of [`Self::pattern`] (constant: it is quadratic in
+    /// the positions and needs no rotation), computed once.
+    fn penalty_blocks(&self) -> Option<&[f64]> {
+        let penalty = self.consistency.as_ref()?;
+        let k = self.k;
+        Some(self.penalty_blocks.get_or_init(|| {
+            self.pattern().gather_scalars(|p, a, b| {
+                penalty.coefficient(p, a, b, &self.grad[p * k..(p + 1) * k])
+            })
+        }))
     }
 
     /// Fails unless `x` holds one finite position per node.
@@ -358,9 +413,16 @@ impl<const D: usize> ElasticModel<D> {
 
     /// Per node $i$: $\sum_p V_p\, Q_p\, \sigma_p \nabla\Phi_i(x_p)$, with $Q_p = R_p$ when
     /// `rotations` are given, else $I$: the gather of the nodal stresses onto the nodes.
-    fn gather(&self, stresses: &[Block<D>], rotations: Option<&[Block<D>]>) -> Vec<[f64; D]> {
+    /// Plus, with `slots` (row-major `(n, k)`, from [`Self::penalty_slots_into`]), each
+    /// occurrence's slot vector: the consistency penalty's gradient.
+    fn gather(
+        &self,
+        stresses: &[Block<D>],
+        rotations: Option<&[Block<D>]>,
+        slots: Option<&[[f64; D]]>,
+    ) -> Vec<[f64; D]> {
         let mut out = vec![[0.0; D]; self.len()];
-        self.gather_into(stresses, rotations, &mut out);
+        self.gather_into(stresses, rotations, slots, &mut out);
         out
     }
 
@@ -368,6 +430,7 @@ impl<const D: usize> ElasticModel<D> {
         &self,
         stresses: &[Block<D>],
         rotations: Option<&[Block<D>]>,
+        slots: Option<&[[f64; D]]>,
         out: &mut [[f64; D]],
     ) {
         let k = self.k;
@@ -382,8 +445,34 @@ impl<const D: usize> ElasticModel<D> {
                 for c in 0..D {
                     f[c] += self.volumes[p] * t[c];
                 }
+                if let Some(s) = slots {
+                    for c in 0..D {
+                        f[c] += s[p * k + a][c];
+                    }
+                }
             }
         });
+    }
+
+    /// The consistency penalty's per-slot gradients at `x` into `slots` (resized to
+    /// `(n, k)`); false (and `slots` untouched) without a penalty.
+    fn penalty_slots_into(&self, x: &[[f64; D]], slots: &mut Vec<[f64; D]>) -> bool {
+        let Some(penalty) = &self.consistency else {
+            return false;
+        };
+        let k = self.k;
+        slots.resize(self.len() * k, [0.0; D]);
+        slots.par_chunks_mut(k).enumerate().for_each(|(p, out)| {
+            let hood = &self.neighbors[p * k..(p + 1) * k];
+            let f = self.deformation_gradient(p, x);
+            penalty.slot_gradients(p, hood, &f, x, &self.grad[p * k..(p + 1) * k], out);
+        });
+        true
+    }
+
+    fn penalty_slots(&self, x: &[[f64; D]]) -> Option<Vec<[f64; D]>> {
+        let mut slots = Vec::new();
+        self.penalty_slots_into(x, &mut slots).then_some(slots)
     }
 
     fn warped_rotations<'r>(&self, rotations: &'r [Block<D>]) -> Option<&'r [Block<D>]> {
@@ -406,7 +495,11 @@ impl<const D: usize> ElasticModel<D> {
                     .flat_map(|a| (0..D).map(move |b| (a, b)))
                     .map(|(a, b)| sigma[a][b] * 0.5 * (h[a][b] + h[b][a]))
                     .sum();
-                0.5 * self.volumes[p] * work
+                let penalty = self.consistency.as_ref().map_or(0.0, |c| {
+                    let hood = &self.neighbors[p * self.k..(p + 1) * self.k];
+                    c.energy(p, hood, &self.deformation_gradient(p, x), x)
+                });
+                0.5 * self.volumes[p] * work + penalty
             })
             .sum())
     }
@@ -422,7 +515,12 @@ impl<const D: usize> ElasticModel<D> {
             .into_par_iter()
             .map(|p| self.stress(&self.displacement_gradient(p, x, &rotations[p])))
             .collect();
-        let mut f = self.gather(&stresses, self.warped_rotations(rotations));
+        let slots = self.penalty_slots(x);
+        let mut f = self.gather(
+            &stresses,
+            self.warped_rotations(rotations),
+            slots.as_deref(),
+        );
         f.par_iter_mut().flatten().for_each(|v| *v = -*v);
         Ok(f)
     }
@@ -445,7 +543,8 @@ impl<const D: usize> ElasticModel<D> {
                 }
             })
             .collect();
-        Ok(self.gather(&stresses, self.warped_rotations(rotations)))
+        // The penalty vanishes on affine fields, the rest state among them: no term here.
+        Ok(self.gather(&stresses, self.warped_rotations(rotations), None))
     }
 
     /// $S u$, matrix-free: `Linear` and `Rhs` multiply by $K$, `Warped` by $K_R$.
@@ -467,7 +566,8 @@ impl<const D: usize> ElasticModel<D> {
                 self.stress(&h)
             })
             .collect();
-        Ok(self.gather(&stresses, warped))
+        let slots = self.penalty_slots(u);
+        Ok(self.gather(&stresses, warped, slots.as_deref()))
     }
 
     /// $S u$ into `out` with caller-kept scratch, for the inner loop of an iterative
@@ -477,6 +577,7 @@ impl<const D: usize> ElasticModel<D> {
         rotations: &[Block<D>],
         u: &[[f64; D]],
         stresses: &mut Vec<Block<D>>,
+        slots: &mut Vec<[f64; D]>,
         out: &mut [[f64; D]],
     ) {
         let warped = self.warped_rotations(rotations);
@@ -489,7 +590,8 @@ impl<const D: usize> ElasticModel<D> {
             };
             *sigma = self.stress(&h);
         });
-        self.gather_into(stresses, warped, out);
+        let penalty = self.penalty_slots_into(u, slots);
+        self.gather_into(stresses, warped, penalty.then_some(slots.as_slice()), out);
     }
 
     /// The diagonal blocks of $S$ (one per node), for a block-Jacobi preconditioner of the
@@ -514,11 +616,14 @@ impl<const D: usize> ElasticModel<D> {
                     };
                     let v = self.volumes[p];
                     let dot: f64 = g.iter().map(|x| x * x).sum();
+                    let penalty = self.consistency.as_ref().map_or(0.0, |c| {
+                        c.coefficient(p, a, a, &self.grad[p * k..(p + 1) * k])
+                    });
                     for r in 0..D {
                         for c in 0..D {
                             block[r][c] += v * (lambda + mu) * g[r] * g[c];
                         }
-                        block[r][r] += v * mu * dot;
+                        block[r][r] += v * mu * dot + penalty;
                     }
                 }
                 block
@@ -545,6 +650,7 @@ impl<const D: usize> ElasticModel<D> {
             &self.volumes,
             self.lame,
             self.warped_rotations(rotations),
+            self.penalty_blocks(),
             blocks,
         );
         Ok(())

@@ -17,7 +17,7 @@ use crate::efg::Block;
 use crate::elastic::{ElasticModel, Rotation};
 use crate::error::{Error, Result};
 use crate::grid_sample::GridField;
-use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg};
+use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg, TwoLevel, STRENGTH};
 
 /// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
 struct FitOperator<'a> {
@@ -26,6 +26,7 @@ struct FitOperator<'a> {
     alpha: f64,
     extra: &'a [Block<3>],
     stresses: Vec<Block<3>>,
+    slots: Vec<[f64; 3]>,
 }
 
 impl LinearOperator<3> for FitOperator<'_> {
@@ -35,7 +36,7 @@ impl LinearOperator<3> for FitOperator<'_> {
 
     fn apply(&mut self, x: &[[f64; 3]], y: &mut [[f64; 3]]) {
         self.model
-            .apply_into(self.rotations, x, &mut self.stresses, y);
+            .apply_into(self.rotations, x, &mut self.stresses, &mut self.slots, y);
         for ((yi, xi), e) in y.iter_mut().zip(x).zip(self.extra) {
             for r in 0..3 {
                 yi[r] = self.alpha * yi[r] + (0..3).map(|c| e[r][c] * xi[c]).sum::<f64>();
@@ -68,6 +69,9 @@ pub struct FitOptions {
     pub solver_max_iterations: usize,
     /// PCG on the matrix-free product of the model instead of the assembled matrix.
     pub matrix_free: bool,
+    /// Precondition the assembled system with block Jacobi plus the rigid modes of node
+    /// aggregates ([`TwoLevel`]) instead of block Jacobi alone.
+    pub coarse: bool,
 }
 
 impl Default for FitOptions {
@@ -85,6 +89,7 @@ impl Default for FitOptions {
             // its two parallel passes per product cost more in synchronisation than the
             // assembled product's memory traffic at this size.
             matrix_free: false,
+            coarse: true,
         }
     }
 }
@@ -110,6 +115,8 @@ pub struct FrameMetrics {
     pub solver_iterations: usize,
     /// Every linear solve reached its tolerance.
     pub solver_converged: bool,
+    /// Wall-clock seconds spent assembling the system and in the linear solves.
+    pub solver_seconds: f64,
 }
 
 /// What the iteration keeps across frames: the surface, the stiffness on its fixed pattern,
@@ -123,6 +130,9 @@ pub struct FitWorkspace {
     stiffness: BlockCsr<3>,
     system: BlockCsr<3>,
     pcg: Pcg<3>,
+    /// The two-level preconditioner, aggregated on the rest stiffness and kept (the
+    /// pattern does not change); its rigid modes follow the positions.
+    coarse: TwoLevel<3>,
     spacing: f64,
 }
 
@@ -188,6 +198,9 @@ impl FitWorkspace {
         let eye = vec![identity(); n];
         model.system_blocks(&eye, stiffness.blocks_mut())?;
         let system = stiffness.zeros_like();
+        // Aggregated on the rest stiffness, so that a frame's result does not depend on
+        // which frame was fitted first (resumed runs match).
+        let coarse = TwoLevel::new(&stiffness, model.rest(), STRENGTH)?;
         let mean_volume = model.volumes().iter().sum::<f64>() / n as f64;
         Ok(Self {
             rest_surface: surface.iter().map(|&i| model.rest()[i as usize]).collect(),
@@ -200,6 +213,7 @@ impl FitWorkspace {
             stiffness,
             system,
             pcg: Pcg::new(),
+            coarse,
             spacing: mean_volume.cbrt(),
         })
     }
@@ -343,6 +357,7 @@ pub fn fit_frame(
         }
         let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
         let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
+        let clock = std::time::Instant::now();
         let status = if options.matrix_free {
             let mut diagonal = model.diagonal_blocks(&rotations)?;
             for (d, e) in diagonal.iter_mut().zip(&extra) {
@@ -359,6 +374,7 @@ pub fn fit_frame(
                 alpha,
                 extra: &extra,
                 stresses: Vec::new(),
+                slots: Vec::new(),
             };
             workspace.pcg.solve_operator(
                 &mut operator,
@@ -378,18 +394,34 @@ pub fn fit_frame(
                 .scale_into(alpha, &mut workspace.system)?;
             let all: Vec<u32> = (0..n as u32).collect();
             workspace.system.add_diagonal_blocks(1.0, &all, &extra)?;
-            let mut preconditioner = BlockJacobi::new(&workspace.system)?;
-            workspace.pcg.solve(
-                &workspace.system,
-                &mut preconditioner,
-                &rhs,
-                &mut flat,
-                tolerance,
-                cap,
-            )?
+            if options.coarse {
+                // The coarse matrix once per frame (its modes change little between
+                // iterations; measured in benches/README.md), block Jacobi every time.
+                let coarse = &mut workspace.coarse;
+                if iteration == 0 {
+                    coarse.set_positions(&x)?;
+                    coarse.update(&workspace.system)?;
+                } else {
+                    coarse.update_smoother(&workspace.system)?;
+                }
+                workspace
+                    .pcg
+                    .solve(&workspace.system, coarse, &rhs, &mut flat, tolerance, cap)?
+            } else {
+                let mut preconditioner = BlockJacobi::new(&workspace.system)?;
+                workspace.pcg.solve(
+                    &workspace.system,
+                    &mut preconditioner,
+                    &rhs,
+                    &mut flat,
+                    tolerance,
+                    cap,
+                )?
+            }
         };
         metrics.solver_iterations += status.iterations;
         metrics.solver_converged &= status.converged;
+        metrics.solver_seconds += clock.elapsed().as_secs_f64();
         x = flat.as_chunks::<3>().0.to_vec();
         debug_assert_eq!(x.len(), n);
     }

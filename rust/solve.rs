@@ -8,6 +8,8 @@
 //! * [`Pcg`]: preconditioned conjugate gradients, warm-started, with a [`BlockJacobi`]
 //!   preconditioner or any other [`Preconditioner`], returning a [`PcgStatus`]; its
 //!   products read only the upper triangle (half the memory traffic).
+//! * [`TwoLevel`]: block Jacobi plus a coarse correction on the rigid motions of node
+//!   aggregates, for bodies the surface term anchors only weakly.
 //! * [`SparseCholesky`]: faer's sparse $L L^\top$ with the symbolic analysis (AMD ordering,
 //!   elimination tree, supernodes) done once per pattern; it also serves as the
 //!   preconditioner of CG while the values drift from those it factored.
@@ -38,12 +40,16 @@
 
 mod block;
 mod cholesky;
+mod coarse;
 mod pcg;
 mod upper;
 
 pub use block::{Block, BlockCsr, CsrIndex};
 pub use cholesky::SparseCholesky;
+pub use coarse::{TwoLevel, STRENGTH};
 pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 
+#[cfg(test)]
+mod coarse_tests;
 #[cfg(test)]
 mod tests;

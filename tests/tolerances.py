@@ -195,3 +195,15 @@ BODY_NOISY_SHAPE_RTOL = 0.03
 # The papers' experiment: one-sided stereo alone inflates the widths by more than this;
 # with silhouettes the widths come back within BODY_NOISY_SHAPE_RTOL.
 BODY_STEREO_INFLATION_MIN = 0.03
+
+# Two-level PCG (block Jacobi + rigid modes of aggregates) against block Jacobi alone on a
+# weakly held elastic body: measured 72 vs 158 iterations (3-D) and 83 vs 158 (2-D) in the
+# Rust tests; the Python test asserts at most 60% of block Jacobi's count.
+TWO_LEVEL_ITERATION_RATIO = 0.6
+
+# Stabilised 2-D cantilever (consistency penalty 0.1): measured -0.07%, 0.00%, +0.03% of
+# Timoshenko at 9, 13, 17 nodes across (plain nodal integration: +4.4%, +2.6%, +1.2%).
+CANTILEVER_STABILISED_RTOL = 0.005
+# Lowest non-zero stiffness eigenvalue (relative to the largest) of a 250-node capsule:
+# measured 9.3e-4 without the penalty and 2.0e-3 with 0.1 (x2.2); asserted x1.5.
+STABILIZATION_SOFT_MODE_GAIN = 1.5

@@ -119,7 +119,10 @@ class ElasticCore:
         plane: str = "strain",
         rotation: str = "rhs",
         rotation_fit: str = "gradient",
+        stabilization: float = 0.0,
     ) -> ElasticCore: ...
+    @property
+    def stabilization(self) -> float: ...
     @property
     def dim(self) -> int: ...
     @property
@@ -177,6 +180,7 @@ def conjugate_gradient(
     tolerance: float,
     max_iterations: int,
     preconditioner: SparseCholesky | None = None,
+    nodes: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], bool, int, float]: ...
 
 @final
@@ -200,6 +204,7 @@ class FitCore:
         solver_tolerance: float = 1e-6,
         solver_max_iterations: int = 500,
         matrix_free: bool = False,
+        coarse: bool = True,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
 
 @final

@@ -27,6 +27,8 @@ from elastocap.neighbors import knn
 __all__ = ["ElasticModel", "StaticSolution"]
 
 ROTATIONS = ("rhs", "warped", "none")
+# Strength of the consistency penalty, chosen by measurement (benches/README.md).
+STABILIZATION = 0.1
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,14 @@ class ElasticModel:
         paper's Gaussian-weighted covariance ``A_p``. Measured on a bar bent by 90 degrees:
         the ``"rhs"`` iteration diverges with ``"weighted"`` and converges with
         ``"gradient"`` (benches/README.md).
+    stabilization : float, keyword-only
+        Strength ``epsilon`` (relative to the shear modulus) of the consistency penalty that
+        stabilises nodal integration (SPEC 4.3): ``1/2 sum_p s_p sum_j |r_pj|^2 / |X_j -
+        X_p|^2`` with ``r_pj`` the neighbour's deviation from the affine field node p's
+        gradient predicts and ``s_p = epsilon mu V_p / (k - 1)``. Zero for every affine
+        motion (rigid ones included), so it costs a smooth deformation almost nothing, but it
+        stiffens the soft node-to-node oscillations nodal integration leaves, which both
+        ripple a fitted surface and slow the solver (benches/README.md). 0 turns it off.
     surface_nodes : (S,) array_like of int, optional
         Indices of the nodes on the surface.
     surface_faces : (F, 3) (3-D) or (E, 2) (2-D) array_like of int, optional
@@ -111,6 +121,7 @@ class ElasticModel:
         rotation: str = "rhs",
         plane: str = "strain",
         rotation_fit: str = "gradient",
+        stabilization: float = STABILIZATION,
         surface_nodes: Any = None,
         surface_faces: Any = None,
     ) -> None:
@@ -128,8 +139,9 @@ class ElasticModel:
         if rotation not in ROTATIONS:
             raise InvalidInputError(f"rotation must be one of {ROTATIONS}, got {rotation!r}")
         self._core = _core.ElasticCore(
-            array, k, vols, float(youngs), float(poisson), plane, rotation, rotation_fit
+            array, k, vols, float(youngs), float(poisson), plane, rotation, rotation_fit, float(stabilization)
         )
+        self.stabilization = float(stabilization)
         self.rotation = rotation
         self.k = k
         self.youngs, self.poisson, self.plane = float(youngs), float(poisson), plane
@@ -168,6 +180,7 @@ class ElasticModel:
         poisson: float = 0.3,
         rotation: str = "rhs",
         rotation_fit: str = "gradient",
+        stabilization: float = STABILIZATION,
         seed: int = 0,
     ) -> ElasticModel:
         """A 3-D model of the solid a closed mesh bounds (SPEC 4.1).
@@ -194,6 +207,7 @@ class ElasticModel:
             poisson=poisson,
             rotation=rotation,
             rotation_fit=rotation_fit,
+            stabilization=stabilization,
         )
 
     @classmethod
@@ -208,6 +222,7 @@ class ElasticModel:
         rotation: str = "rhs",
         plane: str = "strain",
         rotation_fit: str = "gradient",
+        stabilization: float = STABILIZATION,
         seed: int = 0,
     ) -> ElasticModel:
         """A 2-D model of a binary mask ``(H, W)``, in pixel coordinates ``(x, y) = (column,
@@ -228,6 +243,7 @@ class ElasticModel:
             rotation=rotation,
             plane=plane,
             rotation_fit=rotation_fit,
+            stabilization=stabilization,
         )
 
     # -- what the model is made of --------------------------------------------------------

@@ -44,7 +44,8 @@ class FrameFit:
         (|signed distance| of the surface nodes to the target, world units),
         ``elastic_energy``, ``volume_ratio`` (surface volume over the rest surface's),
         ``penetrating`` (surface nodes inside another part), ``invalidated``,
-        ``iterations``, ``solver_iterations``, ``solver_converged``, ``seconds``.
+        ``iterations``, ``solver_iterations``, ``solver_converged``, ``solver_seconds``
+        (assembly and linear solves), ``seconds``.
     """
 
     frame: int

@@ -47,6 +47,8 @@ def load_model(out: str | Path) -> tuple[ElasticModel, int]:
             youngs=float(data["youngs"]),
             poisson=float(data["poisson"]),
             rotation=str(data["rotation"]),
+            # Models written before the penalty existed had none.
+            stabilization=float(data["stabilization"]) if "stabilization" in data else 0.0,
             surface_nodes=data["surface_nodes"],
             surface_faces=data["surface_faces"],
         )
@@ -108,6 +110,7 @@ def run_fit_stage(
             youngs=np.float64(model.youngs),
             poisson=np.float64(model.poisson),
             rotation=np.str_(model.rotation),
+            stabilization=np.float64(model.stabilization),
         )
     done: dict[int, np.ndarray] = {}
     for index, frame in enumerate(frames):

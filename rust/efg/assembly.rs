@@ -155,13 +155,16 @@ impl BlockPattern {
 
     /// Fills `blocks` (`nnz` of them) with $\sum_p V_p B_p^\top C B_p$, or with the warped
     /// $\sum_p R_p V_p B_p^\top C B_p R_p^\top$ when `rotations` (one per node) are given.
-    /// `grad` is row-major `(n, k)` in the order of the neighbour lists.
+    /// `grad` is row-major `(n, k)` in the order of the neighbour lists. `isotropic`, one
+    /// scalar per block (e.g. from [`Self::gather_scalars`]), adds that multiple of the
+    /// identity to each block (unrotated).
     pub fn assemble<const D: usize>(
         &self,
         grad: &[[f64; D]],
         volumes: &[f64],
         (lambda, mu): (f64, f64),
         rotations: Option<&[Block<D>]>,
+        isotropic: Option<&[f64]>,
         blocks: &mut [Block<D>],
     ) {
         let k = self.k;
@@ -199,7 +202,39 @@ impl BlockPattern {
                     }
                 }
             }
+            if let Some(values) = isotropic {
+                let first = self.indptr[i];
+                for (block, value) in row.iter_mut().zip(&values[first..]) {
+                    for (r, block_row) in block.iter_mut().enumerate() {
+                        block_row[r] += value;
+                    }
+                }
+            }
         });
+    }
+
+    /// One scalar per block, $\sum_{p} f(p, a, b)$ over the neighbourhoods $p$ holding
+    /// the pair (block row `N_p[a]`, column `N_p[b]`).
+    pub fn gather_scalars(&self, f: impl Fn(usize, usize, usize) -> f64 + Sync) -> Vec<f64> {
+        let k = self.k;
+        let mut values = vec![0.0; self.nnz()];
+        let mut rows = Vec::with_capacity(self.len());
+        let mut rest = values.as_mut_slice();
+        for w in self.indptr.windows(2) {
+            let (row, tail) = rest.split_at_mut(w[1] - w[0]);
+            rows.push(row);
+            rest = tail;
+        }
+        rows.into_par_iter().enumerate().for_each(|(i, row)| {
+            let first = self.occurrences.first(i);
+            for (o, &(p, a)) in self.occurrences.of(i).iter().enumerate() {
+                let slots = &self.slots[(first + o) * k..(first + o + 1) * k];
+                for (b, &slot) in slots.iter().enumerate() {
+                    row[slot as usize] += f(p as usize, a as usize, b);
+                }
+            }
+        });
+        values
     }
 
     /// The scalar CSR (`n D` rows, dof `node * D + axis`, columns sorted) of block values.

@@ -254,10 +254,88 @@ fn matrix_free_product_and_diagonal_match_the_assembled_matrix() {
                 }
             }
         }
-        let mut scratch = Vec::new();
+        let (mut scratch, mut slots) = (Vec::new(), Vec::new());
         let mut out = vec![[0.0; 3]; m.len()];
-        m.apply_into(&rotations, &x, &mut scratch, &mut out);
+        m.apply_into(&rotations, &x, &mut scratch, &mut slots, &mut out);
         let expected = m.apply(&rotations, &x).unwrap();
         assert_eq!(out, expected);
+    }
+}
+
+fn stabilised<const D: usize>(side: usize, rotation: Rotation) -> ElasticModel<D> {
+    model::<D>(side, rotation, RotationFit::Gradient)
+        .with_stabilization(0.7)
+        .unwrap()
+}
+
+#[test]
+fn consistency_penalty_keeps_rigid_invariance_and_agrees_with_itself() {
+    for rotation in [Rotation::Linear, Rotation::Rhs, Rotation::Warped] {
+        // Energy, forces (against finite differences), right-hand side, matrix-free product
+        // and assembled blocks all carry the penalty consistently.
+        consistency(&stabilised::<3>(5, rotation));
+        consistency(&stabilised::<2>(8, rotation));
+    }
+    for rotation in [Rotation::Rhs, Rotation::Warped] {
+        rigid_case(&stabilised::<3>(5, rotation), rotation3([0.7, -1.9, 2.6]));
+        rigid_case(&stabilised::<2>(9, rotation), rotation2(2.2));
+    }
+    // The penalty alone vanishes on any affine field, a shear included.
+    let m = stabilised::<3>(5, Rotation::Linear);
+    let plain = model::<3>(5, Rotation::Linear, RotationFit::Gradient);
+    let shear = [[1.1, 0.3, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 1.0]];
+    let x = moved(m.rest(), &shear, [0.2, 0.0, -0.4]);
+    let rotations = m.rotations(&x).unwrap();
+    let (with, without) = (
+        m.energy(&x, &rotations).unwrap(),
+        plain.energy(&x, &rotations).unwrap(),
+    );
+    assert!(
+        (with - without).abs() < 1e-10 * without,
+        "{with} vs {without}"
+    );
+    // ... and costs energy on a field that oscillates from node to node.
+    let wiggle: Vec<[f64; 3]> = m
+        .rest()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| [p[0] + 0.01 * (i % 2) as f64, p[1], p[2]])
+        .collect();
+    let rotations = m.rotations(&wiggle).unwrap();
+    assert!(
+        m.energy(&wiggle, &rotations).unwrap() > 1.3 * plain.energy(&wiggle, &rotations).unwrap()
+    );
+    assert!(matches!(
+        plain.with_stabilization(-1.0),
+        Err(Error::InvalidOption { .. })
+    ));
+}
+
+#[test]
+fn stabilised_matrix_free_product_and_diagonal_match_the_assembled_matrix() {
+    for rotation in [Rotation::Rhs, Rotation::Warped] {
+        let m = stabilised::<3>(5, rotation);
+        let x = perturbed(m.rest(), 9);
+        let rotations = m.rotations(&x).unwrap();
+        let pattern = m.pattern();
+        let mut blocks = vec![[[0.0; 3]; 3]; pattern.nnz()];
+        m.system_blocks(&rotations, &mut blocks).unwrap();
+        let diagonal = m.diagonal_blocks(&rotations).unwrap();
+        for (i, d) in diagonal.iter().enumerate() {
+            let at = (pattern.indptr[i]..pattern.indptr[i + 1])
+                .find(|&at| pattern.indices[at] as usize == i)
+                .unwrap();
+            for r in 0..3 {
+                for c in 0..3 {
+                    assert!(
+                        (d[r][c] - blocks[at][r][c]).abs() < 1e-12 * (1.0 + blocks[at][r][c].abs())
+                    );
+                }
+            }
+        }
+        let (mut scratch, mut slots) = (Vec::new(), Vec::new());
+        let mut out = vec![[0.0; 3]; m.len()];
+        m.apply_into(&rotations, &x, &mut scratch, &mut slots, &mut out);
+        assert_eq!(out, m.apply(&rotations, &x).unwrap());
     }
 }

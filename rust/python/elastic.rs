@@ -126,7 +126,7 @@ impl ElasticCore {
 #[pymethods]
 impl ElasticCore {
     #[new]
-    #[pyo3(signature = (nodes, k, volumes, youngs, poisson, plane = "strain", rotation = "rhs", rotation_fit = "gradient"))]
+    #[pyo3(signature = (nodes, k, volumes, youngs, poisson, plane = "strain", rotation = "rhs", rotation_fit = "gradient", stabilization = 0.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -138,6 +138,7 @@ impl ElasticCore {
         plane: &str,
         rotation: &str,
         rotation_fit: &str,
+        stabilization: f64,
     ) -> PyResult<Self> {
         let fit = match rotation_fit {
             "gradient" => RotationFit::Gradient,
@@ -159,15 +160,21 @@ impl ElasticCore {
             2 => {
                 let rest = rows::<2>(&nodes, "nodes")?.to_vec();
                 Model::Planar(
-                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation, fit))
-                        .map_err(|e| to_py(py, e))?,
+                    py.detach(|| {
+                        ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
+                            .with_stabilization(stabilization)
+                    })
+                    .map_err(|e| to_py(py, e))?,
                 )
             }
             3 => {
                 let rest = rows::<3>(&nodes, "nodes")?.to_vec();
                 Model::Spatial(
-                    py.detach(|| ElasticModel::new(rest, k, volumes, &material, rotation, fit))
-                        .map_err(|e| to_py(py, e))?,
+                    py.detach(|| {
+                        ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
+                            .with_stabilization(stabilization)
+                    })
+                    .map_err(|e| to_py(py, e))?,
                 )
             }
             d => {
@@ -183,6 +190,12 @@ impl ElasticCore {
     #[getter]
     fn dim(&self) -> usize {
         dispatch!(&self.model, _m, D => D)
+    }
+
+    /// Strength of the consistency penalty (0: none).
+    #[getter]
+    fn stabilization(&self) -> f64 {
+        dispatch!(&self.model, m, _D => m.stabilization())
     }
 
     /// Number of nodes.

@@ -64,7 +64,7 @@ impl FitCore {
     /// `spacing`) from `start` (N, 3): `(positions (N, 3), metrics dict)`.
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
-        solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false))]
+        solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -82,6 +82,7 @@ impl FitCore {
         solver_tolerance: f64,
         solver_max_iterations: usize,
         matrix_free: bool,
+        coarse: bool,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let model = self.model.get().spatial().expect("checked at construction");
         let shape = values.shape();
@@ -103,6 +104,7 @@ impl FitCore {
             solver_tolerance,
             solver_max_iterations,
             matrix_free,
+            coarse,
         };
         let mut workspace = self
             .workspace
@@ -126,6 +128,7 @@ impl FitCore {
         metrics.set_item("iterations", m.iterations)?;
         metrics.set_item("solver_iterations", m.solver_iterations)?;
         metrics.set_item("solver_converged", m.solver_converged)?;
+        metrics.set_item("solver_seconds", m.solver_seconds)?;
         Ok((positions, metrics))
     }
 }

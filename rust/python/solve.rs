@@ -7,7 +7,9 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, to_py};
-use crate::solve::{BlockCsr, BlockJacobi, Pcg, PcgStatus, SparseCholesky as Cholesky};
+use crate::solve::{
+    BlockCsr, BlockJacobi, Pcg, PcgStatus, SparseCholesky as Cholesky, TwoLevel, STRENGTH,
+};
 
 /// `(x, converged, iterations, relative_residual)`.
 type CgOutputs<'py> = (Bound<'py, PyArray1<f64>>, bool, usize, f64);
@@ -110,12 +112,17 @@ fn cg<const B: usize>(
     tolerance: f64,
     max_iterations: usize,
     factor: Option<&mut Cholesky<B>>,
+    nodes: Option<&[f64]>,
 ) -> crate::Result<PcgStatus> {
     let matrix = csr.blocks::<B>()?;
     let mut pcg = Pcg::new();
-    match factor {
-        Some(factor) => pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations),
-        None => {
+    match (factor, nodes) {
+        (Some(factor), _) => pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations),
+        (None, Some(nodes)) => {
+            let mut two_level = TwoLevel::new(&matrix, nodes.as_chunks::<B>().0, STRENGTH)?;
+            pcg.solve(&matrix, &mut two_level, rhs, x, tolerance, max_iterations)
+        }
+        (None, None) => {
             let mut jacobi = BlockJacobi::new(&matrix)?;
             pcg.solve(&matrix, &mut jacobi, rhs, x, tolerance, max_iterations)
         }
@@ -229,7 +236,7 @@ impl SparseCholesky {
 /// `(x, converged, iterations, relative_residual)` of preconditioned conjugate gradients on
 /// the CSR matrix, from `x0`; block-Jacobi preconditioner, or `preconditioner`'s factor.
 #[pyfunction]
-#[pyo3(signature = (size, indptr, indices, data, rhs, x0, block, tolerance, max_iterations, preconditioner=None))]
+#[pyo3(signature = (size, indptr, indices, data, rhs, x0, block, tolerance, max_iterations, preconditioner=None, nodes=None))]
 #[allow(clippy::too_many_arguments)]
 fn conjugate_gradient<'py>(
     py: Python<'py>,
@@ -243,6 +250,7 @@ fn conjugate_gradient<'py>(
     tolerance: f64,
     max_iterations: usize,
     preconditioner: Option<&Bound<'py, SparseCholesky>>,
+    nodes: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<CgOutputs<'py>> {
     check_block(block)?;
     let index = index_arrays(&indptr, &indices)?;
@@ -254,6 +262,17 @@ fn conjugate_gradient<'py>(
             x0.shape()
         )));
     }
+    let nodes = match &nodes {
+        Some(array) if array.len() != size => {
+            return Err(invalid_input(format!(
+                "nodes must hold one position per block row: {} values for a {size}x{size} matrix, got {}",
+                size,
+                array.len()
+            )))
+        }
+        Some(array) => Some(c_slice(array, "nodes")?),
+        None => None,
+    };
     let x = PyArray1::<f64>::zeros(py, size, false);
     let status = {
         let mut out = x.readwrite();
@@ -272,13 +291,13 @@ fn conjugate_gradient<'py>(
         let factor = guard.as_deref_mut();
         py.detach(|| match (block, factor) {
             (2, Some(Factor::Two(f))) => {
-                cg::<2>(&csr, rhs, out, tolerance, max_iterations, Some(f))
+                cg::<2>(&csr, rhs, out, tolerance, max_iterations, Some(f), nodes)
             }
-            (2, _) => cg::<2>(&csr, rhs, out, tolerance, max_iterations, None),
+            (2, _) => cg::<2>(&csr, rhs, out, tolerance, max_iterations, None, nodes),
             (_, Some(Factor::Three(f))) => {
-                cg::<3>(&csr, rhs, out, tolerance, max_iterations, Some(f))
+                cg::<3>(&csr, rhs, out, tolerance, max_iterations, Some(f), nodes)
             }
-            _ => cg::<3>(&csr, rhs, out, tolerance, max_iterations, None),
+            _ => cg::<3>(&csr, rhs, out, tolerance, max_iterations, None, nodes),
         })
         .map_err(|e| to_py(py, e))?
     };
