@@ -347,10 +347,12 @@ def memory_cases(repeats: int) -> list[dict[str, Any]]:
     ]
 
 
-def fitting_system(n: int, seed: int = 7) -> tuple[Any, np.ndarray]:
-    """The elastic fitting system of benches/solve.rs: EFG stiffness (k = 20, unit volumes)
-    of the first ``n`` points of a jittered cubic grid, plus ``s (0.3 I + g g^T)`` blocks
-    (``g`` random unit, ``s`` the mean diagonal of K) on the grid's outer layer."""
+def fitting_system(n: int, seed: int = 7, with_nodes: bool = False) -> Any:
+    """The elastic fitting system of benches/solve.rs: the elastic model's stiffness (k = 20,
+    unit volumes, the default consistency penalty) of the first ``n`` points of a jittered
+    cubic grid, plus ``s (0.3 I + g g^T)`` blocks (``g`` random unit, ``s`` the mean
+    diagonal of K) on the grid's outer layer; ``(matrix, rhs)``, plus the points with
+    ``with_nodes``."""
     import scipy.sparse
 
     rng = np.random.default_rng(seed)
@@ -358,7 +360,7 @@ def fitting_system(n: int, seed: int = 7) -> tuple[Any, np.ndarray]:
     i = np.arange(n)
     cells = np.stack([i % side, (i // side) % side, i // (side * side)], axis=1)
     points = cells + rng.uniform(-0.3, 0.3, (n, 3))
-    stiffness = elastocap.stiffness_matrix(points, k=20, volumes=np.ones(n))
+    stiffness = elastocap.ElasticModel(points, np.ones(n), k=20).stiffness()
     scale = stiffness.diagonal().mean()
     layers = -(-n // (side * side))
     surface = np.flatnonzero((cells == 0).any(axis=1) | (cells[:, 0] == side - 1) | (cells[:, 1] == side - 1) | (cells[:, 2] + 1 >= layers))
@@ -368,7 +370,8 @@ def fitting_system(n: int, seed: int = 7) -> tuple[Any, np.ndarray]:
     rows = (surface[:, None, None] * 3 + np.arange(3)[None, :, None]).repeat(3, axis=2)
     cols = (surface[:, None, None] * 3 + np.arange(3)[None, None, :]).repeat(3, axis=1)
     metric = scipy.sparse.coo_array((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=stiffness.shape)
-    return (stiffness + metric).tocsr(), rng.uniform(-1, 1, 3 * n)
+    system = (stiffness + metric).tocsr(), rng.uniform(-1, 1, 3 * n)
+    return (*system, points) if with_nodes else system
 
 
 def solve_cases(repeats: int) -> list[dict[str, Any]]:
@@ -380,7 +383,7 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
     import scipy.sparse.linalg as sla
 
     n, tol = 2465, 1e-8
-    matrix, rhs = fitting_system(n)
+    matrix, rhs, points = fitting_system(n, with_nodes=True)
     csc = matrix.tocsc()
     jacobi = sla.LinearOperator(matrix.shape, matvec=lambda v, d=1.0 / matrix.diagonal(): d * v)
     exact = sla.spsolve(csc, rhs)
@@ -394,8 +397,8 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
         counts["peer_iterations"] = iterations[0]
         return x
 
-    def ours_cg(x0: np.ndarray | None = None) -> np.ndarray:
-        x, status = elastocap.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol)
+    def ours_cg(x0: np.ndarray | None = None, nodes: np.ndarray | None = None) -> np.ndarray:
+        x, status = elastocap.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol, nodes=nodes)
         assert status.converged
         counts["ours_iterations"] = status.iterations
         return x
@@ -403,6 +406,10 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
     rows = []
     for case, x0 in (("solve_pcg_cold_2465_k20", None), ("solve_pcg_warm_2465_k20", start)):
         row = _compare(case, n, lambda x0=x0: ours_cg(x0), "scipy.sparse.linalg.cg (Jacobi preconditioner, same rtol)", lambda x0=x0: scipy_cg(x0), repeats)
+        rows.append({**row, **counts})
+    # The two-level preconditioner, its setup (aggregation, coarse factor) included.
+    for case, x0 in (("solve_pcg_two_level_cold_2465_k20", None), ("solve_pcg_two_level_warm_2465_k20", start)):
+        row = _compare(case, n, lambda x0=x0: ours_cg(x0, points), "scipy.sparse.linalg.cg (Jacobi preconditioner, same rtol)", lambda x0=x0: scipy_cg(x0), repeats)
         rows.append({**row, **counts})
     factor = elastocap.SparseCholesky(matrix)
     lu = sla.factorized(csc)
