@@ -479,7 +479,7 @@ n = {n}; side = int(np.ceil(n ** (1 / 3))); i = np.arange(n)
 cells = np.stack([i % side, (i // side) % side, i // (side * side)], 1).astype(float)
 points = np.ascontiguousarray(cells + np.random.default_rng(11).uniform(-0.3, 0.3, cells.shape))
 before = peak_mb()
-model = _core.ElasticCore(points, 20, np.ones(n), 1.0, 0.3, "strain", "rhs")
+model = _core.ElasticCore(points, 20, np.ones(n), 1.0, 0.3, "strain", "rhs", "gradient", {stabilization})
 built = peak_mb()
 indptr, indices, data = model.system(np.ascontiguousarray(np.broadcast_to(np.eye(3), (n, 3, 3))))
 print(json.dumps({{"before_mb": before, "model_mb": built, "with_stiffness_mb": peak_mb(), "entries": len(data)}}))
@@ -492,8 +492,10 @@ def elastic_memory_cases(repeats: int) -> list[dict[str, Any]]:
     import subprocess
     import sys
 
+    from elastocap.elastic import STABILIZATION
+
     n = 64_000
-    out = subprocess.run([sys.executable, "-c", _ELASTIC_MEMORY_SCRIPT.format(n=n)], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", _ELASTIC_MEMORY_SCRIPT.format(n=n, stabilization=STABILIZATION)], capture_output=True, text=True, check=True)
     row = json.loads(out.stdout.strip().splitlines()[-1])
     return [
         {
