@@ -16,36 +16,36 @@ pub mod surface;
 use crate::efg::Block;
 use crate::elastic::{ElasticModel, Rotation};
 use crate::error::{Error, Result};
-use crate::grid_sample::GridField;
+use crate::grid_sample::Field;
 use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg, TwoLevel, STRENGTH};
 
 /// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
-struct FitOperator<'a> {
-    model: &'a ElasticModel<3>,
-    rotations: &'a [Block<3>],
+struct FitOperator<'a, const D: usize> {
+    model: &'a ElasticModel<D>,
+    rotations: &'a [Block<D>],
     alpha: f64,
-    extra: &'a [Block<3>],
-    stresses: Vec<Block<3>>,
-    slots: Vec<[f64; 3]>,
+    extra: &'a [Block<D>],
+    stresses: Vec<Block<D>>,
+    slots: Vec<[f64; D]>,
 }
 
-impl LinearOperator<3> for FitOperator<'_> {
+impl<const D: usize> LinearOperator<D> for FitOperator<'_, D> {
     fn len(&self) -> usize {
         self.model.len()
     }
 
-    fn apply(&mut self, x: &[[f64; 3]], y: &mut [[f64; 3]]) {
+    fn apply(&mut self, x: &[[f64; D]], y: &mut [[f64; D]]) {
         self.model
             .apply_into(self.rotations, x, &mut self.stresses, &mut self.slots, y);
         for ((yi, xi), e) in y.iter_mut().zip(x).zip(self.extra) {
-            for r in 0..3 {
-                yi[r] = self.alpha * yi[r] + (0..3).map(|c| e[r][c] * xi[c]).sum::<f64>();
+            for r in 0..D {
+                yi[r] = self.alpha * yi[r] + (0..D).map(|c| e[r][c] * xi[c]).sum::<f64>();
             }
         }
     }
 }
 use contact::find_contacts;
-use surface::{associate, invalidate_collisions, vertex_normals, Association};
+use surface::{associate, enclosed_measure, invalidate_collisions, vertex_normals, Association};
 
 /// The knobs of the per-frame iteration.
 #[derive(Debug, Clone, Copy)]
@@ -122,28 +122,29 @@ pub struct FrameMetrics {
 /// What the iteration keeps across frames: the surface, the stiffness on its fixed pattern,
 /// the system matrix and the solver's work vectors.
 #[derive(Debug)]
-pub struct FitWorkspace {
+pub struct FitWorkspace<const D: usize> {
     surface: Vec<u32>,
-    faces: Vec<[u32; 3]>,
-    rest_surface: Vec<[f64; 3]>,
+    faces: Vec<[u32; D]>,
+    rest_surface: Vec<[f64; D]>,
     support: Vec<f64>,
-    stiffness: BlockCsr<3>,
-    system: BlockCsr<3>,
-    pcg: Pcg<3>,
+    stiffness: BlockCsr<D>,
+    system: BlockCsr<D>,
+    pcg: Pcg<D>,
     /// The two-level preconditioner, aggregated on the rest stiffness and kept (the
     /// pattern does not change); its rigid modes follow the positions.
-    coarse: TwoLevel<3>,
+    coarse: TwoLevel<D>,
     spacing: f64,
 }
 
-impl FitWorkspace {
-    /// For `model` with surface nodes `surface` (model node indices) and its triangles
-    /// `faces` (model node indices, each a surface node).
+impl<const D: usize> FitWorkspace<D> {
+    /// For `model` with surface nodes `surface` (model node indices) and its faces `faces`
+    /// (triangles in 3-D, contour edges in 2-D; model node indices, each a surface node).
+    /// Faces are reoriented outward if the surface encloses a negative measure.
     ///
     /// # Errors
     /// [`Error::Empty`] without surface nodes or faces; [`Error::NodeIndex`] for an index
     /// that is not a model node or a face corner that is not a surface node.
-    pub fn new(model: &ElasticModel<3>, surface: &[u32], faces: &[[u32; 3]]) -> Result<Self> {
+    pub fn new(model: &ElasticModel<D>, surface: &[u32], faces: &[[u32; D]]) -> Result<Self> {
         let n = model.len();
         if surface.is_empty() || faces.is_empty() {
             return Err(Error::Empty {
@@ -171,7 +172,7 @@ impl FitWorkspace {
             .iter()
             .enumerate()
             .map(|(position, f)| {
-                let mut out = [0u32; 3];
+                let mut out = [0u32; D];
                 for (o, &i) in out.iter_mut().zip(f) {
                     match local.get(i as usize) {
                         Some(&l) if l != u32::MAX => *o = l,
@@ -188,13 +189,20 @@ impl FitWorkspace {
                 Ok(out)
             })
             .collect::<Result<Vec<_>>>()?;
+        let rest_surface: Vec<[f64; D]> =
+            surface.iter().map(|&i| model.rest()[i as usize]).collect();
+        // Normals must point out of the body (the targets' distances are positive outside).
+        let mut faces = faces;
+        if enclosed_measure(&rest_surface, &faces) < 0.0 {
+            faces.iter_mut().for_each(|f| f.swap(0, 1));
+        }
         let pattern = model.pattern();
         let rows: Vec<&[u32]> = pattern
             .indptr
             .windows(2)
             .map(|w| &pattern.indices[w[0]..w[1]])
             .collect();
-        let mut stiffness = BlockCsr::<3>::from_pattern(&rows)?;
+        let mut stiffness = BlockCsr::<D>::from_pattern(&rows)?;
         let eye = vec![identity(); n];
         model.system_blocks(&eye, stiffness.blocks_mut())?;
         let system = stiffness.zeros_like();
@@ -203,7 +211,7 @@ impl FitWorkspace {
         let coarse = TwoLevel::new(&stiffness, model.rest(), STRENGTH)?;
         let mean_volume = model.volumes().iter().sum::<f64>() / n as f64;
         Ok(Self {
-            rest_surface: surface.iter().map(|&i| model.rest()[i as usize]).collect(),
+            rest_surface,
             support: surface
                 .iter()
                 .map(|&i| model.support()[i as usize])
@@ -214,39 +222,39 @@ impl FitWorkspace {
             system,
             pcg: Pcg::new(),
             coarse,
-            spacing: mean_volume.cbrt(),
+            spacing: mean_volume.powf(1.0 / D as f64),
         })
     }
 
     /// Surface positions out of all positions.
-    fn surface_positions(&self, x: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    fn surface_positions(&self, x: &[[f64; D]]) -> Vec<[f64; D]> {
         self.surface.iter().map(|&i| x[i as usize]).collect()
     }
 }
 
 /// $D$ of the associations at surface positions `xs`.
-fn distance_term(xs: &[[f64; 3]], found: &[Association]) -> f64 {
+fn distance_term<const D: usize>(xs: &[[f64; D]], found: &[Association<D>]) -> f64 {
     xs.iter()
         .zip(found)
         .map(|(x, a)| {
-            let r: [f64; 3] = std::array::from_fn(|i| x[i] - a.target[i]);
-            (0..3)
-                .map(|i| r[i] * (0..3).map(|j| a.weight[i][j] * r[j]).sum::<f64>())
+            let r: [f64; D] = std::array::from_fn(|i| x[i] - a.target[i]);
+            (0..D)
+                .map(|i| r[i] * (0..D).map(|j| a.weight[i][j] * r[j]).sum::<f64>())
                 .sum::<f64>()
         })
         .sum()
 }
 
-fn add_block(target: &mut Block<3>, block: &Block<3>, scale: f64) {
-    for r in 0..3 {
-        for c in 0..3 {
+fn add_block<const D: usize>(target: &mut Block<D>, block: &Block<D>, scale: f64) {
+    for r in 0..D {
+        for c in 0..D {
             target[r][c] += scale * block[r][c];
         }
     }
 }
 
-fn identity() -> Block<3> {
-    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+fn identity<const D: usize>() -> Block<D> {
+    std::array::from_fn(|r| std::array::from_fn(|c| if r == c { 1.0 } else { 0.0 }))
 }
 
 /// Fits one frame: from `start` (the neighbouring frame's fit) towards the zero level of
@@ -256,13 +264,13 @@ fn identity() -> Block<3> {
 /// Bad positions or options; [`Error::NotPositiveDefinite`] if the system loses
 /// definiteness (it cannot with positive stiffness and a surface term; reported, not
 /// hidden).
-pub fn fit_frame(
-    model: &ElasticModel<3>,
-    workspace: &mut FitWorkspace,
-    target: &GridField<'_>,
-    start: &[[f64; 3]],
+pub fn fit_frame<const D: usize, F: Field<D>>(
+    model: &ElasticModel<D>,
+    workspace: &mut FitWorkspace<D>,
+    target: &F,
+    start: &[[f64; D]],
     options: &FitOptions,
-) -> Result<(Vec<[f64; 3]>, FrameMetrics)> {
+) -> Result<(Vec<[f64; D]>, FrameMetrics)> {
     model.check_positions(start)?;
     for (argument, value) in [
         ("stiffness", options.stiffness),
@@ -321,7 +329,7 @@ pub fn fit_frame(
         metrics.iterations = iteration + 1;
 
         // Data and contact terms: 3x3 blocks on surface nodes (E = W + gamma I).
-        let mut extra = vec![[[0.0; 3]; 3]; n];
+        let mut extra = vec![[[0.0; D]; D]; n];
         for (&node, a) in workspace.surface.iter().zip(&found) {
             add_block(&mut extra[node as usize], &a.weight, 1.0);
         }
@@ -338,10 +346,10 @@ pub fn fit_frame(
             .flatten()
             .map(|v| alpha * v)
             .collect();
-        let mut pull = |node: u32, weight: &Block<3>, t: &[f64; 3], scale: f64| {
-            for r in 0..3 {
-                rhs[node as usize * 3 + r] +=
-                    scale * (0..3).map(|c| weight[r][c] * t[c]).sum::<f64>();
+        let mut pull = |node: u32, weight: &Block<D>, t: &[f64; D], scale: f64| {
+            for r in 0..D {
+                rhs[node as usize * D + r] +=
+                    scale * (0..D).map(|c| weight[r][c] * t[c]).sum::<f64>();
             }
         };
         for (&node, a) in workspace.surface.iter().zip(&found) {
@@ -422,7 +430,7 @@ pub fn fit_frame(
         metrics.solver_iterations += status.iterations;
         metrics.solver_converged &= status.converged;
         metrics.solver_seconds += clock.elapsed().as_secs_f64();
-        x = flat.as_chunks::<3>().0.to_vec();
+        x = flat.as_chunks::<D>().0.to_vec();
         debug_assert_eq!(x.len(), n);
     }
     // Figures at the returned positions.

@@ -124,6 +124,26 @@ impl<'a> GridField<'a> {
     }
 }
 
+/// A field the fitting can pull towards: value and gradient at a point of `D` dimensions.
+pub trait Field<const D: usize>: Sync {
+    /// Value and gradient (world units) at `p`.
+    fn value_and_gradient(&self, p: &[f64; D]) -> (f64, [f64; D]);
+}
+
+impl Field<3> for GridField<'_> {
+    fn value_and_gradient(&self, p: &[f64; 3]) -> (f64, [f64; 3]) {
+        self.sample(p)
+    }
+}
+
+/// A 2-D field is a grid one voxel thick along z, sampled in its plane $z = $ origin$_z$.
+impl Field<2> for GridField<'_> {
+    fn value_and_gradient(&self, p: &[f64; 2]) -> (f64, [f64; 2]) {
+        let (v, g) = self.sample(&[p[0], p[1], self.origin[2]]);
+        (v, [g[0], g[1]])
+    }
+}
+
 /// Samples `field` at every point in parallel: values, and gradients when asked.
 ///
 /// # Errors

@@ -132,7 +132,7 @@ def test_bad_input_is_a_clear_error(capture: Path, tmp_path: Path) -> None:
     with pytest.raises(InvalidInputError, match="empty"):
         fit_sequence(model, [CAPSULE, empty])
     planar = ElasticModel.from_mask(np.pad(np.ones((20, 20), bool), 5), n_nodes=100, k=8)
-    with pytest.raises(InvalidInputError, match="3-D"):
+    with pytest.raises(InvalidInputError, match="2-D model fits to masks"):
         fit_sequence(planar, [CAPSULE])
     with pytest.raises(InvalidInputError, match="rest frame 99"):
         run_fit_stage(capture, tmp_path / "out", rest_frame=99, progress=False)

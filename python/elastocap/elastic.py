@@ -146,10 +146,10 @@ class ElasticModel:
         self.k = k
         self.youngs, self.poisson, self.plane = float(youngs), float(poisson), plane
         self.surface_nodes = (
-            np.zeros(0, np.int64) if surface_nodes is None else np.asarray(surface_nodes, dtype=np.int64)
+            np.zeros(0, np.int64) if surface_nodes is None else np.ascontiguousarray(surface_nodes, dtype=np.int64)
         )
         self.surface_faces = (
-            np.zeros((0, dim), np.int64) if surface_faces is None else np.asarray(surface_faces, dtype=np.int64)
+            np.zeros((0, dim), np.int64) if surface_faces is None else np.ascontiguousarray(surface_faces, dtype=np.int64)
         )
         if self.surface_nodes.size and (self.surface_nodes.min() < 0 or self.surface_nodes.max() >= n):
             raise InvalidInputError(f"surface_nodes must index the {n} nodes")
@@ -297,6 +297,18 @@ class ElasticModel:
         local = np.full(self.n_nodes, -1, dtype=np.int64)
         local[self.surface_nodes] = np.arange(len(self.surface_nodes))
         return trimesh.Trimesh(x[self.surface_nodes], local[self.surface_faces], process=False)
+
+    def enclosed_measure(self, positions: Any) -> float:
+        """Volume (3-D, units cubed) or area (2-D, units squared) the surface encloses with
+        the nodes at ``positions`` (N, D), by the divergence theorem over the surface faces
+        (triangles or contour edges; holes subtract)."""
+        if len(self.surface_faces) == 0:
+            raise InvalidInputError("this model has no surface (built from nodes)")
+        x = self._positions(positions)
+        if self.dim == 3:
+            return float(abs(self.surface_at(x).volume))
+        a, b = x[self.surface_faces[:, 0]], x[self.surface_faces[:, 1]]
+        return float(abs(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) / 2))
 
     # -- mechanics ------------------------------------------------------------------------
 

@@ -4,7 +4,10 @@ neighbour's fit, one fixed surface topology throughout.
 
 The per-frame iteration runs in Rust (``rust/fit.rs``): rotations, the anisotropic
 surface-distance term with confidence weights and invalidated associations, the
-self-intersection term, and a block-Jacobi PCG solve per iteration.
+self-intersection term, and a PCG solve per iteration (block Jacobi plus a coarse
+correction on the rigid motions of node aggregates). 3-D models fit to signed distance
+fields (hulls, meshes); 2-D models (:meth:`ElasticModel.from_mask`) fit to binary masks in
+the same way, with their contour edges as the surface.
 """
 
 from __future__ import annotations
@@ -95,6 +98,33 @@ def target_field(target: Any) -> SDF:
     return sdf
 
 
+def _mask_field(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
+    """A 2-D target: the signed distance (pixels) of a binary mask ``(H, W)`` as a grid one
+    voxel thick over the model's pixel coordinates, pixel ``(row, column)`` at ``(column,
+    row)``."""
+    from elastocap.sdf import signed_distance
+
+    if isinstance(target, (SDF, Hull, trimesh.Trimesh)):
+        raise InvalidInputError(f"a 2-D model fits to masks (H, W), not to a 3-D {type(target).__name__}")
+    mask = np.asarray(target)
+    if mask.ndim != 2:
+        raise InvalidInputError(f"a 2-D target must be a mask of shape (H, W), got shape {mask.shape}")
+    inside = mask.astype(bool)
+    if not inside.any() or inside.all():
+        raise InvalidInputError("a target mask is empty or full: it has no contour to fit to")
+    values = signed_distance(np.ascontiguousarray(inside.T)[:, :, None])
+    return values, (0.0, 0.0, 0.0), 1.0
+
+
+def _field_arrays(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
+    """``(values, origin, spacing)`` of a 3-D :class:`SDF` or of :func:`_mask_field`'s tuple."""
+    if isinstance(target, SDF):
+        o = target.grid.origin
+        return np.ascontiguousarray(target.values, dtype=np.float64), (float(o[0]), float(o[1]), float(o[2])), float(target.grid.spacing)
+    values, origin, spacing = target
+    return np.ascontiguousarray(values, dtype=np.float64), origin, spacing
+
+
 def fit_sequence(
     model: ElasticModel,
     targets: Sequence[Any],
@@ -113,9 +143,12 @@ def fit_sequence(
     Parameters
     ----------
     model : ElasticModel
-        A 3-D model with a surface (:meth:`ElasticModel.from_mesh`).
+        A model with a surface: 3-D (:meth:`ElasticModel.from_mesh`) or 2-D
+        (:meth:`ElasticModel.from_mask`).
     targets : sequence
-        One target per frame: :class:`SDF`, :class:`Hull` or closed trimesh, world units.
+        One target per frame. 3-D: :class:`SDF`, :class:`Hull` or closed trimesh, world
+        units. 2-D: binary masks ``(H, W)`` in the model's pixel coordinates ``(x, y) =
+        (column, row)``.
     rest_frame : int
         Index of the frame the model was built from; fitting starts there (from the rest
         positions) and runs forward to the end and backward to the start.
@@ -147,15 +180,18 @@ def fit_sequence(
         A 2-D model or one without a surface, ``rest_frame`` out of range, a bad target
         (empty hull, non-watertight mesh), bad options.
     """
-    if model.dim != 3 or len(model.surface_faces) == 0:
-        raise InvalidInputError("fit_sequence needs a 3-D model with a surface (ElasticModel.from_mesh)")
+    if len(model.surface_faces) == 0:
+        raise InvalidInputError(
+            "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
+        )
     count = len(targets)
     if count == 0:
         raise InvalidInputError("targets is empty")
     if not 0 <= rest_frame < count:
         raise InvalidInputError(f"rest_frame = {rest_frame} is out of range: there are {count} targets")
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
-    rest_volume = model.surface.volume
+    rest_volume = model.enclosed_measure(model.nodes)
+    field_of = target_field if model.dim == 3 else _mask_field
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
     order: list[tuple[int, int | None]] = [(rest_frame, None)]
@@ -166,12 +202,12 @@ def fit_sequence(
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
             continue
         start = model.nodes if neighbour is None else result.fits[neighbour].positions
-        sdf = target_field(targets[frame])
+        values, origin, spacing = _field_arrays(field_of(targets[frame]))
         clock = time.perf_counter()
         positions, metrics = fitter.fit_frame(
-            np.ascontiguousarray(sdf.values, dtype=np.float64),
-            sdf.grid.origin,
-            sdf.grid.spacing,
+            values,
+            origin,
+            spacing,
             np.ascontiguousarray(start),
             stiffness=stiffness,
             contact=contact,
@@ -180,7 +216,7 @@ def fit_sequence(
             self_intersection=self_intersection,
         )
         metrics["seconds"] = time.perf_counter() - clock
-        metrics["volume_ratio"] = model.surface_at(positions).volume / rest_volume
+        metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
         fit = FrameFit(frame, positions, dict(metrics))
         result.fits[frame] = fit
         if callback is not None:

@@ -21,25 +21,25 @@ const CANDIDATES: usize = 8;
 
 /// A penetrating surface node and where it is pushed.
 #[derive(Debug, Clone, Copy)]
-pub struct Contact {
+pub struct Contact<const D: usize> {
     /// Index of the node among the surface nodes.
     pub node: usize,
     /// $x_{p'}$, held fixed during a solve.
-    pub target: [f64; 3],
+    pub target: [f64; D],
     /// $M_I$.
-    pub weight: Block<3>,
+    pub weight: Block<D>,
     /// Penetration depth $-(x_p - x_q) \cdot n_q \ge 0$.
     pub depth: f64,
 }
 
 /// The penetrating surface nodes at `positions` (surface nodes only) with `normals`, their
 /// `rest` positions and supports.
-pub fn find_contacts(
-    positions: &[[f64; 3]],
-    normals: &[[f64; 3]],
-    rest: &[[f64; 3]],
+pub fn find_contacts<const D: usize>(
+    positions: &[[f64; D]],
+    normals: &[[f64; D]],
+    rest: &[[f64; D]],
     support: &[f64],
-) -> Vec<Contact> {
+) -> Vec<Contact<D>> {
     let n = positions.len();
     if n < 2 {
         return Vec::new();

@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use crate::efg::Block;
-use crate::grid_sample::GridField;
+use crate::grid_sample::Field;
 use crate::SpatialHash;
 
 /// Lower clamp of the anisotropy $s$: moving across the surface costs at least 100 times
@@ -15,16 +15,43 @@ pub const COLLISION_FRACTION: f64 = 1.0 / 3.0;
 /// Nodes farther apart at rest than this many $d_p$ belong to different parts (SPEC 5).
 pub const FAR_APART: f64 = 3.0;
 
-/// Unit vertex normals of a closed triangle surface (area-weighted face normals), one per
-/// surface vertex; `faces` index into `vertices`.
-pub fn vertex_normals(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]> {
-    let mut normals = vec![[0.0; 3]; vertices.len()];
+/// A face's normal scaled by its measure: a triangle's $(b - a) \times (c - a)$ (twice
+/// its area) in 3-D, an edge's $(b - a)$ turned by $-90°$ (its length) in 2-D; outward for
+/// counter-clockwise faces seen from outside.
+pub fn face_normal<const D: usize>(corners: &[[f64; D]; D]) -> [f64; D] {
+    let mut n = [0.0; D];
+    if D == 2 {
+        n[0] = corners[1][1] - corners[0][1];
+        n[1] = corners[0][0] - corners[1][0];
+    } else {
+        let u: [f64; 3] = std::array::from_fn(|a| corners[1][a] - corners[0][a]);
+        let v: [f64; 3] = std::array::from_fn(|a| corners[2][a] - corners[0][a]);
+        let c = cross(&u, &v);
+        n.iter_mut().zip(c).for_each(|(n, c)| *n = c);
+    }
+    n
+}
+
+/// The signed measure enclosed by a closed surface (volume in 3-D, area in 2-D, by the
+/// divergence theorem): positive when its faces are oriented outward.
+pub fn enclosed_measure<const D: usize>(vertices: &[[f64; D]], faces: &[[u32; D]]) -> f64 {
+    faces
+        .iter()
+        .map(|face| {
+            let corners = face.map(|i| vertices[i as usize]);
+            dot(&corners[0], &face_normal(&corners)) / (D as f64 * if D == 3 { 2.0 } else { 1.0 })
+        })
+        .sum()
+}
+
+/// Unit vertex normals of a closed surface (measure-weighted face normals), one per
+/// surface vertex; `faces` (triangles in 3-D, edges in 2-D) index into `vertices`.
+pub fn vertex_normals<const D: usize>(vertices: &[[f64; D]], faces: &[[u32; D]]) -> Vec<[f64; D]> {
+    let mut normals = vec![[0.0; D]; vertices.len()];
     for face in faces {
-        let [a, b, c] = face.map(|i| vertices[i as usize]);
-        let (u, v) = (sub(&b, &a), sub(&c, &a));
-        let n = cross(&u, &v);
+        let n = face_normal(&face.map(|i| vertices[i as usize]));
         for &i in face {
-            for axis in 0..3 {
+            for axis in 0..D {
                 normals[i as usize][axis] += n[axis];
             }
         }
@@ -36,32 +63,32 @@ pub fn vertex_normals(vertices: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]
 /// One surface node's association with the target: where it is pulled, how confidently,
 /// and the metric of the pull.
 #[derive(Debug, Clone, Copy)]
-pub struct Association {
+pub struct Association<const D: usize> {
     /// Closest point $t_p$ on the target surface.
-    pub target: [f64; 3],
+    pub target: [f64; D],
     /// Signed distance $d(x_p)$ to the target (positive outside).
     pub distance: f64,
     /// $w_p M_p$, with $w_p = \max(0, n_p \cdot g)$ and
     /// $M_p = s^2 I + (1 - s^2) g g^\top$, $s = \operatorname{clamp}(|d| / d_p, 0.1, 1)$.
-    pub weight: Block<3>,
+    pub weight: Block<D>,
     /// $w_p$ (zero when invalidated).
     pub confidence: f64,
 }
 
 /// The associations of surface nodes at `positions` with `normals`, to the signed distance
 /// field `target`; `support` are the nodes' $d_p$.
-pub fn associate(
-    target: &GridField<'_>,
-    positions: &[[f64; 3]],
-    normals: &[[f64; 3]],
+pub fn associate<const D: usize, F: Field<D>>(
+    target: &F,
+    positions: &[[f64; D]],
+    normals: &[[f64; D]],
     support: &[f64],
-) -> Vec<Association> {
+) -> Vec<Association<D>> {
     positions
         .par_iter()
         .zip(normals)
         .zip(support)
         .map(|((x, n), &ddm)| {
-            let (d, gradient) = target.sample(x);
+            let (d, gradient) = target.value_and_gradient(x);
             let g = unit(&gradient);
             // One Newton step onto the zero level along the unit gradient (an exact
             // distance field has |grad| = 1; trilinear interpolation nearly so).
@@ -87,12 +114,12 @@ pub fn associate(
 /// SPEC 5 invalidation: surface nodes `p`, `q` whose targets are closer than $d_p / 3$
 /// while they are more than $3 d_p$ apart at rest are both dropped (a limb tip must not be
 /// pulled onto another limb). Returns how many were dropped.
-pub fn invalidate_collisions(
-    associations: &mut [Association],
-    rest: &[[f64; 3]],
+pub fn invalidate_collisions<const D: usize>(
+    associations: &mut [Association<D>],
+    rest: &[[f64; D]],
     support: &[f64],
 ) -> usize {
-    let targets: Vec<[f64; 3]> = associations.iter().map(|a| a.target).collect();
+    let targets: Vec<[f64; D]> = associations.iter().map(|a| a.target).collect();
     let Ok(hash) = SpatialHash::new(&targets) else {
         return 0;
     };
@@ -120,19 +147,19 @@ pub fn invalidate_collisions(
     for (association, drop) in associations.iter_mut().zip(dropped) {
         if drop {
             association.confidence = 0.0;
-            association.weight = [[0.0; 3]; 3];
+            association.weight = [[0.0; D]; D];
             count += 1;
         }
     }
     count
 }
 
-pub(crate) fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn sub<const D: usize>(a: &[f64; D], b: &[f64; D]) -> [f64; D] {
     std::array::from_fn(|i| a[i] - b[i])
 }
 
-pub(crate) fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+pub(crate) fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
+    (0..D).map(|i| a[i] * b[i]).sum()
 }
 
 pub(crate) fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
@@ -143,16 +170,16 @@ pub(crate) fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
     ]
 }
 
-pub(crate) fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+pub(crate) fn dist<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
     dot(&sub(a, b), &sub(a, b)).sqrt()
 }
 
 /// `v / |v|`, or zero for a zero vector.
-pub(crate) fn unit(v: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn unit<const D: usize>(v: &[f64; D]) -> [f64; D] {
     let norm = dot(v, v).sqrt();
     if norm > 0.0 {
         v.map(|x| x / norm)
     } else {
-        [0.0; 3]
+        [0.0; D]
     }
 }

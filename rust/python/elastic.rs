@@ -121,6 +121,14 @@ impl ElasticCore {
             Model::Planar(_) => None,
         }
     }
+
+    /// The 2-D model, if this is one.
+    pub(super) fn planar(&self) -> Option<&ElasticModel<2>> {
+        match &self.model {
+            Model::Planar(m) => Some(m),
+            Model::Spatial(_) => None,
+        }
+    }
 }
 
 #[pymethods]

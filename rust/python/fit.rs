@@ -9,14 +9,41 @@ use pyo3::types::PyDict;
 
 use super::elastic::ElasticCore;
 use super::{c_slice, invalid_input, rows, to_py};
-use crate::fit::{fit_frame, FitOptions, FitWorkspace};
+use crate::fit::{fit_frame, FitOptions, FitWorkspace, FrameMetrics};
 use crate::grid_sample::GridField;
 
-/// The fitting state of a 3-D elastic model and its surface (SPEC 5).
+enum Workspace {
+    Planar(FitWorkspace<2>),
+    Spatial(FitWorkspace<3>),
+}
+
+/// The fitting state of an elastic model (2-D or 3-D) and its surface (SPEC 5).
 #[pyclass(module = "elastocap._core", frozen)]
 pub struct FitCore {
     model: Py<ElasticCore>,
-    workspace: Mutex<FitWorkspace>,
+    workspace: Mutex<Workspace>,
+}
+
+fn metrics_dict<'py>(py: Python<'py>, m: &FrameMetrics) -> PyResult<Bound<'py, PyDict>> {
+    let metrics = PyDict::new(py);
+    metrics.set_item("distance_term", m.distance_term)?;
+    metrics.set_item("mean_distance", m.mean_distance)?;
+    metrics.set_item("max_distance", m.max_distance)?;
+    metrics.set_item("elastic_energy", m.elastic_energy)?;
+    metrics.set_item("penetrating", m.penetrating)?;
+    metrics.set_item("invalidated", m.invalidated)?;
+    metrics.set_item("iterations", m.iterations)?;
+    metrics.set_item("solver_iterations", m.solver_iterations)?;
+    metrics.set_item("solver_converged", m.solver_converged)?;
+    metrics.set_item("solver_seconds", m.solver_seconds)?;
+    Ok(metrics)
+}
+
+fn positions_out<const D: usize>(py: Python<'_>, x: Vec<[f64; D]>) -> Bound<'_, PyArray2<f64>> {
+    let n = x.len();
+    Array2::from_shape_vec((n, D), x.into_iter().flatten().collect())
+        .expect("n x D positions")
+        .into_pyarray(py)
 }
 
 fn indices(values: &[i64], argument: &str) -> PyResult<Vec<u32>> {
@@ -39,21 +66,29 @@ impl FitCore {
         faces: PyReadonlyArray2<'_, i64>,
     ) -> PyResult<Self> {
         let core = model.get();
-        let spatial = core
-            .spatial()
-            .ok_or_else(|| invalid_input("fitting needs a 3-D model".into()))?;
-        if faces.shape()[1] != 3 {
+        let dim = if core.spatial().is_some() { 3 } else { 2 };
+        if faces.shape()[1] != dim {
             return Err(invalid_input(format!(
-                "faces must have shape (F, 3), got {:?}",
+                "faces must have shape (F, {dim}) for a {dim}-D model (triangles in 3-D, contour edges in 2-D), got {:?}",
                 faces.shape()
             )));
         }
         let surface = indices(c_slice(&surface_nodes, "surface_nodes")?, "surface_nodes")?;
         let flat = indices(c_slice(&faces, "faces")?, "faces")?;
-        let faces: Vec<[u32; 3]> = flat.as_chunks::<3>().0.to_vec();
-        let workspace = py
-            .detach(|| FitWorkspace::new(spatial, &surface, &faces))
-            .map_err(|e| to_py(py, e))?;
+        let workspace = match (core.spatial(), core.planar()) {
+            (Some(m), _) => {
+                let faces: Vec<[u32; 3]> = flat.as_chunks::<3>().0.to_vec();
+                py.detach(|| FitWorkspace::new(m, &surface, &faces))
+                    .map(Workspace::Spatial)
+            }
+            (None, Some(m)) => {
+                let faces: Vec<[u32; 2]> = flat.as_chunks::<2>().0.to_vec();
+                py.detach(|| FitWorkspace::new(m, &surface, &faces))
+                    .map(Workspace::Planar)
+            }
+            (None, None) => unreachable!("a model is 2-D or 3-D"),
+        }
+        .map_err(|e| to_py(py, e))?;
         Ok(Self {
             model,
             workspace: Mutex::new(workspace),
@@ -61,7 +96,8 @@ impl FitCore {
     }
 
     /// Fits one frame to the signed distance `values` (nx, ny, nz) of a grid (`origin`,
-    /// `spacing`) from `start` (N, 3): `(positions (N, 3), metrics dict)`.
+    /// `spacing`; for a 2-D model nz = 1 and the plane z = origin z) from `start` (N, D):
+    /// `(positions (N, D), metrics dict)`.
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
         solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true))]
@@ -84,7 +120,6 @@ impl FitCore {
         matrix_free: bool,
         coarse: bool,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
-        let model = self.model.get().spatial().expect("checked at construction");
         let shape = values.shape();
         let field = GridField::new(
             c_slice(&values, "values")?,
@@ -93,7 +128,6 @@ impl FitCore {
             spacing,
         )
         .map_err(|e| to_py(py, e))?;
-        let start = rows::<3>(&start, "start")?;
         let options = FitOptions {
             stiffness,
             contact,
@@ -110,25 +144,30 @@ impl FitCore {
             .workspace
             .lock()
             .map_err(|_| invalid_input("a previous fit panicked; build a new FitCore".into()))?;
-        let workspace: &mut FitWorkspace = &mut workspace;
-        let (x, m) = py
-            .detach(|| fit_frame(model, workspace, &field, start, &options))
-            .map_err(|e| to_py(py, e))?;
-        let n = x.len();
-        let positions = Array2::from_shape_vec((n, 3), x.into_iter().flatten().collect())
-            .expect("n x 3 positions")
-            .into_pyarray(py);
-        let metrics = PyDict::new(py);
-        metrics.set_item("distance_term", m.distance_term)?;
-        metrics.set_item("mean_distance", m.mean_distance)?;
-        metrics.set_item("max_distance", m.max_distance)?;
-        metrics.set_item("elastic_energy", m.elastic_energy)?;
-        metrics.set_item("penetrating", m.penetrating)?;
-        metrics.set_item("invalidated", m.invalidated)?;
-        metrics.set_item("iterations", m.iterations)?;
-        metrics.set_item("solver_iterations", m.solver_iterations)?;
-        metrics.set_item("solver_converged", m.solver_converged)?;
-        metrics.set_item("solver_seconds", m.solver_seconds)?;
+        let core = self.model.get();
+        let (positions, m) = match (&mut *workspace, core.spatial(), core.planar()) {
+            (Workspace::Spatial(w), Some(model), _) => {
+                let start = rows::<3>(&start, "start")?;
+                let (x, m) = py
+                    .detach(|| fit_frame(model, w, &field, start, &options))
+                    .map_err(|e| to_py(py, e))?;
+                (positions_out(py, x), m)
+            }
+            (Workspace::Planar(w), _, Some(model)) => {
+                if shape[2] != 1 {
+                    return Err(invalid_input(format!(
+                        "a 2-D model fits to a field one voxel thick: values must have shape (nx, ny, 1), got {shape:?}"
+                    )));
+                }
+                let start = rows::<2>(&start, "start")?;
+                let (x, m) = py
+                    .detach(|| fit_frame(model, w, &field, start, &options))
+                    .map_err(|e| to_py(py, e))?;
+                (positions_out(py, x), m)
+            }
+            _ => unreachable!("the workspace matches the model's dimension"),
+        };
+        let metrics = metrics_dict(py, &m)?;
         Ok((positions, metrics))
     }
 }
