@@ -17,6 +17,7 @@ from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_sta
 from elastocap.fit_stage import load_model
 from elastocap.hull_stage import load_hull
 from elastocap.synth import write_synthetic_capture
+from data_paths import HORSE
 from tolerances import (
     FIT_HULL_VOXELS,
     FIT_RESUME_RTOL,
@@ -196,3 +197,30 @@ def test_bad_input_is_a_clear_error(capture: Path, tmp_path: Path) -> None:
         run_fit_stage(capture, tmp_path / "out", rest_frame=99, progress=False)
     with pytest.raises(InvalidInputError, match="stiffness"):
         fit_sequence(model, [CAPSULE], stiffness=-1.0)
+
+
+def test_an_empty_hull_frame_stops_the_fit_after_handing_over_the_frames_before_it() -> None:
+    # Bad input, "nothing lost": the frames fitted before the empty one reach the callback
+    # (elastocap fit writes them there), then the error names the problem.
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=300)
+    empty = elastocap.Hull(np.zeros((8, 8, 8), bool), elastocap.Grid([0, 0, 0], 0.1, (8, 8, 8)))
+    handed: list[int] = []
+    with pytest.raises(InvalidInputError, match="hull is empty"):
+        fit_sequence(model, [CAPSULE, CAPSULE, empty], callback=lambda fit: handed.append(fit.frame))
+    assert handed == [0, 1]
+
+
+@pytest.mark.skipif(not HORSE.exists(), reason="shared data not present")
+def test_horse_gallop_first_frames_fit_as_closely_as_the_hulls(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The first frames of issue 5's evaluation (benches/eval_horse.py, which runs all 48 and
+    # the peer): 8 virtual cameras, hulls, a model of frame 0's hull, fit, ground truth.
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benches"))
+    eval_horse = __import__("eval_horse")
+    monkeypatch.setattr(eval_horse, "SAMPLES", 10_000)
+    monkeypatch.setattr(eval_horse, "HORSE", HORSE)
+    result = eval_horse.evaluate(4, 1500, peer=False, log=lambda *_: None)
+    summary = result["summary"]
+    print({key: summary[key] for key in ("fit_over_hull", "fit_drift_pct", "volume_ratio_min", "volume_ratio_max")})
+    assert summary["fit_over_hull"] <= 1.2
+    assert summary["volume_ratio_min"] > 1 - FIT_VOLUME_RTOL and summary["volume_ratio_max"] < 1 + FIT_VOLUME_RTOL
+    assert summary["fit_drift_pct"] <= 2.0
