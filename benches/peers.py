@@ -512,6 +512,48 @@ def elastic_memory_cases(repeats: int) -> list[dict[str, Any]]:
 CASES["elastic_memory"] = elastic_memory_cases
 
 
+def horse_cases(repeats: int) -> list[dict[str, Any]]:
+    """Issue 5's evaluation on the horse gallop (benches/eval_horse.py): the elastic fit and
+    trimesh's nricp_amberg on the same 8-camera hulls, all 48 frames, one run (repeats
+    unused: each frame is timed once). Accuracy and drift against the ground truth; ratios
+    are the peer's figure over ours (above 1: elastocap is better / faster)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import eval_horse
+
+    if not eval_horse.HORSE.exists():
+        return [{"case": "horse_gallop", "skipped": f"{eval_horse.HORSE} not found"}]
+    result = eval_horse.evaluate(log=lambda *_: None)
+    s = result["summary"]
+    return [
+        {
+            "case": "horse_gallop",
+            "n": result["setup"]["nodes"],
+            "frames": result["setup"]["frames"],
+            "hull_mean_mm": round(1000 * s["hull_mean"], 1),
+            "ours_mean_mm": round(1000 * s["fit_mean"], 1),
+            "ours_p95_mm": round(1000 * s["fit_p95"], 1),
+            "ours_drift_pct": round(s["fit_drift_pct"], 2),
+            "ours_volume_min_max": [round(s["volume_ratio_min"], 3), round(s["volume_ratio_max"], 3)],
+            "ours_s": round(s["fit_seconds_median"], 3),
+            "peer": "trimesh.registration.nricp_amberg",
+            "peer_mean_mm": round(1000 * s["nricp_mean"], 1),
+            "peer_p95_mm": round(1000 * s["nricp_p95"], 1),
+            "peer_drift_pct": round(s["nricp_drift_pct"], 2),
+            "peer_s": round(s["nricp_seconds_median"], 3),
+            "ratio": round(s["nricp_over_fit_seconds"], 2),
+            "mean_ratio": round(s["nricp_over_fit_mean"], 2),
+            "drift_ratio": round(s["nricp_over_fit_drift"], 2),
+            "targets": s["targets"],
+        }
+    ]
+
+
+CASES["horse"] = horse_cases
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("filter", nargs="?", default="", help="run only case groups whose name contains this")

@@ -7,3 +7,4 @@ from pathlib import Path
 
 SHARED_DATA = Path(os.environ.get("ELASTOCAP_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 TEMPLE = SHARED_DATA / "temple_sparse_ring"
+HORSE = SHARED_DATA / "horse_gallop" / "horse_gallop.npz"

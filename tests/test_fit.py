@@ -17,7 +17,14 @@ from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_sta
 from elastocap.fit_stage import load_model
 from elastocap.hull_stage import load_hull
 from elastocap.synth import write_synthetic_capture
-from tolerances import FIT_HULL_VOXELS, FIT_RESUME_RTOL, FIT_RIGID_ENERGY_RTOL, FIT_VOLUME_RTOL
+from data_paths import HORSE
+from tolerances import (
+    FIT_HULL_VOXELS,
+    FIT_RESUME_RTOL,
+    FIT_RIGID_ENERGY_RTOL,
+    FIT_TIP_ON_LIMB_VOXELS,
+    FIT_VOLUME_RTOL,
+)
 
 
 @pytest.fixture(scope="module")
@@ -122,6 +129,58 @@ def test_self_intersection_term_keeps_limbs_apart() -> None:
     assert last_on <= 0.65 * last_off
 
 
+LEGS_GRID = elastocap.Grid([-0.5, -0.9, -0.8], 0.02, (51, 61, 81))
+LEG_GAP, LEG_LENGTH, LEG_WIDTH = 0.4, 0.6, 0.1
+
+
+def _leg_occupancy(side: int, swing: float) -> np.ndarray:
+    """Voxels of one leg, 0.1 x 0.6 x 0.1, hanging from its hip at x = side * 0.25 and swung
+    back by `swing` degrees about the x axis."""
+    p = LEGS_GRID.centres() - [side * (LEG_GAP + LEG_WIDTH) / 2, 0.0, 0.0]
+    c, s = np.cos(np.radians(swing)), np.sin(np.radians(swing))
+    local = np.stack([p[..., 0], c * p[..., 1] + s * p[..., 2], c * p[..., 2] - s * p[..., 1]], axis=-1)
+    half = LEG_WIDTH / 2
+    return np.all((local >= [-half, -LEG_LENGTH, -half]) & (local <= [half, 0.05, half]), axis=-1)
+
+
+def _two_legs(swing: float) -> elastocap.Hull:
+    """A block (the hips) with two legs 0.4 apart; the left one swung by `swing` degrees."""
+    p = LEGS_GRID.centres()
+    reach = LEG_GAP / 2 + LEG_WIDTH + 0.05
+    hips = np.all((p >= [-reach, 0.0, -0.1]) & (p <= [reach, 0.2, 0.1]), axis=-1)
+    return elastocap.Hull(hips | _leg_occupancy(-1, swing) | _leg_occupancy(1, 0.0), LEGS_GRID)
+
+
+def test_invalidation_keeps_a_fast_swung_limb_tip_on_its_own_limb() -> None:
+    # The left leg swings back by 75 degrees between two frames. Where its tip was, the
+    # nearest target surface is the other leg (0.35 away, the swung leg 0.53): without
+    # invalidation the tip's nodes associate with the right leg and are dragged towards it;
+    # with it, those associations collide with the right leg's own and are dropped, and the
+    # tip follows its leg.
+    swing = 75.0
+    model = ElasticModel.from_mesh(_two_legs(0.0).mesh(), n_nodes=800, rotation="warped")
+    targets = [_two_legs(0.0), _two_legs(swing)]
+    rest = model.nodes
+    tip = np.flatnonzero((rest[:, 0] < 0) & (rest[:, 1] < -LEG_LENGTH + 0.1))
+    assert len(tip) >= 10
+    own = elastocap.SDF.from_occupancy(_leg_occupancy(-1, swing), LEGS_GRID)
+    other = elastocap.SDF.from_occupancy(_leg_occupancy(1, 0.0), LEGS_GRID)
+    figures = {}
+    for invalidate in (True, False):
+        x = fit_sequence(model, targets, invalidate=invalidate).fits[1].positions[tip]
+        figures[invalidate] = (float(np.median(own.sample(x))), float(np.median(other.sample(x))))
+    print("tip median distance to (its leg, the other leg), invalidation on / off:", figures)
+    h = LEGS_GRID.spacing
+    on_own, on_other = figures[True]
+    off_own, off_other = figures[False]
+    assert abs(on_own) < FIT_TIP_ON_LIMB_VOXELS * h
+    assert on_other > 0.4  # nowhere near the other leg (the swung tip is 0.57 from it)
+    # Without invalidation the tip leaves its leg towards the other one (measured 0.11 off
+    # its leg, 0.28 from the other).
+    assert off_own > 3 * h
+    assert off_other < on_other - 0.2
+
+
 def test_bad_input_is_a_clear_error(capture: Path, tmp_path: Path) -> None:
     model = ElasticModel.from_mesh(CAPSULE, n_nodes=300)
     with pytest.raises(InvalidInputError, match="rest_frame"):
@@ -138,3 +197,30 @@ def test_bad_input_is_a_clear_error(capture: Path, tmp_path: Path) -> None:
         run_fit_stage(capture, tmp_path / "out", rest_frame=99, progress=False)
     with pytest.raises(InvalidInputError, match="stiffness"):
         fit_sequence(model, [CAPSULE], stiffness=-1.0)
+
+
+def test_an_empty_hull_frame_stops_the_fit_after_handing_over_the_frames_before_it() -> None:
+    # Bad input, "nothing lost": the frames fitted before the empty one reach the callback
+    # (elastocap fit writes them there), then the error names the problem.
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=300)
+    empty = elastocap.Hull(np.zeros((8, 8, 8), bool), elastocap.Grid([0, 0, 0], 0.1, (8, 8, 8)))
+    handed: list[int] = []
+    with pytest.raises(InvalidInputError, match="hull is empty"):
+        fit_sequence(model, [CAPSULE, CAPSULE, empty], callback=lambda fit: handed.append(fit.frame))
+    assert handed == [0, 1]
+
+
+@pytest.mark.skipif(not HORSE.exists(), reason="shared data not present")
+def test_horse_gallop_first_frames_fit_as_closely_as_the_hulls(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The first frames of issue 5's evaluation (benches/eval_horse.py, which runs all 48 and
+    # the peer): 8 virtual cameras, hulls, a model of frame 0's hull, fit, ground truth.
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benches"))
+    eval_horse = __import__("eval_horse")
+    monkeypatch.setattr(eval_horse, "SAMPLES", 10_000)
+    monkeypatch.setattr(eval_horse, "HORSE", HORSE)
+    result = eval_horse.evaluate(4, 1500, peer=False, log=lambda *_: None)
+    summary = result["summary"]
+    print({key: summary[key] for key in ("fit_over_hull", "fit_drift_pct", "volume_ratio_min", "volume_ratio_max")})
+    assert summary["fit_over_hull"] <= 1.2
+    assert summary["volume_ratio_min"] > 1 - FIT_VOLUME_RTOL and summary["volume_ratio_max"] < 1 + FIT_VOLUME_RTOL
+    assert summary["fit_drift_pct"] <= 2.0

@@ -87,6 +87,7 @@ def test_sdf_zero_level_is_within_a_voxel_of_the_hull_surface():
     hull = visual_hull([render(mesh, c) for c in rig.cameras], rig, GRID, footprint="center")
     surface = hull.mesh()
     assert surface.is_watertight
+    assert surface.volume > 0, "outward-facing triangles"
     assert np.abs(hull.sdf().sample(surface.vertices)).max() <= GRID.spacing
     # The hull contains the object and, with 12 views of a convex shape, hugs it.
     d = hull.sdf().sample(mesh.sample(2000))

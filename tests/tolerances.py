@@ -175,6 +175,10 @@ FIT_RIGID_ENERGY_RTOL = 0.03
 # Resumed vs. uninterrupted runs: same start, same arithmetic up to the order of parallel
 # sums in the solver, so positions agree to rounding.
 FIT_RESUME_RTOL = 1e-9
+# Invalidation (two legs, one swung by 75 degrees in one frame): median distance of the
+# swung leg's tip nodes to that leg's target, in voxels of the target grid (measured
+# 0.05-1.0 over seeds and 600-1000 nodes with invalidation; 4.5-8 voxels without it).
+FIT_TIP_ON_LIMB_VOXELS = 2.0
 # --- body model (SPEC 6) ----------------------------------------------------------------
 
 # Analytic derivatives vs central differences, per entry relative to |entry| + the row's

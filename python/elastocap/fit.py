@@ -135,6 +135,7 @@ def fit_sequence(
     max_iterations: int = 10,
     invalidate: bool = True,
     self_intersection: bool = True,
+    predict: bool = True,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -164,6 +165,12 @@ def fit_sequence(
     invalidate, self_intersection : bool
         Turn the invalidation of colliding associations and the self-intersection term on
         or off.
+    predict : bool
+        Start each frame from its neighbour's fit moved on by the neighbour's own motion
+        (constant velocity: ``2 x[f -/+ 1] - x[f -/+ 2]``) where both are fitted, instead
+        of from the neighbour's fit. Measured on the horse gallop (fast leg swings, up to
+        0.59 m per frame; benches/README.md): mean drift 2.85% -> 2.16% of the bounding-box
+        diagonal over one gallop cycle.
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -201,7 +208,15 @@ def fit_sequence(
         if frame in previous:
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
             continue
-        start = model.nodes if neighbour is None else result.fits[neighbour].positions
+        if neighbour is None:
+            start = model.nodes
+        else:
+            start = result.fits[neighbour].positions
+            second = 2 * neighbour - frame
+            if predict and second in result.fits:
+                # The elastic solve sees only the start, so a leg that swings 0.5 m per
+                # frame is met half-way instead of pulled back onto the nearest limb.
+                start = 2 * start - result.fits[second].positions
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         clock = time.perf_counter()
         positions, metrics = fitter.fit_frame(

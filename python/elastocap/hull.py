@@ -81,8 +81,13 @@ class Hull:
         values = np.where(np.isfinite(values), values, np.sign(values) * 1e3 * h)
         vertices, faces, _, _ = measure.marching_cubes(values, level=0.0, spacing=(h, h, h))
         vertices += self.grid.origin - h
-        # skimage orients faces for a field increasing outwards the other way round.
-        return trimesh.Trimesh(vertices, faces[:, ::-1], process=True)
+        mesh = trimesh.Trimesh(vertices, faces, process=True)
+        # Outward normals whatever marching cubes' winding convention (its faces came out
+        # inward for this negative-inside field, volume < 0, which made normal-based
+        # consumers such as trimesh's nricp_amberg reject every match).
+        if mesh.volume < 0:
+            mesh.invert()
+        return mesh
 
 
 def _masks_in_rig_order(masks: Any, rig: Rig) -> list[NDArray[np.uint8]]:
