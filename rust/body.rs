@@ -11,6 +11,7 @@
 
 pub mod field;
 pub mod fit;
+pub mod normal;
 pub mod observe;
 pub mod ray;
 pub mod skeleton;

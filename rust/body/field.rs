@@ -240,6 +240,62 @@ impl<'a> Field<'a> {
         f
     }
 
+    /// `F(x)` and, for each part with a ball in the sum (ascending parts), its compact
+    /// derivative `z_b = ((x - reference) × ∇F_b, ∇F_b, ∂F/∂l_b, ∂F/∂w_b)` (balls cut
+    /// as in [`Field::state_derivative_over`]). The Jacobian row is `Σ_b E_b^T z_b` with
+    /// [`super::normal::PartMap`]'s `E_b`, which depends on the pose only: the normal
+    /// matrix can then be accumulated from 8-vectors per part instead of full rows.
+    pub fn part_derivatives_over(
+        &self,
+        x: &Vector3<f64>,
+        subset: Option<&[u16]>,
+        cutoff: Cutoff,
+        reference: &Vector3<f64>,
+        out: &mut Vec<(usize, [f64; 8])>,
+    ) -> f64 {
+        out.clear();
+        let mut f = 0.0;
+        let mut visit = |ball: &PlacedBall| {
+            let t = Self::term(ball, x);
+            f += t.value;
+            if cutoff == Cutoff::Bounded && t.d > JACOBIAN_BOUND * JACOBIAN_BOUND {
+                return;
+            }
+            // Balls are sorted by part, so one part's balls form one run.
+            if out.last().map(|e| e.0) != Some(ball.part) {
+                out.push((ball.part, [0.0; 8]));
+            }
+            let z = &mut out.last_mut().expect("pushed above").1;
+            let r = ball.radii.component_mul(&ball.scale);
+            let grad = ball.rotation * (-4.0 * t.value * t.q.component_div(&r));
+            let dq = -t.y.component_div(
+                &ball
+                    .radii
+                    .component_mul(&ball.scale.component_mul(&ball.scale)),
+            );
+            let dd = 2.0 * t.q.component_mul(&dq);
+            z[3] += grad.x;
+            z[4] += grad.y;
+            z[5] += grad.z;
+            z[6] += -2.0 * t.value * dd.z;
+            z[7] += -2.0 * t.value * (dd.x + dd.y);
+        };
+        match subset {
+            None => self.balls.iter().for_each(&mut visit),
+            Some(subset) => subset
+                .iter()
+                .for_each(|&i| visit(&self.balls[i as usize])),
+        }
+        let arm = x - reference;
+        for (_, z) in out.iter_mut() {
+            let moment = arm.cross(&Vector3::new(z[3], z[4], z[5]));
+            z[0] = moment.x;
+            z[1] = moment.y;
+            z[2] = moment.z;
+        }
+        f
+    }
+
     /// Adds `-∇F_b · v_k(x)` for every motion parameter k and offset coefficient j that
     /// moves part b.
     fn spread(&self, b: usize, grad: &Vector3<f64>, x: &Vector3<f64>, row: &mut [f64]) {
