@@ -70,6 +70,8 @@ pub struct BodyProblem<'a> {
     ray_inlier: Vec<bool>,
     point_balls: Vec<Vec<u16>>,
     ray_balls: Vec<Vec<u16>>,
+    /// See [`super::normal::HESSIAN_SHARE`].
+    hessian_share: f64,
     /// `s*` of each ray at the last linearisation (f64 bits; NaN: search from scratch).
     ray_start: Vec<AtomicU64>,
 }
@@ -81,6 +83,14 @@ pub struct BodyProblem<'a> {
 pub const BALL_MARGIN: f64 = 0.5;
 
 impl<'a> BodyProblem<'a> {
+    /// Leaves parts below `share` of an observation's largest derivative out of `J^T J`
+    /// (0: the exact Gauss-Newton matrix; see [`super::normal::HESSIAN_SHARE`]).
+    #[must_use]
+    pub fn with_hessian_share(mut self, share: f64) -> Self {
+        self.hessian_share = share;
+        self
+    }
+
     fn m(&self) -> usize {
         self.skeleton.n_motion
     }
@@ -166,7 +176,7 @@ impl ArrowProblem for BodyProblem<'_> {
                 .with_min_len(1024)
                 .filter(|r| self.kept(r))
                 .fold(
-                    || Blocks::new(m, s, width, parts),
+                    || Blocks::new(m, s, width, parts, self.hessian_share),
                     |mut acc, residual| {
                         let mut terms = std::mem::take(&mut acc.terms);
                         let compact = residual.evaluate_parts(
@@ -196,7 +206,7 @@ impl ArrowProblem for BodyProblem<'_> {
                         acc
                     },
                 )
-                .reduce(|| Blocks::new(m, s, 0, parts), Blocks::add);
+                .reduce(|| Blocks::new(m, s, 0, parts, 0.0), Blocks::add);
             let mut blocks = blocks;
             blocks.finish(&map, m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
@@ -372,6 +382,7 @@ pub fn problem<'a>(
         ray_inlier: vec![true; obs.origins.len()],
         point_balls: Vec::new(),
         ray_balls: Vec::new(),
+        hessian_share: super::normal::HESSIAN_SHARE,
         ray_start: (0..obs.origins.len())
             .map(|_| AtomicU64::new(f64::NAN.to_bits()))
             .collect(),

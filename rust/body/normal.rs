@@ -14,6 +14,13 @@ use nalgebra::Vector3;
 use super::field::Field;
 use super::skeleton::Twist;
 
+/// Parts whose compact derivative is smaller than this share of the largest one at the
+/// same observation enter the gradient but not `J^T J`. The gradient, hence the fixed point
+/// of the iteration, is unchanged; the Gauss-Newton matrix is off by about this share,
+/// which only changes the steps slightly. A point typically has 4-6 parts within the
+/// Jacobian cut, of which 1-2 carry nearly all of it (see `benches/README.md`).
+pub const HESSIAN_SHARE: f64 = 1e-3;
+
 /// Compact per-part derivatives of one observation: `(part, z_b)`, parts ascending.
 pub type PartTerms = Vec<(usize, [f64; 8])>;
 
@@ -93,8 +100,10 @@ pub struct Blocks {
     pub row: Vec<f64>,
     /// Scratch per-part derivatives for the compact path.
     pub terms: PartTerms,
+    strong: PartTerms,
     nz: Vec<usize>,
     parts: usize,
+    share: f64,
     /// `Σ z_b z_c^T` for parts `b <= c`, 8 x 8 row-major at `(b P + c) 64`.
     pair: Vec<f64>,
     /// Whether a pair block has been touched.
@@ -104,9 +113,10 @@ pub struct Blocks {
 }
 
 impl Blocks {
-    /// Zero blocks for `m` motion and `s` shape columns, dense rows of `width` entries and
-    /// `parts` parts.
-    pub fn new(m: usize, s: usize, width: usize, parts: usize) -> Self {
+    /// Zero blocks for `m` motion and `s` shape columns, dense rows of `width` entries,
+    /// `parts` parts, and parts below `share` of the largest left out of `J^T J`
+    /// ([`HESSIAN_SHARE`]; 0 keeps them all).
+    pub fn new(m: usize, s: usize, width: usize, parts: usize, share: f64) -> Self {
         Self {
             a: vec![0.0; m * m],
             b: vec![0.0; m * s],
@@ -115,8 +125,10 @@ impl Blocks {
             cost: 0.0,
             row: vec![0.0; width],
             terms: Vec::with_capacity(8),
+            strong: Vec::with_capacity(8),
             nz: Vec::with_capacity(width),
             parts,
+            share,
             pair: vec![0.0; 64 * parts * parts],
             pair_used: vec![false; parts * parts],
             part_g: vec![0.0; 8 * parts],
@@ -144,14 +156,23 @@ impl Blocks {
     }
 
     /// Adds the residual `r` whose weighted row is `Σ_b E_b^T z_b` over `self.terms`
-    /// (parts ascending).
+    /// (parts ascending): `g` exactly (every part), `J^T J` from the parts whose `|z_b|` is
+    /// at least the accumulator's share (usually [`HESSIAN_SHARE`]) of the largest.
     pub fn accumulate_parts(&mut self, r: f64) {
         self.cost += 0.5 * r * r;
         let p = self.parts;
-        for (i, (b, z)) in self.terms.iter().enumerate() {
+        let mut largest = 0.0f64;
+        for (b, z) in &self.terms {
             let g = &mut self.part_g[8 * b..8 * b + 8];
             g.iter_mut().zip(z).for_each(|(u, v)| *u += v * r);
-            for (c, y) in &self.terms[i..] {
+            largest = largest.max(dot8(z, z));
+        }
+        let floor = self.share * self.share * largest;
+        self.strong.clear();
+        self.strong
+            .extend(self.terms.iter().filter(|(_, z)| dot8(z, z) >= floor));
+        for (i, (b, z)) in self.strong.iter().enumerate() {
+            for (c, y) in &self.strong[i..] {
                 self.pair_used[b * p + c] = true;
                 let block = &mut self.pair[64 * (b * p + c)..64 * (b * p + c + 1)];
                 for (out, zi) in block.chunks_exact_mut(8).zip(z) {

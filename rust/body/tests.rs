@@ -174,7 +174,9 @@ fn normal_blocks_match_dense_rows() {
             fit_shape,
             outlier_distance: None,
         };
-        let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options).unwrap();
+        let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options)
+            .unwrap()
+            .with_hessian_share(0.0);
         let (frames, m, s) = body.dims();
         let mut x: Vec<f64> = motions.concat();
         if fit_shape {
@@ -228,6 +230,13 @@ fn normal_blocks_match_dense_rows() {
                     close(normal.b[f * m * s + i * s + j], want, "B");
                 }
             }
+        }
+        // The default leaves weak parts out of J^T J only: the gradient is the same.
+        let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options).unwrap();
+        let mut pruned = ArrowNormal::new(frames, m, s);
+        close(body.linearize(&x, &mut pruned).unwrap(), expected_cost, "cost");
+        for (got, want) in pruned.g.iter().zip(&jtr) {
+            close(*got, *want, "g with the default share");
         }
         for i in 0..s {
             close(normal.g[frames * m + i], jtr[frames * m + i], "g shape");
