@@ -15,7 +15,7 @@ const INV_LN2_64: f64 = 92.33248261689366;
 const ROUND: f64 = 6_755_399_441_055_744.0;
 
 /// `2^(j / 64)`, `j = 0..64` (each correctly rounded).
-#[allow(clippy::excessive_precision)]
+#[allow(clippy::excessive_precision, clippy::approx_constant)]
 const TABLE: [f64; 64] = [
     1.0,
     1.0108892860517005,
@@ -49,7 +49,7 @@ const TABLE: [f64; 64] = [
     1.3690024229745905,
     1.383909881963832,
     1.3989796725383112,
-    1.4142135623730951,
+    std::f64::consts::SQRT_2,
     1.42961333839197,
     1.4451808069770467,
     1.460917794180647,
@@ -95,8 +95,7 @@ pub fn exp_neg(x: f64) -> f64 {
     // NaN propagates through r; the integer of a NaN kf is 0, harmlessly.
     let k = kf as i64;
     let scale = f64::from_bits((((k >> 6) + 1023).clamp(0, 2046) as u64) << 52);
-    let p = 1.0
-        + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0)))));
+    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0)))));
     TABLE[(k & 63) as usize] * scale * p
 }
 

@@ -284,9 +284,7 @@ impl<'a> Field<'a> {
         };
         match subset {
             None => self.balls.iter().for_each(&mut visit),
-            Some(subset) => subset
-                .iter()
-                .for_each(|&i| visit(&self.balls[i as usize])),
+            Some(subset) => subset.iter().for_each(|&i| visit(&self.balls[i as usize])),
         }
         let arm = x - reference;
         for (_, z) in out.iter_mut() {

@@ -192,13 +192,8 @@ impl ArrowProblem for BodyProblem<'_> {
                             Some(r) => acc.accumulate_parts(r),
                             None => {
                                 let mut row = std::mem::take(&mut acc.row);
-                                let r = residual.evaluate(
-                                    self.obs,
-                                    &field,
-                                    None,
-                                    None,
-                                    Some(&mut row),
-                                );
+                                let r =
+                                    residual.evaluate(self.obs, &field, None, None, Some(&mut row));
                                 acc.row = row;
                                 acc.accumulate(r, m, s);
                             }
@@ -206,7 +201,7 @@ impl ArrowProblem for BodyProblem<'_> {
                         acc
                     },
                 )
-                .reduce(|| Blocks::new(m, s, 0, parts, 0.0), Blocks::add);
+                .reduce(|| Blocks::new(m, s, 0, parts, 0.0), Blocks::merge);
             let mut blocks = blocks;
             blocks.finish(&map, m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);

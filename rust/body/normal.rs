@@ -136,7 +136,7 @@ impl Blocks {
     }
 
     /// The sum of two accumulators.
-    pub fn add(mut self, other: Self) -> Self {
+    pub fn merge(mut self, other: Self) -> Self {
         for (x, y) in [
             (&mut self.a, &other.a),
             (&mut self.b, &other.b),

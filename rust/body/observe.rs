@@ -219,8 +219,7 @@ impl Residual {
         let (w, f) = match *self {
             Residual::Point(i) => {
                 let x = Vector3::from(obs.points[i]);
-                let f =
-                    field.part_derivatives_over(&x, subset, Cutoff::Bounded, reference, terms);
+                let f = field.part_derivatives_over(&x, subset, Cutoff::Bounded, reference, terms);
                 (1.0 / obs.sigma[0], f)
             }
             Residual::Ray(i) => {

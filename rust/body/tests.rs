@@ -234,7 +234,11 @@ fn normal_blocks_match_dense_rows() {
         // The default leaves weak parts out of J^T J only: the gradient is the same.
         let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options).unwrap();
         let mut pruned = ArrowNormal::new(frames, m, s);
-        close(body.linearize(&x, &mut pruned).unwrap(), expected_cost, "cost");
+        close(
+            body.linearize(&x, &mut pruned).unwrap(),
+            expected_cost,
+            "cost",
+        );
         for (got, want) in pruned.g.iter().zip(&jtr) {
             close(*got, *want, "g with the default share");
         }
