@@ -134,10 +134,8 @@ class BodyFigure:
         near_arm = _nearest_distance(vertices, origins[parts] + 0.1 * _limb_direction(self.model, state, parts))
         near_other = _nearest_distance(vertices, origins[others])
         colours = np.where((near_arm < near_other)[:, None], _SKIN, colours)
-        world = trimesh.Trimesh(vertices @ Z_UP_TO_WORLD.T, np.asarray(mesh.faces), process=False)
-        world.visual.vertex_colors = np.concatenate(
-            [colours.round().astype(np.uint8), np.full((len(colours), 1), 255, np.uint8)], axis=1
-        )
+        rgba = np.concatenate([colours.round().astype(np.uint8), np.full((len(colours), 1), 255, np.uint8)], axis=1)
+        world = trimesh.Trimesh(vertices @ Z_UP_TO_WORLD.T, np.asarray(mesh.faces), vertex_colors=rgba, process=False)
         return world
 
 
