@@ -9,8 +9,10 @@
 //!   angles of each part's axes in part order (radians).
 //! - Jacobians put a frame's motion columns first and the shape columns after them.
 
+pub mod fastexp;
 pub mod field;
 pub mod fit;
+pub mod normal;
 pub mod observe;
 pub mod ray;
 pub mod skeleton;

@@ -28,6 +28,11 @@ def test_demo_writes_metrics_that_agree_with_the_references(tmp_path: Path) -> N
     assert polar["max_orthonormality_error"] < 1e-12
     assert polar["min_det"] > 1 - 1e-12
     assert polar["max_difference_to_svd_rotation"] < 1e-6
+    # The body fit on its own small capture: legs found, skin pictured in the report.
+    body = metrics["body"]
+    assert body["leg_joint_angle_rms_deg"] < 6.0
+    assert (tmp_path / body["picture"]).stat().st_size > 10_000
+    assert body["picture"] in (tmp_path / "report.html").read_text()
     assert not list(tmp_path.rglob("*.tmp")), "an atomic write left a temporary file"
 
 

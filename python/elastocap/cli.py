@@ -29,7 +29,8 @@ def _synth(args: argparse.Namespace) -> int:
     from elastocap.synth import write_synthetic_capture
 
     out = write_synthetic_capture(
-        Path(args.out), frames=args.frames, cameras=args.cameras, seed=args.seed, progress=not args.quiet
+        Path(args.out), frames=args.frames, cameras=args.cameras, seed=args.seed, progress=not args.quiet,
+        figure=args.figure,
     )
     print(f"wrote {out} ({args.frames} frames, {args.cameras} cameras)")
     return 0
@@ -114,6 +115,11 @@ def _parser() -> argparse.ArgumentParser:
     synth.add_argument("--cameras", type=int, default=8, help="number of cameras, at least 2 (default: 8)")
     synth.add_argument("--seed", type=int, default=0, help="figure and rig variation (default: 0)")
     synth.add_argument("--quiet", action="store_true", help="no progress bar")
+    synth.add_argument(
+        "--figure", choices=("capsules", "body"), default="capsules",
+        help="capsules: the capsule figure (default); body: the body model itself, with its "
+        "shape and states in ground_truth/body.json",
+    )
     synth.set_defaults(run=_synth)
     hull = commands.add_parser(
         "hull",

@@ -122,3 +122,31 @@ td{{padding:2px 12px}}</style></head><body>
     path = out / "report.html"
     save_bytes(path, page.encode())
     return path
+
+
+_BODY_START, _BODY_END = "<!-- body -->", "<!-- /body -->"
+
+
+def add_body_section(page: Path, metrics: dict[str, Any]) -> Path:
+    """Add (or replace) the body fit's section of ``page``: the fitted skin over the camera
+    views (``metrics["picture"]``, relative to the page) and its joint-angle errors
+    against the capture's body truth."""
+    text = page.read_text()
+    if _BODY_START in text:
+        text = text[: text.index(_BODY_START)] + text[text.index(_BODY_END) + len(_BODY_END) :]
+    rows = "".join(
+        f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(metrics[k]))}</td></tr>"
+        for k in ("joint_angle_rms_deg", "leg_joint_angle_rms_deg", "status", "seconds_this_run")
+        if k in metrics
+    )
+    section = (
+        f"{_BODY_START}\n<h2>Body model fitted to a body-model capture (silhouettes only)</h2>"
+        f"<table>{rows}</table><img src=\"{html.escape(metrics['picture'])}\">\n"
+        "<p>Joint angles against ground_truth/body.json. The legs are found to a few "
+        "degrees; the arms (shoulder twist, arms against the torso) are not determined by "
+        "six silhouettes of 320x240 pixels.</p>\n"
+        f"{_BODY_END}\n"
+    )
+    text = text.replace("</body></html>", section + "</body></html>")
+    save_bytes(page, text.encode())
+    return page

@@ -15,6 +15,7 @@ capture folder of DESIGN.md with the ground truth beside it::
       background/<camera>.png                the empty scene
       ground_truth/<frame:06d>.ply           the surface (world units, vertex colours)
       ground_truth/figure.json               skeleton, motion parameters, seed, frames
+      ground_truth/body.json                 (figure="body") body model, shape, states
 
 This is the demo's input and the tests' ground truth.
 """
@@ -424,6 +425,7 @@ def write_synthetic_capture(
     image_size: tuple[int, int] = (1024, 768),
     workers: int | None = None,
     progress: bool = True,
+    figure: str = "capsules",
 ) -> Path:
     """Write a synthetic capture folder with its ground truth.
 
@@ -447,6 +449,13 @@ def write_synthetic_capture(
         the work); default: the number of CPUs, at most 4.
     progress : bool, default True, keyword-only
         Show a progress bar.
+    figure : {"capsules", "body"}, default "capsules", keyword-only
+        What walks in the scene: the capsule figure (:class:`Figure`, ground truth in
+        ``ground_truth/figure.json``), or the body model itself
+        (:class:`elastocap.body.synth.BodyFigure`: the default human with a shape within
+        4% of unit and a smooth motion drawn from ``seed``), ground truth in
+        ``ground_truth/body.json`` (model description, shape, per-frame states in the
+        body stage's z-up frame), so that ``elastocap body`` can be scored.
 
     Returns
     -------
@@ -480,16 +489,24 @@ def write_synthetic_capture(
     if root.exists() and not root.is_dir():
         raise InvalidInputError(f"out must be a folder, got the existing file {root}")
 
-    figure = Figure(seed)
+    walker: Any
+    if figure == "capsules":
+        walker, kind, description = Figure(seed), Figure, root / "ground_truth" / "figure.json"
+    elif figure == "body":
+        from elastocap.body.synth import BodyFigure
+
+        walker, kind, description = BodyFigure(seed), BodyFigure, root / "ground_truth" / "body.json"
+    else:
+        raise InvalidInputError(f"figure must be 'capsules' or 'body', got {figure!r}")
     rig = ring_rig(n_cameras, width=width, height=height, seed=seed)
     settings = {"spacing": spacing, "image_size": [width, height], "cameras": n_cameras}
-    description = root / "ground_truth" / "figure.json"
-    written_frames = _check_resumable(root, description, figure, rig, settings)
+    written_frames = _check_resumable(root, description, walker, rig, settings, kind)
 
     # The description first: a folder holding it is recognised as ours when resuming.
     description.parent.mkdir(parents=True, exist_ok=True)
-    record = figure.to_dict()
-    record.update(frames=max(frames, written_frames), settings=settings)
+    total = max(frames, written_frames)
+    record = walker.to_dict(total) if figure == "body" else walker.to_dict()
+    record.update(frames=total, settings=settings)
     text = (json.dumps(record, indent=2) + "\n").encode()
     if not description.exists() or description.read_bytes() != text:
         save_bytes(description, text)
@@ -509,7 +526,7 @@ def write_synthetic_capture(
     try:
         with tqdm(total=frames, initial=frames - len(todo), desc="elastocap synth", unit="frame",
                   disable=not progress) as bar:
-            pending = [executor.submit(_write_frame, root, figure, rig, n, spacing) for n in todo]
+            pending = [executor.submit(_write_frame, root, walker, rig, n, spacing) for n in todo]
             for done in as_completed(pending):
                 done.result()
                 bar.update(1)
@@ -520,7 +537,7 @@ def write_synthetic_capture(
 
 
 def _check_resumable(
-    root: Path, description: Path, figure: Figure, rig: Rig, settings: dict[str, Any]
+    root: Path, description: Path, figure: Any, rig: Rig, settings: dict[str, Any], kind: Any = Figure
 ) -> int:
     """The frame count an earlier run recorded (0 for a new folder); an error when the
     folder holds another synthetic capture."""
@@ -533,7 +550,7 @@ def _check_resumable(
     try:
         previous = json.loads(description.read_text())
         same = (
-            Figure.from_dict(previous) == figure
+            kind.from_dict(previous) == figure
             and previous.get("settings") == settings
             and (not (root / "intri.yml").exists() or Rig.load(root) == rig)
         )
@@ -559,7 +576,7 @@ def _frame_complete(root: Path, rig: Rig, frame: int) -> bool:
     return all(path.exists() for path in _frame_files(root, rig, frame))
 
 
-def _write_frame(root: Path, figure: Figure, rig: Rig, frame: int, spacing: float) -> None:
+def _write_frame(root: Path, figure: Any, rig: Rig, frame: int, spacing: float) -> None:
     mesh = figure.mesh(frame, spacing)
     stem = f"{frame:06d}"
     for camera in rig.cameras:

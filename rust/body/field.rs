@@ -6,6 +6,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::fastexp::exp_neg;
 use super::skeleton::{Pose, Skeleton};
 
 /// Beyond `|q| = BOUND` a ball contributes less than `exp(-2 BOUND^2)` (1.4e-10 at 3.4):
@@ -48,6 +49,11 @@ pub struct PlacedBall {
     pub world_centre: Vector3<f64>,
     /// Radius of the sphere outside which `|q| > BOUND`.
     pub bound_radius: f64,
+    /// Reciprocal scaled radii `1 / (r ∘ s)`.
+    pub inv_radii: Vector3<f64>,
+    /// World to `q`: `diag(1 / (r ∘ s)) R^T`, so `q = to_q (x - world_centre)` (no
+    /// division nor transpose in the inner loops).
+    pub to_q: Matrix3<f64>,
 }
 
 /// Per-ball quantities at a point.
@@ -59,8 +65,14 @@ pub struct BallTerm {
     pub d: f64,
     /// `q` (part frame).
     pub q: Vector3<f64>,
-    /// `y` (part frame).
-    pub y: Vector3<f64>,
+}
+
+/// `-∂q_a/∂s_a` at `q`: with `y_a = (c_a + q_a r_a) s_a` (unscaled centre and radii),
+/// `q_a = (y_a - c_a s_a) / (r_a s_a)` gives `∂q_a/∂s_a = -y_a / (r_a s_a²)
+/// = -(c_a + q_a r_a) / (r_a s_a)`.
+#[inline]
+fn shape_slope(ball: &PlacedBall, q: &Vector3<f64>) -> Vector3<f64> {
+    (ball.centre + q.component_mul(&ball.radii)).component_mul(&ball.inv_radii)
 }
 
 /// The field of one model at one state.
@@ -87,6 +99,7 @@ impl<'a> Field<'a> {
                 let radii = Vector3::from(ball.radii);
                 let rotation = pose.rotation[ball.part];
                 let origin = pose.origin[ball.part];
+                let inv_radii = radii.component_mul(&scale).map(|v| 1.0 / v);
                 PlacedBall {
                     part: ball.part,
                     rotation,
@@ -96,6 +109,8 @@ impl<'a> Field<'a> {
                     scale,
                     world_centre: origin + rotation * centre.component_mul(&scale),
                     bound_radius: BOUND * radii.component_mul(&scale).max(),
+                    inv_radii,
+                    to_q: Matrix3::from_diagonal(&inv_radii) * rotation.transpose(),
                 }
             })
             .collect();
@@ -109,15 +124,12 @@ impl<'a> Field<'a> {
     /// The term of ball `ball` at `x`.
     #[inline]
     pub fn term(ball: &PlacedBall, x: &Vector3<f64>) -> BallTerm {
-        let y = ball.rotation.transpose() * (x - ball.origin);
-        let q = (y - ball.centre.component_mul(&ball.scale))
-            .component_div(&ball.radii.component_mul(&ball.scale));
+        let q = ball.to_q * (x - ball.world_centre);
         let d = q.norm_squared();
         BallTerm {
-            value: (-2.0 * d).exp(),
+            value: exp_neg(-2.0 * d),
             d,
             q,
-            y,
         }
     }
 
@@ -210,14 +222,9 @@ impl<'a> Field<'a> {
                 *current = Some(b);
                 *grad = Vector3::zeros();
             }
-            let r = ball.radii.component_mul(&ball.scale);
-            *grad -= ball.rotation * (4.0 * t.value * t.q.component_div(&r));
+            *grad -= ball.rotation * (4.0 * t.value * t.q.component_mul(&ball.inv_radii));
             // ∂q_a/∂s_a = -y_a / (r_a s_a²) with r_a unscaled; ∂f/∂s = -2 f Σ 2 q_a ∂q_a/∂s.
-            let dq = -t.y.component_div(
-                &ball
-                    .radii
-                    .component_mul(&ball.scale.component_mul(&ball.scale)),
-            );
+            let dq = -shape_slope(ball, &t.q);
             let dd = 2.0 * t.q.component_mul(&dq);
             row[n_motion + 2 * b] += -2.0 * t.value * dd.z;
             row[n_motion + 2 * b + 1] += -2.0 * t.value * (dd.x + dd.y);
@@ -236,6 +243,55 @@ impl<'a> Field<'a> {
         }
         if let Some(previous) = current {
             self.spread(previous, &grad, x, row);
+        }
+        f
+    }
+
+    /// `F(x)` and, for each part with a ball in the sum (ascending parts), its compact
+    /// derivative `z_b = ((x - reference) × ∇F_b, ∇F_b, ∂F/∂l_b, ∂F/∂w_b)` (balls cut
+    /// as in [`Field::state_derivative_over`]). The Jacobian row is `Σ_b E_b^T z_b` with
+    /// [`super::normal::PartMap`]'s `E_b`, which depends on the pose only: the normal
+    /// matrix can then be accumulated from 8-vectors per part instead of full rows.
+    pub fn part_derivatives_over(
+        &self,
+        x: &Vector3<f64>,
+        subset: Option<&[u16]>,
+        cutoff: Cutoff,
+        reference: &Vector3<f64>,
+        out: &mut Vec<(usize, [f64; 8])>,
+    ) -> f64 {
+        out.clear();
+        let mut f = 0.0;
+        let mut visit = |ball: &PlacedBall| {
+            let t = Self::term(ball, x);
+            f += t.value;
+            if cutoff == Cutoff::Bounded && t.d > JACOBIAN_BOUND * JACOBIAN_BOUND {
+                return;
+            }
+            // Balls are sorted by part, so one part's balls form one run.
+            if out.last().map(|e| e.0) != Some(ball.part) {
+                out.push((ball.part, [0.0; 8]));
+            }
+            let z = &mut out.last_mut().expect("pushed above").1;
+            let grad = ball.rotation * (-4.0 * t.value * t.q.component_mul(&ball.inv_radii));
+            let dq = -shape_slope(ball, &t.q);
+            let dd = 2.0 * t.q.component_mul(&dq);
+            z[3] += grad.x;
+            z[4] += grad.y;
+            z[5] += grad.z;
+            z[6] += -2.0 * t.value * dd.z;
+            z[7] += -2.0 * t.value * (dd.x + dd.y);
+        };
+        match subset {
+            None => self.balls.iter().for_each(&mut visit),
+            Some(subset) => subset.iter().for_each(|&i| visit(&self.balls[i as usize])),
+        }
+        let arm = x - reference;
+        for (_, z) in out.iter_mut() {
+            let moment = arm.cross(&Vector3::new(z[3], z[4], z[5]));
+            z[0] = moment.x;
+            z[1] = moment.y;
+            z[2] = moment.z;
         }
         f
     }

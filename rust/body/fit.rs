@@ -7,6 +7,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::field::Field;
+use super::normal::{Blocks, PartMap};
 use super::observe::{Observations, Residual, SKIN_LEVEL};
 use super::skeleton::{check_vector, Skeleton};
 use crate::lm::{levenberg_marquardt, ArrowNormal, ArrowProblem, LmOptions, LmReport};
@@ -69,6 +70,8 @@ pub struct BodyProblem<'a> {
     ray_inlier: Vec<bool>,
     point_balls: Vec<Vec<u16>>,
     ray_balls: Vec<Vec<u16>>,
+    /// See [`super::normal::HESSIAN_SHARE`].
+    hessian_share: f64,
     /// `s*` of each ray at the last linearisation (f64 bits; NaN: search from scratch).
     ray_start: Vec<AtomicU64>,
 }
@@ -80,6 +83,14 @@ pub struct BodyProblem<'a> {
 pub const BALL_MARGIN: f64 = 0.5;
 
 impl<'a> BodyProblem<'a> {
+    /// Leaves parts below `share` of an observation's largest derivative out of `J^T J`
+    /// (0: the exact Gauss-Newton matrix; see [`super::normal::HESSIAN_SHARE`]).
+    #[must_use]
+    pub fn with_hessian_share(mut self, share: f64) -> Self {
+        self.hessian_share = share;
+        self
+    }
+
     fn m(&self) -> usize {
         self.skeleton.n_motion
     }
@@ -129,89 +140,6 @@ impl<'a> BodyProblem<'a> {
     }
 }
 
-/// Per-frame accumulator of the normal blocks.
-struct Blocks {
-    a: Vec<f64>,
-    b: Vec<f64>,
-    c: Vec<f64>,
-    g: Vec<f64>,
-    cost: f64,
-    row: Vec<f64>,
-    nz: Vec<usize>,
-}
-
-impl Blocks {
-    fn new(m: usize, s: usize, width: usize) -> Self {
-        Self {
-            a: vec![0.0; m * m],
-            b: vec![0.0; m * s],
-            c: vec![0.0; s * s],
-            g: vec![0.0; m + s],
-            cost: 0.0,
-            row: vec![0.0; width],
-            nz: Vec::with_capacity(width),
-        }
-    }
-
-    fn add(mut self, other: Self) -> Self {
-        for (x, y) in [
-            (&mut self.a, &other.a),
-            (&mut self.b, &other.b),
-            (&mut self.c, &other.c),
-            (&mut self.g, &other.g),
-        ] {
-            x.iter_mut().zip(y).for_each(|(u, v)| *u += v);
-        }
-        self.cost += other.cost;
-        self
-    }
-
-    /// Adds one weighted row `j` and residual `r`: `A += j j^T` (upper triangles of the
-    /// frame and shape blocks only; [`Blocks::mirror`] fills the rest), `g += j r`.
-    fn accumulate(&mut self, r: f64, m: usize, s: usize) {
-        self.cost += 0.5 * r * r;
-        self.nz.clear();
-        // Shape columns sit after the motion columns of the row; with the shape fixed they
-        // are dropped (s = 0).
-        self.nz.extend((0..m + s).filter(|&k| self.row[k] != 0.0));
-        let split = self.nz.partition_point(|&k| k < m);
-        let (motion, shape) = self.nz.split_at(split);
-        let row = &self.row;
-        for &k in self.nz.iter() {
-            self.g[k] += row[k] * r;
-        }
-        for (ia, &ka) in motion.iter().enumerate() {
-            let va = row[ka];
-            let a = &mut self.a[ka * m..(ka + 1) * m];
-            for &kb in &motion[ia..] {
-                a[kb] += va * row[kb];
-            }
-            let b = &mut self.b[ka * s..(ka + 1) * s];
-            for &kb in shape {
-                b[kb - m] += va * row[kb];
-            }
-        }
-        for (ia, &ka) in shape.iter().enumerate() {
-            let va = row[ka];
-            let c = &mut self.c[(ka - m) * s..(ka - m + 1) * s];
-            for &kb in &shape[ia..] {
-                c[kb - m] += va * row[kb];
-            }
-        }
-    }
-
-    /// Copies the upper triangles of the frame and shape blocks onto the lower ones.
-    fn mirror(&mut self, m: usize, s: usize) {
-        for (block, n) in [(&mut self.a, m), (&mut self.c, s)] {
-            for i in 0..n {
-                for j in 0..i {
-                    block[i * n + j] = block[j * n + i];
-                }
-            }
-        }
-    }
-}
-
 impl ArrowProblem for BodyProblem<'_> {
     fn dims(&self) -> (usize, usize, usize) {
         (self.obs.frames, self.m(), self.s())
@@ -241,29 +169,41 @@ impl ArrowProblem for BodyProblem<'_> {
         let mut cost = 0.0;
         for f in 0..self.obs.frames {
             let field = self.field(x, f)?;
+            let map = PartMap::new(&field, m + s);
+            let parts = self.skeleton.n_parts();
             let blocks = self.by_frame[f]
                 .par_iter()
                 .with_min_len(1024)
                 .filter(|r| self.kept(r))
                 .fold(
-                    || Blocks::new(m, s, width),
+                    || Blocks::new(m, s, width, parts, self.hessian_share),
                     |mut acc, residual| {
-                        let mut row = std::mem::take(&mut acc.row);
-                        let r = residual.evaluate(
+                        let mut terms = std::mem::take(&mut acc.terms);
+                        let compact = residual.evaluate_parts(
                             self.obs,
                             &field,
                             self.subset(residual),
                             self.start(residual),
-                            Some(&mut row),
+                            &map.reference,
+                            &mut terms,
                         );
-                        acc.row = row;
-                        acc.accumulate(r, m, s);
+                        acc.terms = terms;
+                        match compact {
+                            Some(r) => acc.accumulate_parts(r),
+                            None => {
+                                let mut row = std::mem::take(&mut acc.row);
+                                let r =
+                                    residual.evaluate(self.obs, &field, None, None, Some(&mut row));
+                                acc.row = row;
+                                acc.accumulate(r, m, s);
+                            }
+                        }
                         acc
                     },
                 )
-                .reduce(|| Blocks::new(m, s, 0), Blocks::add);
+                .reduce(|| Blocks::new(m, s, 0, parts, 0.0), Blocks::merge);
             let mut blocks = blocks;
-            blocks.mirror(m, s);
+            blocks.finish(&map, m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
             normal.b[f * m * s..(f + 1) * m * s].copy_from_slice(&blocks.b);
             normal
@@ -437,6 +377,7 @@ pub fn problem<'a>(
         ray_inlier: vec![true; obs.origins.len()],
         point_balls: Vec::new(),
         ray_balls: Vec::new(),
+        hessian_share: super::normal::HESSIAN_SHARE,
         ray_start: (0..obs.origins.len())
             .map(|_| AtomicU64::new(f64::NAN.to_bits()))
             .collect(),

@@ -4,6 +4,7 @@
 use nalgebra::Vector3;
 
 use super::field::{Cutoff, Field};
+use super::normal::PartTerms;
 use super::ray::ray_maximum_over;
 use super::skeleton::Skeleton;
 use crate::error::check_finite;
@@ -201,5 +202,57 @@ impl Residual {
                 w * (origin[k] - obs.joints[i][k])
             }
         }
+    }
+
+    /// The weighted residual of a point or ray with its Jacobian row in compact per-part
+    /// form (see [`Field::part_derivatives_over`], moments about `reference`) written to
+    /// `terms`; `None` for a joint observation (use [`Residual::evaluate`]).
+    pub fn evaluate_parts(
+        &self,
+        obs: &Observations,
+        field: &Field<'_>,
+        subset: Option<&[u16]>,
+        start: Option<&std::sync::atomic::AtomicU64>,
+        reference: &Vector3<f64>,
+        terms: &mut PartTerms,
+    ) -> Option<f64> {
+        let (w, f) = match *self {
+            Residual::Point(i) => {
+                let x = Vector3::from(obs.points[i]);
+                let f = field.part_derivatives_over(&x, subset, Cutoff::Bounded, reference, terms);
+                (1.0 / obs.sigma[0], f)
+            }
+            Residual::Ray(i) => {
+                let o = Vector3::from(obs.origins[i]);
+                let r = Vector3::from(obs.directions[i]);
+                use std::sync::atomic::Ordering::Relaxed;
+                let previous = start
+                    .map(|s| f64::from_bits(s.load(Relaxed)))
+                    .filter(|s| s.is_finite());
+                let max = ray_maximum_over(field, subset, &o, &r, previous);
+                terms.clear();
+                if max.hit {
+                    if let Some(start) = start {
+                        start.store(max.s.to_bits(), Relaxed);
+                    }
+                    // Envelope theorem: the derivative at fixed x* (∇F · r = 0 there).
+                    field.part_derivatives_over(
+                        &max.point,
+                        subset,
+                        Cutoff::Bounded,
+                        reference,
+                        terms,
+                    );
+                }
+                (1.0 / obs.sigma[1], max.value)
+            }
+            Residual::Joint(..) => return None,
+        };
+        let (residual, slope) = field_residual(f, obs.log_epsilon);
+        let scale = w * slope;
+        for (_, z) in terms.iter_mut() {
+            z.iter_mut().for_each(|v| *v *= scale);
+        }
+        Some(w * residual)
     }
 }

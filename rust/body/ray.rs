@@ -8,6 +8,7 @@
 
 use nalgebra::Vector3;
 
+use super::fastexp::exp_neg;
 use super::field::{Field, BOUND};
 
 /// The maximum of the field along one ray.
@@ -37,7 +38,7 @@ fn along(balls: &[Quadratic], s: f64) -> (f64, f64, f64) {
     let (mut f, mut slope, mut curvature) = (0.0, 0.0, 0.0);
     for b in balls {
         let t = s - b.p;
-        let e = (-2.0 * (b.m + b.c * t * t)).exp();
+        let e = exp_neg(-2.0 * (b.m + b.c * t * t));
         let dd = 2.0 * b.c * t;
         f += e;
         slope -= 2.0 * e * dd;
@@ -68,9 +69,8 @@ fn quadratic(
     direction: &Vector3<f64>,
 ) -> (Quadratic, f64) {
     let ball = &field.balls[i];
-    let radii = ball.radii.component_mul(&ball.scale);
-    let q0 = (ball.rotation.transpose() * (origin - ball.world_centre)).component_div(&radii);
-    let q1 = (ball.rotation.transpose() * direction).component_div(&radii);
+    let q0 = ball.to_q * (origin - ball.world_centre);
+    let q1 = ball.to_q * direction;
     let c = q1.norm_squared();
     let p = -q0.dot(&q1) / c;
     let m = (q0 + p * q1).norm_squared();

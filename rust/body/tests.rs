@@ -127,3 +127,127 @@ fn bad_models_and_states_are_errors_not_panics() {
         Err(Error::BadModel { .. })
     ));
 }
+
+/// The normal blocks of the fit (accumulated per pair of parts through `E_b`) equal
+/// `J^T J` and `J^T r` of the dense Jacobian rows, with and without the shape, over two
+/// frames with points, rays and joints.
+#[test]
+fn normal_blocks_match_dense_rows() {
+    use crate::body::fit::{problem, FitOptions};
+    use crate::lm::{ArrowNormal, ArrowProblem, LmOptions};
+
+    let skeleton = arm();
+    let shape = [1.1, 0.9, 0.95, 1.05, 1.2, 0.8];
+    let motions = [
+        [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1],
+        [0.0, 0.1, 1.0, -0.2, 0.1, 0.2, -0.4, 0.6, 0.1, -0.5],
+    ];
+    let mut obs = Observations {
+        frames: 2,
+        sigma: [0.05, 0.07, 0.01],
+        log_epsilon: Some(0.01),
+        ..Default::default()
+    };
+    for (f, motion) in motions.iter().enumerate() {
+        let pose = skeleton.pose(&shape, motion).unwrap();
+        for i in 0..60 {
+            let b = i % 3;
+            let t = i as f64 * 0.37;
+            let local = Vector3::new(0.06 * t.cos(), 0.05 * t.sin(), 0.02 + 0.004 * i as f64);
+            obs.points
+                .push((pose.origin[b] + pose.rotation[b] * local).into());
+            obs.point_frame.push(f);
+            let target = pose.origin[b] + pose.rotation[b] * (0.9 * local);
+            let origin = Vector3::new(2.0, 0.3 * t.sin(), 1.0);
+            obs.origins.push(origin.into());
+            obs.directions.push((target - origin).into());
+            obs.ray_frame.push(f);
+        }
+        obs.joints.push([0.2, 0.1, 1.3]);
+        obs.joint_part.push(2);
+        obs.joint_frame.push(f);
+    }
+    let (lower, upper) = (vec![-10.0; 10], vec![10.0; 10]);
+    for fit_shape in [true, false] {
+        let options = FitOptions {
+            lm: LmOptions::default(),
+            fit_shape,
+            outlier_distance: None,
+        };
+        let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options)
+            .unwrap()
+            .with_hessian_share(0.0);
+        let (frames, m, s) = body.dims();
+        let mut x: Vec<f64> = motions.concat();
+        if fit_shape {
+            x.extend_from_slice(&shape);
+        }
+        let mut normal = ArrowNormal::new(frames, m, s);
+        let cost = body.linearize(&x, &mut normal).unwrap();
+
+        let n = frames * m + s;
+        let mut jtj = vec![0.0; n * n];
+        let mut jtr = vec![0.0; n];
+        let mut expected_cost = 0.0;
+        let width = skeleton.n_motion + skeleton.n_shape();
+        let mut residuals: Vec<(usize, Residual)> = Vec::new();
+        residuals.extend((0..obs.points.len()).map(|i| (obs.point_frame[i], Residual::Point(i))));
+        residuals.extend((0..obs.origins.len()).map(|i| (obs.ray_frame[i], Residual::Ray(i))));
+        for (i, &f) in obs.joint_frame.iter().enumerate() {
+            residuals.extend((0..3).map(|k| (f, Residual::Joint(i, k))));
+        }
+        for (f, residual) in &residuals {
+            let field = Field::new(&skeleton, skeleton.pose(&shape, &motions[*f]).unwrap());
+            let mut row = vec![0.0; width];
+            let r = residual.evaluate(&obs, &field, None, None, Some(&mut row));
+            expected_cost += 0.5 * r * r;
+            // Global columns: this frame's motion block, then the shape.
+            let global: Vec<(usize, f64)> = (0..m)
+                .map(|k| (f * m + k, row[k]))
+                .chain((0..s).map(|k| (frames * m + k, row[m + k])))
+                .collect();
+            for &(i, vi) in &global {
+                jtr[i] += vi * r;
+                for &(j, vj) in &global {
+                    jtj[i * n + j] += vi * vj;
+                }
+            }
+        }
+        let close = |got: f64, want: f64, what: &str| {
+            let scale = 1e-10 * (1.0 + want.abs());
+            assert!((got - want).abs() <= scale, "{what}: {got} vs {want}");
+        };
+        close(cost, expected_cost, "cost");
+        for f in 0..frames {
+            for i in 0..m {
+                close(normal.g[f * m + i], jtr[f * m + i], "g motion");
+                for j in 0..m {
+                    let want = jtj[(f * m + i) * n + f * m + j];
+                    close(normal.a[f * m * m + i * m + j], want, "A");
+                }
+                for j in 0..s {
+                    let want = jtj[(f * m + i) * n + frames * m + j];
+                    close(normal.b[f * m * s + i * s + j], want, "B");
+                }
+            }
+        }
+        // The default leaves weak parts out of J^T J only: the gradient is the same.
+        let body = problem(&skeleton, &obs, &shape, (&lower, &upper), &options).unwrap();
+        let mut pruned = ArrowNormal::new(frames, m, s);
+        close(
+            body.linearize(&x, &mut pruned).unwrap(),
+            expected_cost,
+            "cost",
+        );
+        for (got, want) in pruned.g.iter().zip(&jtr) {
+            close(*got, *want, "g with the default share");
+        }
+        for i in 0..s {
+            close(normal.g[frames * m + i], jtr[frames * m + i], "g shape");
+            for j in 0..s {
+                let want = jtj[(frames * m + i) * n + frames * m + j];
+                close(normal.c[i * s + j], want, "C");
+            }
+        }
+    }
+}

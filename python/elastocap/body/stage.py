@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_image, save_mesh
+from elastocap._io import save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations, fit_body
 from elastocap.body.model import BodyModel, BodyState
 from elastocap.camera import Camera, Rig
@@ -56,6 +56,10 @@ def run_body_stage(
     (skin meshes, world units) and ``out/body_views.png`` (the first frame's skin over the
     camera images or masks). A finished ``fit.json`` makes a rerun a no-op.
 
+    Each frame's own fit is saved as it finishes (``out/body/frames/<frame>.json``, written
+    atomically), so a run that was stopped resumes at the first frame without one; the
+    joint fit over all frames runs again from the saved states.
+
     The fit is local: the root starts at the point nearest to the rays through the mask
     centroids, upright, at the best of eight headings; each later frame starts from the one
     before; a last fit shares the shape over all frames.
@@ -75,10 +79,15 @@ def run_body_stage(
     frames_obs: list[BodyObservations] = []
     states: list[BodyState] = []
     options: dict[str, Any] = {"cameras": camera_list, "max_rays_per_mask": max_rays_per_mask, "sigma_ray": 0.1}
-    for i, frame in enumerate(tqdm(wanted, desc="body", unit="frame", disable=not progress)):
+    settings = {"max_rays_per_mask": max_rays_per_mask, "cameras": names, "model": model.to_dict()}
+    for i, frame in enumerate(tqdm(wanted, desc="body (per frame)", unit="frame", disable=not progress)):
         masks = cap.masks(frame)
         observed = BodyObservations(masks=[masks[n] for n in names])
         frames_obs.append(observed)
+        saved = _load_frame_state(out, frame, settings, model)
+        if saved is not None:
+            states.append(saved)
+            continue
         if i == 0:
             centre = _Z_UP_TO_WORLD.T @ _centre(masks, cap.rig)
             best = None
@@ -93,6 +102,9 @@ def run_body_stage(
         else:
             fit = fit_body(model, [observed], init=states[-1], shape=states[-1].shape, **options)
         states.append(fit.states[0])
+        _save_frame_state(out, frame, settings, fit.states[0])
+    if progress:
+        print(f"body: joint fit of {len(wanted)} frame(s) with one shape", flush=True)
     joint = fit_body(model, frames_obs, init=states, **options)
     (out / "body").mkdir(parents=True, exist_ok=True)
     for frame, state in zip(wanted, joint.states):
@@ -123,5 +135,32 @@ def run_body_stage(
         "iterations": joint.iterations,
         "final_cost": joint.final_cost,
     }
-    result_file.write_text(json.dumps(record, indent=1))
+    save_bytes(result_file, json.dumps(record, indent=1).encode())
     return result_file
+
+
+def _frame_state_path(out: Path, frame: int) -> Path:
+    return out / "body" / "frames" / f"{frame:06d}.json"
+
+
+def _save_frame_state(out: Path, frame: int, settings: dict[str, Any], state: BodyState) -> None:
+    record = {"frame": frame, "settings": settings, "shape": state.shape.tolist(), "motion": state.motion.tolist()}
+    path = _frame_state_path(out, frame)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_bytes(path, json.dumps(record).encode())
+
+
+def _load_frame_state(out: Path, frame: int, settings: dict[str, Any], model: BodyModel) -> BodyState | None:
+    """The state a previous run saved for ``frame`` with the same settings, else None."""
+    path = _frame_state_path(out, frame)
+    if not path.exists():
+        return None
+    try:
+        record = json.loads(path.read_text())
+        if record.get("settings") != json.loads(json.dumps(settings)):
+            return None
+        state = BodyState(np.array(record["shape"], dtype=float), np.array(record["motion"], dtype=float))
+        model.check_state(state)
+    except (ValueError, KeyError, TypeError, InvalidInputError):
+        return None
+    return state
