@@ -355,6 +355,8 @@ def _normalise(description: Any) -> dict[str, Any]:
             if not isinstance(joint, dict):
                 raise _bad(f"part {name!r}: joints[{k}] must be an object")
             axis = _vector(joint.get("axis"), f"part {name!r} joints[{k}].axis", 3)
+            if not np.linalg.norm(axis) > 0:
+                raise _bad(f"part {name!r} joints[{k}]: 'axis' must be a non-zero 3-vector")
             limits = _vector(joint.get("limits", [-180, 180]), f"part {name!r} joints[{k}].limits", 2)
             if not limits[0] <= limits[1]:
                 raise _bad(f"part {name!r} joints[{k}]: limits must be [lower, upper] with lower <= upper")
