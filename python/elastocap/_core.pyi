@@ -205,6 +205,7 @@ class FitCore:
         solver_max_iterations: int = 500,
         matrix_free: bool = False,
         coarse: bool = True,
+        hold_contacts: bool = False,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
 
 @final

@@ -24,6 +24,8 @@ const CANDIDATES: usize = 8;
 pub struct Contact<const D: usize> {
     /// Index of the node among the surface nodes.
     pub node: usize,
+    /// The surface node `q` whose tangent plane `node` is pushed to.
+    pub partner: usize,
     /// $x_{p'}$, held fixed during a solve.
     pub target: [f64; D],
     /// $M_I$.
@@ -65,22 +67,63 @@ pub fn find_contacts<const D: usize>(
                     (depth > 0.0 && dist(&x, &positions[q]) < support[q]).then_some((q, depth))
                 })
                 .max_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(q, depth)| {
-                    let target = std::array::from_fn(|a| x[a] + depth * normals[q][a]);
-                    let e = unit(&sub(&normals[p], &normals[q]));
-                    let s2 = CONTACT_ANISOTROPY * CONTACT_ANISOTROPY;
-                    let weight = std::array::from_fn(|r| {
-                        std::array::from_fn(|c| {
-                            (if r == c { s2 } else { 0.0 }) + (1.0 - s2) * e[r] * e[c]
-                        })
-                    });
-                    Contact {
-                        node: p,
-                        target,
-                        weight,
-                        depth,
-                    }
-                })
+                .map(|(q, depth)| contact(p, q, &x, depth, normals))
         })
         .collect()
+}
+
+/// Keeps the contacts of the previous iteration that [`find_contacts`] no longer reports
+/// (their node was pushed out) while the node is still within its partner's support: each
+/// is held where it is across its partner's tangent plane, or pushed back onto it. Without
+/// this the set of contacts alternates between iterations (nodes pushed out, released,
+/// pulled back in by the surface term: 37, 62, 34, 73, 28 penetrating nodes in successive
+/// iterations on two blocks squeezed together, whatever the contact weight), and a frame
+/// ends with whichever half it stopped on.
+pub fn hold_contacts<const D: usize>(
+    found: &mut Vec<Contact<D>>,
+    previous: &[Contact<D>],
+    positions: &[[f64; D]],
+    normals: &[[f64; D]],
+    support: &[f64],
+) {
+    let mut active = vec![false; positions.len()];
+    for c in found.iter() {
+        active[c.node] = true;
+    }
+    for old in previous {
+        let (p, q) = (old.node, old.partner);
+        if active[p] {
+            continue;
+        }
+        let x = positions[p];
+        if dist(&x, &positions[q]) < support[q] {
+            let depth = -dot(&sub(&x, &positions[q]), &normals[q]);
+            found.push(contact(p, q, &x, depth.max(0.0), normals));
+            active[p] = true;
+        }
+    }
+}
+
+/// Node `p` at `x`, `depth` behind the tangent plane of `q`: pushed onto that plane along
+/// $e$ with the metric $M_I$.
+fn contact<const D: usize>(
+    p: usize,
+    q: usize,
+    x: &[f64; D],
+    depth: f64,
+    normals: &[[f64; D]],
+) -> Contact<D> {
+    let target = std::array::from_fn(|a| x[a] + depth * normals[q][a]);
+    let e = unit(&sub(&normals[p], &normals[q]));
+    let s2 = CONTACT_ANISOTROPY * CONTACT_ANISOTROPY;
+    let weight = std::array::from_fn(|r| {
+        std::array::from_fn(|c| (if r == c { s2 } else { 0.0 }) + (1.0 - s2) * e[r] * e[c])
+    });
+    Contact {
+        node: p,
+        partner: q,
+        target,
+        weight,
+        depth,
+    }
 }

@@ -1,6 +1,6 @@
 //! Tests of the fitting terms on shapes with known answers.
 
-use super::contact::find_contacts;
+use super::contact::{find_contacts, hold_contacts};
 use super::surface::{associate, invalidate_collisions, vertex_normals, MIN_ANISOTROPY};
 use crate::grid_sample::GridField;
 
@@ -146,4 +146,39 @@ fn a_node_pushed_through_another_part_is_a_contact() {
         assert!((c.weight[0][0] - 0.01).abs() < 1e-12);
     }
     assert!(contacts.len() > 1 && contacts.len() <= 9);
+}
+
+#[test]
+fn a_contact_pushed_out_is_held_while_near_its_partner() {
+    // Two facing sheets as above; the lower centre node was a contact of the upper sheet's
+    // centre node and has been pushed out (0.02 below the upper sheet), so a fresh search
+    // no longer reports it; held, it is kept where it is (target = its position, depth 0).
+    let mut positions = Vec::new();
+    let mut normals = Vec::new();
+    let mut rest = Vec::new();
+    for (z, nz, rest_z) in [(0.0, 1.0, 0.0), (0.1, -1.0, 10.0)] {
+        for i in 0..5 {
+            for j in 0..5 {
+                positions.push([0.1 * i as f64, 0.1 * j as f64, z]);
+                normals.push([0.0, 0.0, nz]);
+                rest.push([0.1 * i as f64, 0.1 * j as f64, rest_z]);
+            }
+        }
+    }
+    let support = vec![0.25; positions.len()];
+    positions[12][2] = 0.15;
+    let before = find_contacts(&positions, &normals, &rest, &support);
+    positions[12][2] = 0.08;
+    let mut now = find_contacts(&positions, &normals, &rest, &support);
+    assert!(now.iter().all(|c| c.node != 12), "no longer penetrating");
+    hold_contacts(&mut now, &before, &positions, &normals, &support);
+    let held = now.iter().find(|c| c.node == 12).expect("held");
+    assert!(held.partner >= 25, "its partner is on the upper sheet");
+    assert_eq!(held.depth, 0.0);
+    assert_eq!(held.target, positions[12]);
+    // Out of its partner's support, it is released.
+    positions[12][2] = -0.5;
+    let mut far = find_contacts(&positions, &normals, &rest, &support);
+    hold_contacts(&mut far, &before, &positions, &normals, &support);
+    assert!(far.iter().all(|c| c.node != 12));
 }

@@ -100,7 +100,8 @@ impl FitCore {
     /// `(positions (N, D), metrics dict)`.
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
-        solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true))]
+        solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true,
+        hold_contacts = false))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -119,6 +120,7 @@ impl FitCore {
         solver_max_iterations: usize,
         matrix_free: bool,
         coarse: bool,
+        hold_contacts: bool,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let shape = values.shape();
         let field = GridField::new(
@@ -139,6 +141,7 @@ impl FitCore {
             solver_max_iterations,
             matrix_free,
             coarse,
+            hold_contacts,
         };
         let mut workspace = self
             .workspace
