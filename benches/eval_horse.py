@@ -40,6 +40,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import elastocap
+from elastocap._distance import distance_to_mesh
 from elastocap.synth import render_silhouette, ring_rig
 
 DATA = Path(os.environ.get("ELASTOCAP_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
@@ -52,8 +53,6 @@ SAMPLES = 60_000
 # of the diagonal); 6,000 nodes at stiffness 0.5 give 1.87% (4,000: 1.92-1.96%, 8,000: 1.93%).
 NODES = 6000
 STIFFNESS = 0.5
-# Candidate triangles (nearest centroids) per point for the exact point-to-mesh distance.
-CANDIDATES = 16
 
 
 def load_horse(path: Path = HORSE) -> tuple[np.ndarray, np.ndarray]:
@@ -84,25 +83,12 @@ def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolutio
     return hulls
 
 
-def point_to_mesh(points: np.ndarray, mesh: trimesh.Trimesh, tree: cKDTree | None = None) -> np.ndarray:
-    """Distance from each point to the triangles of ``mesh``: exact point-to-triangle
-    distances to the ``CANDIDATES`` triangles with the nearest centroids (the closest
-    triangle is among them on meshes of even triangles)."""
-    triangles = np.asarray(mesh.triangles)
-    tree = cKDTree(triangles.mean(axis=1)) if tree is None else tree
-    _, near = tree.query(points, k=CANDIDATES)
-    corners = triangles[near.reshape(-1)]
-    repeated = np.repeat(points, CANDIDATES, axis=0)
-    closest = trimesh.triangles.closest_point(corners, repeated)
-    return np.linalg.norm(closest - repeated, axis=1).reshape(-1, CANDIDATES).min(axis=1)
-
-
 def symmetric_distance(a: trimesh.Trimesh, b: trimesh.Trimesh, seed: int = 0) -> tuple[float, float]:
     """``(mean, 95th percentile)`` of the distances of points sampled on ``a`` to ``b`` and
     of points sampled on ``b`` to ``a``, pooled."""
     pa, _ = trimesh.sample.sample_surface(a, SAMPLES, seed=seed)
     pb, _ = trimesh.sample.sample_surface(b, SAMPLES, seed=seed + 1)
-    both = np.concatenate([point_to_mesh(pa, b), point_to_mesh(pb, a)])
+    both = np.concatenate([distance_to_mesh(pa, b), distance_to_mesh(pb, a)])
     return float(both.mean()), float(np.percentile(both, 95))
 
 

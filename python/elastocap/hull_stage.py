@@ -21,25 +21,40 @@ from elastocap.capture import Capture
 from elastocap.grid import Grid, space_seen_by
 from elastocap.hull import Hull, visual_hull
 
-__all__ = ["frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
+__all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
 
 
-def frame_grid(masks: dict[str, np.ndarray], rig: Rig, resolution: int, seen: tuple[np.ndarray, np.ndarray]) -> Grid:
+def coarse_visibility(rig: Rig, seen: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Which voxels of :func:`frame_grid`'s coarse grid every camera sees, ``(nx, ny, nz)``
+    bool: the same for every frame of a rig, so a stage computes it once."""
+    grid = Grid.around(seen[0], seen[1], _COARSE)
+    centres = grid.centres().reshape(-1, 3)
+    return np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras]).reshape(grid.shape)
+
+
+def frame_grid(
+    masks: dict[str, np.ndarray],
+    rig: Rig,
+    resolution: int,
+    seen: tuple[np.ndarray, np.ndarray],
+    visibility: np.ndarray | None = None,
+) -> Grid:
     """The grid of one frame: a coarse conservative carving of the seen space locates the
     object, and the grid covers its box (plus two coarse voxels) with ``resolution`` voxels
     along the longest side.
 
     Only coarse voxels that every camera sees locate the object: one that some camera does
     not see is not carved by it, so the cone of a silhouette reaching out of the other
-    cameras' views would stretch the box.
+    cameras' views would stretch the box. ``visibility``: :func:`coarse_visibility` of the
+    rig, when already computed.
     """
     coarse = visual_hull(masks, rig, Grid.around(seen[0], seen[1], _COARSE))
-    centres = coarse.grid.centres().reshape(-1, 3)
-    seen_by_all = np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras])
-    located = coarse.occupancy & seen_by_all.reshape(coarse.grid.shape)
+    if visibility is None:
+        visibility = coarse_visibility(rig, seen)
+    located = coarse.occupancy & visibility
     if not located.any():
         raise InvalidInputError("the silhouettes carve away everything: check masks and calibration")
     index = np.argwhere(located)
@@ -99,6 +114,7 @@ def run_hull_stage(
     out = Path(out)
     todo = [f for f in wanted if not all(p.exists() for p in _frame_files(out, f))]
     seen = space_seen_by(cap.rig)
+    visibility = coarse_visibility(cap.rig, seen)
     for frame in tqdm(todo, desc="hull", unit="frame", disable=not progress):
         masks = cap.masks(frame)
         blank = [name for name, mask in masks.items() if not mask.any()]
@@ -107,7 +123,7 @@ def run_hull_stage(
                 f"frame {frame}: the mask of camera(s) {blank} is all background, which carves "
                 f"the whole hull away; frames written so far are kept"
             )
-        grid = frame_grid(masks, cap.rig, resolution, seen)
+        grid = frame_grid(masks, cap.rig, resolution, seen, visibility)
         hull = visual_hull(masks, cap.rig, grid, tolerance=tolerance, footprint=footprint)
         ply, npz = _frame_files(out, frame)
         save_npz(
