@@ -52,4 +52,6 @@ pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 #[cfg(test)]
 mod coarse_tests;
 #[cfg(test)]
+mod csr_tests;
+#[cfg(test)]
 mod tests;

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use super::block::{Block, BlockCsr, ROWS_PER_TASK};
+use super::block::{Block, BlockCsr, CsrIndex, ROWS_PER_TASK};
 use super::upper::Upper;
 use crate::error::{check_finite, Error, Result};
 
@@ -21,6 +21,12 @@ const PARALLEL_VECTOR_LEN: usize = 1 << 16;
 pub trait Preconditioner<const B: usize> {
     /// Writes $M^{-1} r$ into `z` (both of the matrix size).
     fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]);
+
+    /// [`Self::apply`], returning $r^\top z$; a preconditioner may do both in one pass.
+    fn apply_dot(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) -> f64 {
+        self.apply(r, z);
+        dot(r, z)
+    }
 }
 
 /// $y = A x$ for a symmetric positive definite $A$ that need not be stored: the matrix-free
@@ -153,6 +159,21 @@ impl<const B: usize> BlockJacobi<B> {
 }
 
 impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
+    fn apply_dot(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) -> f64 {
+        if r.len() * B >= PARALLEL_VECTOR_LEN {
+            self.apply(r, z);
+            return dot(r, z);
+        }
+        let mut rz = 0.0;
+        for (zi, (m, ri)) in z.iter_mut().zip(self.inverse.iter().zip(r)) {
+            for a in 0..B {
+                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
+                rz += zi[a] * ri[a];
+            }
+        }
+        rz
+    }
+
     fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) {
         let one = |(zi, (m, ri)): (&mut [f64; B], (&Block<B>, &[f64; B]))| {
             for a in 0..B {
@@ -198,6 +219,39 @@ where
         y.par_iter_mut().zip(x).for_each(|(a, b)| f(a, b));
     } else {
         y.iter_mut().zip(x).for_each(|(a, b)| f(a, b));
+    }
+}
+
+/// $x \mathrel{+}= \alpha p$, $r \mathrel{-}= \alpha q$, returning $r^\top r$: one pass
+/// over the vectors instead of three.
+fn step<const B: usize>(
+    x: &mut [[f64; B]],
+    r: &mut [[f64; B]],
+    p: &[[f64; B]],
+    q: &[[f64; B]],
+    alpha: f64,
+) -> f64 {
+    let one = |((x, r), (p, q)): ((&mut [f64; B], &mut [f64; B]), (&[f64; B], &[f64; B]))| {
+        let mut rr = 0.0;
+        for a in 0..B {
+            x[a] += alpha * p[a];
+            r[a] -= alpha * q[a];
+            rr += r[a] * r[a];
+        }
+        rr
+    };
+    if x.len() * B >= PARALLEL_VECTOR_LEN {
+        x.par_iter_mut()
+            .zip(r.par_iter_mut())
+            .zip(p.par_iter().zip(q))
+            .map(one)
+            .sum()
+    } else {
+        x.iter_mut()
+            .zip(r.iter_mut())
+            .zip(p.iter().zip(q))
+            .map(one)
+            .sum()
     }
 }
 
@@ -247,6 +301,39 @@ impl<const B: usize> Pcg<B> {
         let result = self.solve_operator(
             &mut Assembled(&mut upper, matrix.len()),
             preconditioner,
+            rhs,
+            x,
+            tolerance,
+            max_iterations,
+        );
+        self.upper = upper;
+        result
+    }
+
+    /// Block-Jacobi conjugate gradients on a scalar CSR matrix (scipy's arrays, columns
+    /// sorted within rows): [`BlockCsr::from_csr_parts`], [`BlockJacobi::new`] and
+    /// [`Self::solve`] in one, reading the arrays straight into the upper triangle the
+    /// products use (no full block matrix: from Python this halved the conversion).
+    ///
+    /// # Errors
+    /// As [`BlockCsr::from_csr_parts`], [`BlockJacobi::new`] and [`Self::solve`].
+    #[allow(clippy::too_many_arguments)] // the CSR arrays, then `solve`'s arguments
+    pub fn solve_csr_parts<I: CsrIndex>(
+        &mut self,
+        size: usize,
+        indptr: &[I],
+        indices: &[I],
+        data: &[f64],
+        rhs: &[f64],
+        x: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<PcgStatus> {
+        let mut upper = Upper::<B>::from_csr_parts(size, indptr, indices, data)?;
+        let mut jacobi = BlockJacobi::from_diagonal(&upper.diagonal())?;
+        let result = self.solve_operator(
+            &mut Assembled(&mut upper, size / B),
+            &mut jacobi,
             rhs,
             x,
             tolerance,
@@ -342,21 +429,10 @@ impl<const B: usize> Pcg<B> {
                     });
                 }
                 let alpha = rz / curvature;
-                update(x, &self.p, |x, p| {
-                    for a in 0..B {
-                        x[a] += alpha * p[a];
-                    }
-                });
-                update(&mut self.r, &self.q, |r, q| {
-                    for a in 0..B {
-                        r[a] -= alpha * q[a];
-                    }
-                });
-                if dot(&self.r, &self.r).sqrt() <= target {
+                if step(x, &mut self.r, &self.p, &self.q, alpha).sqrt() <= target {
                     break;
                 }
-                preconditioner.apply(&self.r, &mut self.z);
-                let rz_next = dot(&self.r, &self.z);
+                let rz_next = preconditioner.apply_dot(&self.r, &mut self.z);
                 let beta = rz_next / rz;
                 rz = rz_next;
                 update(&mut self.p, &self.z, |p, z| {
