@@ -40,17 +40,39 @@ pub trait LinearOperator<const B: usize> {
     }
     /// Writes $A x$ into `y` (both `len()` blocks).
     fn apply(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]);
+
+    /// Writes an approximation of $A x$ into `y` for the inner iterations, e.g. from a
+    /// float32 copy of the matrix; the residuals that decide convergence always come from
+    /// [`Self::apply`]. Default: [`Self::apply`].
+    fn apply_inner(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        self.apply(x, y);
+    }
+
+    /// True when [`Self::apply_inner`] is not [`Self::apply`] (default: false).
+    fn inexact_inner(&self) -> bool {
+        false
+    }
 }
 
-/// An assembled matrix as an operator, through its upper triangle.
-struct Assembled<'a, const B: usize>(&'a mut Upper<B>, usize);
+/// An assembled matrix as an operator, through its upper triangle; exact products from
+/// the matrix itself when the upper triangle is held in float32 alone.
+struct Assembled<'a, const B: usize>(&'a mut Upper<B>, Option<&'a BlockCsr<B>>, usize);
 
 impl<const B: usize> LinearOperator<B> for Assembled<'_, B> {
     fn len(&self) -> usize {
-        self.1
+        self.2
     }
     fn apply(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
-        self.0.mul(x, y);
+        match self.1 {
+            Some(matrix) if !self.0.has_exact() => matrix.mul_unchecked(x, y),
+            _ => self.0.mul(x, y),
+        }
+    }
+    fn apply_inner(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        self.0.mul_inner(x, y);
+    }
+    fn inexact_inner(&self) -> bool {
+        self.0.inexact_inner()
     }
 }
 
@@ -255,6 +277,13 @@ fn step<const B: usize>(
     }
 }
 
+/// Inexact (float32) inner products: each cycle of iterations reduces the residual by this
+/// factor before the true residual is recomputed with exact products (iterative
+/// refinement). On the paper's system (cold, 1e-8) 1e-2 / 1e-3 / 1e-4 / 1e-5 / 1e-6 / 1e-9
+/// took 73 / 70 / 70 / 68 / 66 / 72 iterations against 65 with exact products: the float32
+/// error stays below 1e-6 of the residual, and fewer restarts keep more of the Krylov space.
+const INNER_REDUCTION: f64 = 1e-6;
+
 /// Conjugate gradients with its work vectors, kept across solves of one size so that the
 /// per-iteration solve of a fitting loop allocates nothing.
 #[derive(Debug, Clone, Default)]
@@ -299,7 +328,7 @@ impl<const B: usize> Pcg<B> {
         let mut upper = std::mem::take(&mut self.upper);
         upper.load(matrix);
         let result = self.solve_operator(
-            &mut Assembled(&mut upper, matrix.len()),
+            &mut Assembled(&mut upper, Some(matrix), matrix.len()),
             preconditioner,
             rhs,
             x,
@@ -332,7 +361,7 @@ impl<const B: usize> Pcg<B> {
         let mut upper = Upper::<B>::from_csr_parts(size, indptr, indices, data)?;
         let mut jacobi = BlockJacobi::from_diagonal(&upper.diagonal())?;
         let result = self.solve_operator(
-            &mut Assembled(&mut upper, size / B),
+            &mut Assembled(&mut upper, None, size / B),
             &mut jacobi,
             rhs,
             x,
@@ -394,6 +423,8 @@ impl<const B: usize> Pcg<B> {
         let mut iterations = 0;
         // A cold start needs no product for its residual.
         let mut zero_start = x.iter().all(|v| *v == [0.0; B]);
+        let mut inexact = operator.inexact_inner();
+        let mut last_norm = f64::INFINITY;
         loop {
             // True residual r = b - A x: at the start and to confirm convergence.
             self.r.copy_from_slice(b);
@@ -414,13 +445,33 @@ impl<const B: usize> Pcg<B> {
                     relative_residual: r_norm / b_norm,
                 });
             }
+            // A cycle of inexact products that did not gain a factor 10: the approximation
+            // is too coarse for this matrix; finish with exact products.
+            if r_norm > 0.1 * last_norm {
+                inexact = false;
+            }
+            last_norm = r_norm;
+            let cycle_target = if inexact {
+                target.max(INNER_REDUCTION * r_norm)
+            } else {
+                target
+            };
             preconditioner.apply(&self.r, &mut self.z);
             self.p.copy_from_slice(&self.z);
             let mut rz = dot(&self.r, &self.z);
             while iterations < max_iterations {
                 iterations += 1;
-                operator.apply(&self.p, &mut self.q);
+                if inexact {
+                    operator.apply_inner(&self.p, &mut self.q);
+                } else {
+                    operator.apply(&self.p, &mut self.q);
+                }
                 let curvature = dot(&self.p, &self.q);
+                if inexact && !(curvature > 0.0) {
+                    // Perhaps only the approximation is not positive definite.
+                    inexact = false;
+                    break;
+                }
                 if curvature.is_nan() || curvature <= 0.0 {
                     return Err(Error::NotPositiveDefinite {
                         argument: "matrix",
@@ -429,7 +480,7 @@ impl<const B: usize> Pcg<B> {
                     });
                 }
                 let alpha = rz / curvature;
-                if step(x, &mut self.r, &self.p, &self.q, alpha).sqrt() <= target {
+                if step(x, &mut self.r, &self.p, &self.q, alpha).sqrt() <= cycle_target {
                     break;
                 }
                 let rz_next = preconditioner.apply_dot(&self.r, &mut self.z);

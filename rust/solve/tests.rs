@@ -346,8 +346,14 @@ fn check_upper_product<const B: usize>(n: usize, density: f64) {
     upper.load(&m);
     let mut half = vec![[0.0; B]; m.len()];
     for _ in 0..2 {
-        upper.mul(x.as_chunks::<B>().0, &mut half);
-        assert!(relative_error(half.as_flattened(), &full) < 1e-14);
+        if upper.has_exact() {
+            upper.mul(x.as_chunks::<B>().0, &mut half);
+            assert!(relative_error(half.as_flattened(), &full) < 1e-14);
+        }
+        // float32 blocks where the AVX2 kernel runs: ~1e-7 relative.
+        upper.mul_inner(x.as_chunks::<B>().0, &mut half);
+        let bound = if upper.inexact_inner() { 1e-6 } else { 1e-14 };
+        assert!(relative_error(half.as_flattened(), &full) < bound);
     }
 }
 

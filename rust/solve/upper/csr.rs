@@ -6,7 +6,6 @@
 
 use rayon::prelude::*;
 
-use super::wide::{self, Wide};
 use super::Upper;
 use crate::error::{Error, Result};
 use crate::solve::block::scan::{scan, Scan};
@@ -97,16 +96,9 @@ impl<const B: usize> Upper<B> {
             this.indptr.push(this.indices.len());
         }
         let (up_ptr, up_idx) = (&this.indptr, &this.indices);
-        let non_finite = if B == 3 && wide::available() {
-            this.wide = vec![[[0.0; 4]; 3]; up_idx.len()];
-            fill::<I, Wide, B>(&scan, data, up_ptr, up_idx, &mut this.wide, |w, a, b, v| {
-                w[a][b] = v
-            })
-        } else {
-            this.blocks = vec![[[0.0; B]; B]; up_idx.len()];
-            let set = |m: &mut Block<B>, a: usize, b: usize, v| m[a][b] = v;
-            fill::<I, Block<B>, B>(&scan, data, up_ptr, up_idx, &mut this.blocks, set)
-        };
+        this.blocks = vec![[[0.0; B]; B]; up_idx.len()];
+        let set = |m: &mut Block<B>, a: usize, b: usize, v| m[a][b] = v;
+        let non_finite = fill::<I, Block<B>, B>(&scan, data, up_ptr, up_idx, &mut this.blocks, set);
         if let Some(row) = non_finite {
             return Err(Error::NonFinite { argument, row });
         }
@@ -118,6 +110,7 @@ impl<const B: usize> Upper<B> {
             });
         }
         this.split(n);
+        this.finish();
         Ok(this)
     }
 }
