@@ -4,24 +4,33 @@
 //! written once each; this writes the upper blocks only, in one pass that also checks the
 //! values (benches/README.md, session 4).
 
+use std::mem::MaybeUninit;
+
 use rayon::prelude::*;
 
-use super::Upper;
+use super::{wide, Upper};
 use crate::error::{Error, Result};
 use crate::solve::block::scan::{scan, Scan};
 use crate::solve::block::{asymmetric_row, Block, CsrIndex};
 
-/// Writes the entries of block row `i`'s upper blocks into `out` (its slice of the upper
-/// blocks, columns `upper`) with `set(block, a, b, value)`; `Err(row)` for the first scalar
-/// row of the block row holding a non-finite value (in either triangle).
-fn fill_row<I: CsrIndex, T, const B: usize>(
+/// Writes block row `i`'s upper blocks (columns `upper`) into `out`, zeros first, and
+/// their float32 copy into `narrow` when given; `Err(row)` for the first scalar row of the
+/// block row holding a non-finite value (in either triangle), else whether every value
+/// fits in float32.
+fn fill_row<I: CsrIndex, const B: usize>(
     scan: &Scan<'_, I>,
     data: &[f64],
     i: usize,
     upper: &[u32],
-    out: &mut [T],
-    set: impl Fn(&mut T, usize, usize, f64),
-) -> std::result::Result<(), usize> {
+    out: &mut [MaybeUninit<Block<B>>],
+    narrow: Option<&mut [MaybeUninit<f32>]>,
+) -> std::result::Result<bool, usize> {
+    // Zeroed here, in cache, rather than by a pass over the whole array beforehand.
+    for block in out.iter_mut() {
+        block.write([[0.0; B]; B]);
+    }
+    // SAFETY: every element was just initialised; MaybeUninit<T> has T's layout.
+    let out = unsafe { &mut *(out as *mut [MaybeUninit<Block<B>>] as *mut [Block<B>]) };
     for r in i * B..(i + 1) * B {
         let span = scan.indptr[r]..scan.indptr[r + 1];
         if !data[span.clone()].iter().all(|v| v.is_finite()) {
@@ -38,37 +47,29 @@ fn fill_row<I: CsrIndex, T, const B: usize>(
             while (upper[pos] as usize) < c / B {
                 pos += 1;
             }
-            set(&mut out[pos], r % B, c % B, value);
+            out[pos][r % B][c % B] = value;
         }
     }
-    Ok(())
+    let mut fits = true;
+    if let Some(narrow) = narrow {
+        for (n, &v) in narrow.iter_mut().zip(out.as_flattened().as_flattened()) {
+            let v = v as f32;
+            fits &= v.is_finite();
+            n.write(v);
+        }
+    }
+    Ok(fits)
 }
 
-/// Fills `blocks` (one per upper block) block row by block row in parallel; the first
-/// scalar row with a non-finite value, if any.
-fn fill<I: CsrIndex, T: Send, const B: usize>(
-    scan: &Scan<'_, I>,
-    data: &[f64],
-    indptr: &[usize],
-    indices: &[u32],
-    blocks: &mut [T],
-    set: impl Fn(&mut T, usize, usize, f64) + Sync,
-) -> Option<usize> {
-    let mut rest = blocks;
+/// Splits `all` into one slice per block row of `indptr` (`per_block` elements per block).
+fn per_row<'a, T>(mut all: &'a mut [T], indptr: &[usize], per_block: usize) -> Vec<&'a mut [T]> {
     let mut rows = Vec::with_capacity(indptr.len() - 1);
     for w in indptr.windows(2) {
-        let (row, tail) = rest.split_at_mut(w[1] - w[0]);
+        let (row, tail) = std::mem::take(&mut all).split_at_mut((w[1] - w[0]) * per_block);
         rows.push(row);
-        rest = tail;
+        all = tail;
     }
-    rows.into_par_iter()
-        .with_min_len(16)
-        .enumerate()
-        .map(|(i, out)| {
-            fill_row::<I, T, B>(scan, data, i, &indices[indptr[i]..indptr[i + 1]], out, &set)
-        })
-        .find_first(|r| r.is_err())
-        .and_then(|r| r.err())
+    rows
 }
 
 impl<const B: usize> Upper<B> {
@@ -96,12 +97,51 @@ impl<const B: usize> Upper<B> {
             this.indptr.push(this.indices.len());
         }
         let (up_ptr, up_idx) = (&this.indptr, &this.indices);
-        this.blocks = vec![[[0.0; B]; B]; up_idx.len()];
-        let set = |m: &mut Block<B>, a: usize, b: usize, v| m[a][b] = v;
-        let non_finite = fill::<I, Block<B>, B>(&scan, data, up_ptr, up_idx, &mut this.blocks, set);
-        if let Some(row) = non_finite {
-            return Err(Error::NonFinite { argument, row });
+        let count = up_idx.len();
+        // The AVX2 kernel's copies end with one zero block past the last.
+        let fast = B == 3 && wide::available();
+        let mut blocks: Vec<Block<B>> = Vec::with_capacity(count + 1);
+        let mut narrow: Vec<f32> = Vec::with_capacity(if fast { (count + 1) * B * B } else { 0 });
+        let block_rows = per_row(&mut blocks.spare_capacity_mut()[..count], up_ptr, 1);
+        let narrow_rows: Vec<Option<&mut [MaybeUninit<f32>]>> = if fast {
+            let spare = &mut narrow.spare_capacity_mut()[..count * B * B];
+            per_row(spare, up_ptr, B * B)
+                .into_iter()
+                .map(Some)
+                .collect()
+        } else {
+            (0..n).map(|_| None).collect()
+        };
+        let filled = block_rows
+            .into_par_iter()
+            .zip(narrow_rows)
+            .with_min_len(16)
+            .enumerate()
+            .map(|(i, (out, narrow))| {
+                let upper = &up_idx[up_ptr[i]..up_ptr[i + 1]];
+                fill_row::<I, B>(&scan, data, i, upper, out, narrow)
+            })
+            .try_fold(|| true, |all, r| r.map(|fits| all && fits))
+            .try_reduce(|| true, |a, b| Ok(a && b));
+        let fits = match filled {
+            Ok(fits) => fits,
+            // The first non-finite row, as `BlockCsr::from_csr_parts` reports it.
+            Err(_) => {
+                let row = super::super::block::scan::non_finite_row(&scan.indptr, data);
+                return Err(Error::NonFinite {
+                    argument,
+                    row: row.unwrap_or(0),
+                });
+            }
+        };
+        // SAFETY: `fill_row` initialised every block (and every float32 value when fast).
+        unsafe {
+            blocks.set_len(count);
+            if fast {
+                narrow.set_len(count * B * B);
+            }
         }
+        this.blocks = blocks;
         if let Some(row) = asymmetric_row(n, |i| &scan.rows[i]) {
             return Err(Error::SparsePattern {
                 argument,
@@ -110,7 +150,14 @@ impl<const B: usize> Upper<B> {
             });
         }
         this.split(n);
-        this.finish();
+        this.fast = fast;
+        if fast {
+            this.blocks.push([[0.0; B]; B]);
+            narrow.resize((count + 1) * B * B, 0.0);
+            if fits {
+                this.narrow = narrow;
+            }
+        }
         Ok(this)
     }
 }
