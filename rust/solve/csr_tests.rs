@@ -254,3 +254,37 @@ fn float32_too_coarse_falls_back_to_float64() {
         "{status:?}, true {residual:e}"
     );
 }
+
+#[test]
+fn symmetry_check_finds_the_first_asymmetric_row() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(16);
+    for trial in 0..200 {
+        let n = rng.random_range(1..30);
+        // A symmetric pattern with the diagonal, then (in most trials) a few one-sided entries.
+        let mut rows: Vec<Vec<u32>> = (0..n).map(|i| vec![i as u32]).collect();
+        for i in 0..n {
+            for j in 0..i {
+                if rng.random_bool(0.2) {
+                    rows[i].push(j as u32);
+                    rows[j].push(i as u32);
+                }
+            }
+        }
+        for _ in 0..trial % 3 {
+            let (i, j) = (rng.random_range(0..n), rng.random_range(0..n));
+            rows[i].push(j as u32);
+        }
+        for row in &mut rows {
+            row.sort_unstable();
+            row.dedup();
+        }
+        let expected = (0..n).find(|&i| {
+            rows[i]
+                .iter()
+                .any(|&j| !rows[j as usize].contains(&(i as u32)))
+        });
+        let got = super::block::asymmetric_row(n, |i| &rows[i]);
+        assert_eq!(got, expected, "{rows:?}");
+    }
+}
