@@ -8,9 +8,12 @@
 
 use rayon::prelude::*;
 
-use super::block::{Block, BlockCsr, CsrIndex, ROWS_PER_TASK};
+use super::block::{BlockCsr, CsrIndex};
 use super::upper::Upper;
+
+mod jacobi;
 use crate::error::{check_finite, Error, Result};
+pub use jacobi::BlockJacobi;
 
 /// Below this many scalar entries, vector updates and dot products run on one thread:
 /// at the paper's size (7,395 unknowns) one pass takes ~5 us, less than waking the pool
@@ -76,142 +79,6 @@ impl<const B: usize> LinearOperator<B> for Assembled<'_, B> {
     }
 }
 
-/// The block-Jacobi preconditioner: the inverses of the $B \times B$ diagonal blocks.
-#[derive(Debug, Clone)]
-pub struct BlockJacobi<const B: usize> {
-    inverse: Vec<[[f64; B]; B]>,
-}
-
-/// The inverse of a symmetric positive definite block by Cholesky, $M^{-1} = L^{-\top}
-/// L^{-1}$; `Err(pivot)` at the first non-positive (or non-finite) pivot.
-fn spd_inverse<const B: usize>(m: &[[f64; B]; B]) -> std::result::Result<[[f64; B]; B], usize> {
-    let mut l = [[0.0; B]; B];
-    for j in 0..B {
-        let d = m[j][j] - (0..j).map(|t| l[j][t] * l[j][t]).sum::<f64>();
-        // Relative to the block's own scale: a pivot lost to rounding is not positive.
-        if d.is_nan() || d <= 1e-14 * m[j][j].abs() || d.is_infinite() {
-            return Err(j);
-        }
-        l[j][j] = d.sqrt();
-        for i in j + 1..B {
-            l[i][j] = (m[i][j] - (0..j).map(|t| l[i][t] * l[j][t]).sum::<f64>()) / l[j][j];
-        }
-    }
-    // L^{-1}, lower triangular, by forward substitution on the identity.
-    let mut inv_l = [[0.0; B]; B];
-    for i in 0..B {
-        let mut row = [0.0; B];
-        for (c, value) in row.iter_mut().enumerate().take(i + 1) {
-            let identity = if i == c { 1.0 } else { 0.0 };
-            *value = (identity - (c..i).map(|t| l[i][t] * inv_l[t][c]).sum::<f64>()) / l[i][i];
-        }
-        inv_l[i] = row;
-    }
-    let mut inverse = [[0.0; B]; B];
-    for a in 0..B {
-        for b in 0..B {
-            inverse[a][b] = (a.max(b)..B).map(|t| inv_l[t][a] * inv_l[t][b]).sum();
-        }
-    }
-    Ok(inverse)
-}
-
-impl<const B: usize> BlockJacobi<B> {
-    /// Inverts the diagonal blocks of `matrix`.
-    ///
-    /// # Errors
-    /// [`Error::NotPositiveDefinite`] naming the first row whose diagonal block is not
-    /// symmetric positive definite.
-    pub fn new(matrix: &BlockCsr<B>) -> Result<Self> {
-        let mut this = Self {
-            inverse: vec![[[0.0; B]; B]; matrix.len()],
-        };
-        this.update(matrix)?;
-        Ok(this)
-    }
-
-    /// Inverts the given diagonal blocks (of an operator that is not assembled).
-    ///
-    /// # Errors
-    /// As [`Self::new`].
-    pub fn from_diagonal(blocks: &[Block<B>]) -> Result<Self> {
-        let mut inverse = vec![[[0.0; B]; B]; blocks.len()];
-        for (i, (inv, block)) in inverse.iter_mut().zip(blocks).enumerate() {
-            *inv = spd_inverse(block).map_err(|pivot| Error::NotPositiveDefinite {
-                argument: "matrix",
-                row: i * B + pivot,
-                reason: "its diagonal block (inverted by the block-Jacobi preconditioner) has a non-positive pivot",
-            })?;
-        }
-        Ok(Self { inverse })
-    }
-
-    /// Recomputes the inverses for new values of `matrix` (same number of nodes).
-    ///
-    /// # Errors
-    /// As [`Self::new`]; [`Error::VectorLength`] for a matrix of another size.
-    pub fn update(&mut self, matrix: &BlockCsr<B>) -> Result<()> {
-        if matrix.len() != self.inverse.len() {
-            return Err(Error::VectorLength {
-                argument: "matrix",
-                expected: self.inverse.len() * B,
-                got: matrix.size(),
-            });
-        }
-        let failed = self
-            .inverse
-            .par_iter_mut()
-            .with_min_len(ROWS_PER_TASK)
-            .enumerate()
-            .map(|(i, inv)| {
-                spd_inverse(matrix.diagonal_block(i))
-                    .map(|m| *inv = m)
-                    .map_err(|pivot| i * B + pivot)
-            })
-            .find_first(|r| r.is_err());
-        match failed {
-            Some(Err(row)) => Err(Error::NotPositiveDefinite {
-                argument: "matrix",
-                row,
-                reason: "its diagonal block (inverted by the block-Jacobi preconditioner) has a non-positive pivot",
-            }),
-            _ => Ok(()),
-        }
-    }
-}
-
-impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
-    fn apply_dot(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) -> f64 {
-        if r.len() * B >= PARALLEL_VECTOR_LEN {
-            self.apply(r, z);
-            return dot(r, z);
-        }
-        let mut rz = 0.0;
-        for (zi, (m, ri)) in z.iter_mut().zip(self.inverse.iter().zip(r)) {
-            for a in 0..B {
-                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
-                rz += zi[a] * ri[a];
-            }
-        }
-        rz
-    }
-
-    fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) {
-        let one = |(zi, (m, ri)): (&mut [f64; B], (&Block<B>, &[f64; B]))| {
-            for a in 0..B {
-                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
-            }
-        };
-        if r.len() * B >= PARALLEL_VECTOR_LEN {
-            z.par_iter_mut()
-                .zip(self.inverse.par_iter().zip(r))
-                .for_each(one);
-        } else {
-            z.iter_mut().zip(self.inverse.iter().zip(r)).for_each(one);
-        }
-    }
-}
-
 /// Outcome of a conjugate-gradient solve; not converging is reported here, not as an error.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PcgStatus {
@@ -253,7 +120,7 @@ fn step<const B: usize>(
     q: &[[f64; B]],
     alpha: f64,
 ) -> f64 {
-    let one = |((x, r), (p, q)): ((&mut [f64; B], &mut [f64; B]), (&[f64; B], &[f64; B]))| {
+    let one = |x: &mut [f64; B], r: &mut [f64; B], p: &[f64; B], q: &[f64; B]| {
         let mut rr = 0.0;
         for a in 0..B {
             x[a] += alpha * p[a];
@@ -266,13 +133,13 @@ fn step<const B: usize>(
         x.par_iter_mut()
             .zip(r.par_iter_mut())
             .zip(p.par_iter().zip(q))
-            .map(one)
+            .map(|((x, r), (p, q))| one(x, r, p, q))
             .sum()
     } else {
         x.iter_mut()
             .zip(r.iter_mut())
             .zip(p.iter().zip(q))
-            .map(one)
+            .map(|((x, r), (p, q))| one(x, r, p, q))
             .sum()
     }
 }
@@ -467,7 +334,7 @@ impl<const B: usize> Pcg<B> {
                     operator.apply(&self.p, &mut self.q);
                 }
                 let curvature = dot(&self.p, &self.q);
-                if inexact && !(curvature > 0.0) {
+                if inexact && (curvature.is_nan() || curvature <= 0.0) {
                     // Perhaps only the approximation is not positive definite.
                     inexact = false;
                     break;
