@@ -182,6 +182,44 @@ fn solve(c: &mut Criterion) {
     group.bench_function("from_csr", |b| {
         b.iter(|| BlockCsr::<3>::from_csr(black_box(&csr)).unwrap())
     });
+    // The path of `elastocap.conjugate_gradient` from Python: scipy's int32 CSR arrays read
+    // straight into the upper triangle, then block-Jacobi PCG.
+    let indptr32: Vec<i32> = csr.indptr.iter().map(|&v| v as i32).collect();
+    let indices32: Vec<i32> = csr.indices.iter().map(|&v| v as i32).collect();
+    group.bench_function("csr_arrays_to_upper", |b| {
+        b.iter(|| {
+            x.fill(0.0);
+            Pcg::<3>::new()
+                .solve_csr_parts(
+                    size,
+                    &indptr32,
+                    &indices32,
+                    black_box(&csr.data),
+                    &rhs,
+                    &mut x,
+                    TOLERANCE,
+                    0,
+                )
+                .unwrap()
+        })
+    });
+    group.bench_function("pcg_from_csr_arrays_cold", |b| {
+        b.iter(|| {
+            x.fill(0.0);
+            Pcg::<3>::new()
+                .solve_csr_parts(
+                    size,
+                    &indptr32,
+                    &indices32,
+                    black_box(&csr.data),
+                    &rhs,
+                    &mut x,
+                    TOLERANCE,
+                    100 * size,
+                )
+                .unwrap()
+        })
+    });
     group.bench_function("assemble_scale_plus_blocks", |b| {
         let mut out = stiffness.zeros_like();
         b.iter(|| {

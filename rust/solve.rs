@@ -7,7 +7,10 @@
 //!   per iteration without allocating.
 //! * [`Pcg`]: preconditioned conjugate gradients, warm-started, with a [`BlockJacobi`]
 //!   preconditioner or any other [`Preconditioner`], returning a [`PcgStatus`]; its
-//!   products read only the upper triangle (half the memory traffic).
+//!   products read only the upper triangle (half the memory traffic), for 3x3 blocks with
+//!   an AVX2 kernel on a float32 copy inside float64 iterative refinement (convergence is
+//!   always decided on the float64 residual). [`Pcg::solve_csr_parts`] reads scipy's CSR
+//!   arrays straight into that upper triangle.
 //! * [`TwoLevel`]: block Jacobi plus a coarse correction on the rigid motions of node
 //!   aggregates, for bodies the surface term anchors only weakly.
 //! * [`SparseCholesky`]: faer's sparse $L L^\top$ with the symbolic analysis (AMD ordering,
@@ -51,5 +54,7 @@ pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 
 #[cfg(test)]
 mod coarse_tests;
+#[cfg(test)]
+mod csr_tests;
 #[cfg(test)]
 mod tests;

@@ -7,9 +7,7 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, to_py};
-use crate::solve::{
-    BlockCsr, BlockJacobi, Pcg, PcgStatus, SparseCholesky as Cholesky, TwoLevel, STRENGTH,
-};
+use crate::solve::{BlockCsr, Pcg, PcgStatus, SparseCholesky as Cholesky, TwoLevel, STRENGTH};
 
 /// `(x, converged, iterations, relative_residual)`.
 type CgOutputs<'py> = (Bound<'py, PyArray1<f64>>, bool, usize, f64);
@@ -114,18 +112,26 @@ fn cg<const B: usize>(
     factor: Option<&mut Cholesky<B>>,
     nodes: Option<&[f64]>,
 ) -> crate::Result<PcgStatus> {
-    let matrix = csr.blocks::<B>()?;
     let mut pcg = Pcg::new();
     match (factor, nodes) {
-        (Some(factor), _) => pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations),
+        (Some(factor), _) => {
+            let matrix = csr.blocks::<B>()?;
+            pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations)
+        }
         (None, Some(nodes)) => {
+            let matrix = csr.blocks::<B>()?;
             let mut two_level = TwoLevel::new(&matrix, nodes.as_chunks::<B>().0, STRENGTH)?;
             pcg.solve(&matrix, &mut two_level, rhs, x, tolerance, max_iterations)
         }
-        (None, None) => {
-            let mut jacobi = BlockJacobi::new(&matrix)?;
-            pcg.solve(&matrix, &mut jacobi, rhs, x, tolerance, max_iterations)
-        }
+        // Block Jacobi needs only the upper triangle: read it straight from the arrays.
+        (None, None) => match csr.indices {
+            Indices::I32(p, i) => {
+                pcg.solve_csr_parts(csr.size, p, i, csr.data, rhs, x, tolerance, max_iterations)
+            }
+            Indices::I64(p, i) => {
+                pcg.solve_csr_parts(csr.size, p, i, csr.data, rhs, x, tolerance, max_iterations)
+            }
+        },
     }
 }
 

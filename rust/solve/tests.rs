@@ -7,7 +7,7 @@ use crate::Error;
 
 /// A random SPD block matrix: a random symmetric pattern with random blocks, made
 /// diagonally dominant per scalar row.
-fn random_spd<const B: usize>(n: usize, density: f64, seed: u64) -> BlockCsr<B> {
+pub(super) fn random_spd<const B: usize>(n: usize, density: f64, seed: u64) -> BlockCsr<B> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let adjacency: Vec<Vec<u32>> = (0..n)
         .map(|i| (0..i as u32).filter(|_| rng.random_bool(density)).collect())
@@ -216,7 +216,7 @@ fn bad_input_is_an_error() {
 }
 
 /// The EFG stiffness of a jittered 5 x 5 x 4 grid (k = 20) and its neighbour lists.
-fn efg_stiffness() -> (Csr, Vec<u32>, usize) {
+pub(super) fn efg_stiffness() -> (Csr, Vec<u32>, usize) {
     use crate::efg::{Material, NodalElasticity, Plane};
     const K: usize = 20;
     let mut rng = ChaCha8Rng::seed_from_u64(5);
@@ -346,8 +346,14 @@ fn check_upper_product<const B: usize>(n: usize, density: f64) {
     upper.load(&m);
     let mut half = vec![[0.0; B]; m.len()];
     for _ in 0..2 {
-        upper.mul(x.as_chunks::<B>().0, &mut half);
-        assert!(relative_error(half.as_flattened(), &full) < 1e-14);
+        if upper.has_exact() {
+            upper.mul(x.as_chunks::<B>().0, &mut half);
+            assert!(relative_error(half.as_flattened(), &full) < 1e-14);
+        }
+        // float32 blocks where the AVX2 kernel runs: ~1e-7 relative.
+        upper.mul_inner(x.as_chunks::<B>().0, &mut half);
+        let bound = if upper.inexact_inner() { 1e-6 } else { 1e-14 };
+        assert!(relative_error(half.as_flattened(), &full) < bound);
     }
 }
 

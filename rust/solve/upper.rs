@@ -10,6 +10,16 @@ use rayon::prelude::*;
 
 use super::block::{Block, BlockCsr, Pattern};
 
+mod csr;
+mod wide;
+use wide::Lane;
+
+/// True when 3x3 products run the AVX2 kernel (with a float32 copy): for the tests.
+#[cfg(test)]
+pub(super) fn avx2() -> bool {
+    wide::available()
+}
+
 /// Blocks per task below which the product runs on one thread.
 const BLOCKS_PER_TASK: usize = 8192;
 
@@ -22,14 +32,136 @@ pub(super) struct Upper<const B: usize> {
     /// Position of each upper block in the full matrix.
     positions: Vec<usize>,
     blocks: Vec<Block<B>>,
+    /// The AVX2 kernel runs (3x3 blocks on a CPU that has it): `blocks` then ends with one
+    /// zero block past the last, read by the kernel's 4-lane loads.
+    fast: bool,
+    /// float32 copy of `blocks` (9 values per block, and the pad) for the inner products of
+    /// [`Self::mul_inner`]; empty when not fast or a value exceeds float32's range.
+    narrow: Vec<f32>,
+    /// `x` padded, and the per-task accumulators, of the AVX2 kernel.
+    x_wide: Vec<Lane>,
+    partial_wide: Vec<Vec<Lane>>,
     /// Row ranges of the tasks, balanced by blocks.
     ranges: Vec<(usize, usize)>,
     partial: Vec<Vec<[f64; B]>>,
 }
 
 impl<const B: usize> Upper<B> {
-    /// Copies the upper triangle of `matrix`; the pattern work is redone only when the
-    /// pattern changed.
+    /// Splits the rows into one task per thread, balanced by blocks (one task when small),
+    /// and sizes the accumulators.
+    fn split(&mut self, n: usize) {
+        let total = self.indices.len();
+        let tasks = rayon::current_num_threads()
+            .min(total / BLOCKS_PER_TASK)
+            .max(1);
+        self.ranges.clear();
+        let mut start = 0;
+        for t in 1..=tasks {
+            let end = if t == tasks {
+                n
+            } else {
+                self.indptr
+                    .partition_point(|&p| p < total * t / tasks)
+                    .min(n)
+            };
+            self.ranges.push((start, end.max(start)));
+            start = end.max(start);
+        }
+        if B == 3 && wide::available() {
+            self.partial = Vec::new();
+            self.x_wide = vec![[0.0; 4]; n];
+            self.partial_wide = vec![vec![[0.0; 4]; n]; tasks];
+        } else {
+            self.partial = vec![vec![[0.0; B]; n]; tasks];
+        }
+    }
+
+    /// The diagonal blocks, one per row (the first block of each upper row).
+    pub(super) fn diagonal(&self) -> Vec<Block<B>> {
+        self.indptr[..self.indptr.len() - 1]
+            .iter()
+            .map(|&at| self.blocks[at])
+            .collect()
+    }
+
+    /// Row pointers, columns and blocks (unpadded) of the upper triangle, and whether every
+    /// pad lane is zero: for the tests.
+    /// Row pointers, columns, float64 blocks (empty when held in float32 alone; the pad
+    /// block dropped) and the float32 copy (empty without one): for the tests.
+    #[cfg(test)]
+    pub(super) fn parts(&self) -> (&[usize], &[u32], &[Block<B>], &[f32]) {
+        let n = self.indices.len().min(self.blocks.len());
+        (&self.indptr, &self.indices, &self.blocks[..n], &self.narrow)
+    }
+
+    /// Marks the AVX2 kernel and makes its float32 copy, once `blocks` holds the upper
+    /// triangle.
+    fn finish(&mut self) {
+        self.fast = B == 3 && wide::available();
+        self.narrow.clear();
+        if !self.fast {
+            return;
+        }
+        self.blocks.push([[0.0; B]; B]);
+        let flat = self.blocks.as_flattened().as_flattened();
+        self.narrow.resize(flat.len(), 0.0);
+        let fits = self
+            .narrow
+            .par_chunks_mut(1 << 16)
+            .zip(flat.par_chunks(1 << 16))
+            .all(|(n, f)| {
+                n.iter_mut().zip(f).for_each(|(n, &f)| *n = f as f32);
+                n.iter().all(|v| v.is_finite())
+            });
+        if !fits {
+            self.narrow.clear();
+        }
+    }
+
+    /// The float32 copy of the upper blocks of `matrix` alone (no float64 copy: the exact
+    /// products then come from `matrix`); false, with nothing made, when a value does not
+    /// fit in float32.
+    fn gather_narrow(&mut self, matrix: &BlockCsr<B>) -> bool {
+        let all = matrix.blocks();
+        self.blocks.clear();
+        // One zero block past the last, as `finish` makes: the kernel's 4-lane loads.
+        let len = (self.positions.len() + 1) * B * B;
+        self.narrow.resize(len, 0.0);
+        self.narrow[len - B * B..].fill(0.0);
+        let per_task = BLOCKS_PER_TASK / 2;
+        let fits = self
+            .narrow
+            .par_chunks_mut(per_task * B * B)
+            .zip(self.positions.par_chunks(per_task))
+            .all(|(n, positions)| {
+                for (k, &at) in positions.iter().enumerate() {
+                    let values = all[at].as_flattened();
+                    for (t, &v) in values.iter().enumerate() {
+                        n[k * B * B + t] = v as f32;
+                    }
+                }
+                n.iter().all(|v| v.is_finite())
+            });
+        if !fits {
+            self.narrow.clear();
+        }
+        fits
+    }
+
+    /// True when the upper blocks are also held in float64 ([`Self::mul`] works); false
+    /// after [`Self::load`] made the float32 copy alone.
+    pub(super) fn has_exact(&self) -> bool {
+        !self.blocks.is_empty()
+    }
+
+    /// True when [`Self::mul_inner`] is the float32 product (not exact).
+    pub(super) fn inexact_inner(&self) -> bool {
+        !self.narrow.is_empty()
+    }
+
+    /// Copies the upper triangle of `matrix`, in float32 alone when the AVX2 kernel runs
+    /// (exact products then come from `matrix`: see [`Self::has_exact`]); the pattern work
+    /// is redone only when the pattern changed.
     pub(super) fn load(&mut self, matrix: &BlockCsr<B>) {
         let same = self
             .source
@@ -48,25 +180,12 @@ impl<const B: usize> Upper<B> {
                 self.indices.extend_from_slice(&indices[first..row.end]);
                 self.indptr.push(self.indices.len());
             }
-            let total = self.indices.len();
-            let tasks = rayon::current_num_threads()
-                .min(total / BLOCKS_PER_TASK)
-                .max(1);
-            self.ranges.clear();
-            let mut start = 0;
-            for t in 1..=tasks {
-                let end = if t == tasks {
-                    n
-                } else {
-                    self.indptr
-                        .partition_point(|&p| p < total * t / tasks)
-                        .min(n)
-                };
-                self.ranges.push((start, end.max(start)));
-                start = end.max(start);
-            }
-            self.partial = vec![vec![[0.0; B]; n]; tasks];
+            self.split(n);
             self.source = Some(Arc::clone(matrix.pattern()));
+        }
+        self.fast = B == 3 && wide::available();
+        if self.fast && self.gather_narrow(matrix) {
+            return;
         }
         let all = matrix.blocks();
         self.blocks.resize(self.positions.len(), [[0.0; B]; B]);
@@ -75,10 +194,30 @@ impl<const B: usize> Upper<B> {
             .with_min_len(BLOCKS_PER_TASK)
             .zip(self.positions.par_iter())
             .for_each(|(b, &at)| *b = all[at]);
+        self.finish();
     }
 
     /// $y = A x$ from the upper triangle.
+    ///
+    /// # Panics
+    /// Unless [`Self::has_exact`].
     pub(super) fn mul(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        if self.fast {
+            let flat = self.blocks.as_flattened().as_flattened();
+            // SAFETY: `fast` only when `available()`; `blocks` ends with the pad block.
+            let kernel = |r, x: &[Lane], part: &mut [Lane]| unsafe {
+                wide::rows_f64(&self.indptr, &self.indices, flat, x, r, part)
+            };
+            Self::mul_wide(
+                &mut self.x_wide,
+                &mut self.partial_wide,
+                &self.ranges,
+                kernel,
+                x,
+                y,
+            );
+            return;
+        }
         let (indptr, indices, blocks) = (&self.indptr, &self.indices, &self.blocks);
         let rows = |(start, end): (usize, usize), y: &mut [[f64; B]]| {
             for i in start..end {
@@ -125,6 +264,64 @@ impl<const B: usize> Upper<B> {
                 for a in 0..B {
                     yi[a] += part[i][a];
                 }
+            }
+        });
+    }
+
+    /// $y \approx A x$ from the float32 copy when there is one (relative error ~1e-7 of
+    /// $|A|\,|x|$), else [`Self::mul`]: the inner iterations of conjugate gradients.
+    pub(super) fn mul_inner(&mut self, x: &[[f64; B]], y: &mut [[f64; B]]) {
+        if self.narrow.is_empty() {
+            self.mul(x, y);
+            return;
+        }
+        let narrow = &self.narrow;
+        // SAFETY: `narrow` is made only when `fast`; it holds the pad values too.
+        let kernel = |r, x: &[Lane], part: &mut [Lane]| unsafe {
+            wide::rows_f32(&self.indptr, &self.indices, narrow, x, r, part)
+        };
+        Self::mul_wide(
+            &mut self.x_wide,
+            &mut self.partial_wide,
+            &self.ranges,
+            kernel,
+            x,
+            y,
+        );
+    }
+
+    /// The product by an AVX2 `kernel(rows, x, y)`: `x` padded, one task per range, the
+    /// tasks' accumulators summed.
+    fn mul_wide<K>(
+        x_wide: &mut [Lane],
+        partial: &mut [Vec<Lane>],
+        ranges: &[(usize, usize)],
+        kernel: K,
+        x: &[[f64; B]],
+        y: &mut [[f64; B]],
+    ) where
+        K: Fn((usize, usize), &[Lane], &mut [Lane]) + Sync,
+    {
+        for (w, v) in x_wide.iter_mut().zip(x) {
+            w[..B].copy_from_slice(v);
+        }
+        let x_wide = &*x_wide;
+        if ranges.len() == 1 {
+            partial[0].iter_mut().for_each(|v| *v = [0.0; 4]);
+            kernel(ranges[0], x_wide, &mut partial[0]);
+        } else {
+            partial
+                .par_iter_mut()
+                .zip(ranges.par_iter())
+                .for_each(|(part, &range)| {
+                    part.iter_mut().for_each(|v| *v = [0.0; 4]);
+                    kernel(range, x_wide, part);
+                });
+        }
+        let partial = &*partial;
+        y.iter_mut().enumerate().for_each(|(i, yi)| {
+            for a in 0..B {
+                yi[a] = partial.iter().map(|part| part[i][a]).sum();
             }
         });
     }

@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use super::scan::{non_finite_row, scan};
 use super::{BlockCsr, Pattern};
 use crate::efg::Csr;
 use crate::error::{Error, Result};
@@ -74,116 +75,12 @@ impl<const B: usize> BlockCsr<B> {
     ) -> Result<Self> {
         let () = Self::CHECK;
         let argument = "matrix";
-        if size == 0 {
-            return Err(Error::Empty {
-                argument,
-                needed: 1,
-            });
+        let scan = scan::<I, B>(argument, size, indptr, indices, data.len())?;
+        if let Some(row) = non_finite_row(&scan.indptr, data) {
+            return Err(Error::NonFinite { argument, row });
         }
-        if !size.is_multiple_of(B) {
-            return Err(Error::BlockSize {
-                argument,
-                size,
-                block: B,
-            });
-        }
-        if size / B > u32::MAX as usize {
-            return Err(Error::TooManyPoints {
-                argument,
-                got: size / B,
-                max: u32::MAX as usize,
-            });
-        }
-        let bad = |row, reason| Error::SparsePattern {
-            argument,
-            row,
-            reason,
-        };
-        if indptr.len() != size + 1 {
-            return Err(bad(0, "indptr must have size + 1 entries"));
-        }
-        let indptr: Vec<usize> = indptr
-            .iter()
-            .map(|p| p.get())
-            .collect::<Option<_>>()
-            .ok_or_else(|| bad(0, "indptr holds a negative entry"))?;
-        if indptr[0] != 0 || indices.len() != data.len() || indptr[size] != indices.len() {
-            return Err(bad(
-                size,
-                "indptr must start at 0 and end at the length of indices and data",
-            ));
-        }
-        if let Some(row) = (0..size)
-            .into_par_iter()
-            .find_first(|&r| indptr[r] > indptr[r + 1])
-        {
-            return Err(bad(row, "indptr decreases"));
-        }
-        let sorted = |r: usize| {
-            let mut last = None;
-            indices[indptr[r]..indptr[r + 1]]
-                .iter()
-                .all(|c| match c.get() {
-                    Some(c) if c < size && last.is_none_or(|l| l < c) => {
-                        last = Some(c);
-                        true
-                    }
-                    _ => false,
-                })
-        };
-        if let Some(row) = (0..size).into_par_iter().find_first(|&r| !sorted(r)) {
-            return Err(bad(row, "columns must be sorted, unique and in 0..size"));
-        }
-        // Chunks, not entries, as rayon's unit: position_first costs an atomic check per
-        // item (~40 ms for the 1.9 M entries of the paper's system, measured).
-        let first_bad = data
-            .par_chunks(1 << 14)
-            .position_first(|chunk| !chunk.iter().all(|v| v.is_finite()))
-            .map(|c| {
-                c * (1 << 14)
-                    + data[c << 14..]
-                        .iter()
-                        .position(|v| !v.is_finite())
-                        .unwrap_or(0)
-            });
-        if let Some(at) = first_bad {
-            return Err(Error::NonFinite {
-                argument,
-                row: indptr.partition_point(|&p| p <= at) - 1,
-            });
-        }
-        let column = |at: usize| indices[at].get().unwrap_or(0);
         let n = size / B;
-        // Block columns of each scalar row are sorted; the rows of a block row usually
-        // share them, which saves the merge.
-        let rows: Vec<Vec<u32>> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let block_columns = |r: usize| {
-                    let mut columns: Vec<u32> = Vec::with_capacity(indptr[r + 1] - indptr[r]);
-                    for at in indptr[r]..indptr[r + 1] {
-                        let j = (column(at) / B) as u32;
-                        if columns.last() != Some(&j) {
-                            columns.push(j);
-                        }
-                    }
-                    columns
-                };
-                let mut columns = block_columns(i * B);
-                for r in i * B + 1..(i + 1) * B {
-                    let other = block_columns(r);
-                    if other != columns {
-                        columns.extend(other);
-                        columns.sort_unstable();
-                        columns.dedup();
-                    }
-                }
-                if let Err(at) = columns.binary_search(&(i as u32)) {
-                    columns.insert(at, i as u32);
-                }
-                columns
-            })
-            .collect();
+        let (indptr, rows) = (&scan.indptr, scan.rows);
         let mut this = Self::zeros(Pattern::from_rows(argument, rows)?);
         // Each block row's blocks are a disjoint slice of the output: fill them in place.
         let p = Arc::clone(&this.pattern);
@@ -202,7 +99,7 @@ impl<const B: usize> BlockCsr<B> {
                 for r in i * B..(i + 1) * B {
                     let mut pos = 0;
                     let span = indptr[r]..indptr[r + 1];
-                    for (c, &value) in indices[span.clone()].iter().zip(&data[span]) {
+                    for (c, &value) in scan.indices[span.clone()].iter().zip(&data[span]) {
                         let c = c.get().unwrap_or(0);
                         while (columns[pos] as usize) < c / B {
                             pos += 1;
