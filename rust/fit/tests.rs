@@ -105,10 +105,10 @@ fn colliding_associations_of_distant_parts_are_dropped() {
     assert!(found[2].confidence > 0.9);
 }
 
-#[test]
-fn a_node_pushed_through_another_part_is_a_contact() {
-    // Two parallel sheets of surface nodes, far apart at rest, facing each other (normals
-    // +z below, -z above); one node of the lower sheet has passed above the upper sheet.
+/// Two parallel 5 x 5 sheets of surface nodes 0.1 apart, far apart at rest, facing each
+/// other (normals +z below, -z above): `(positions, normals, rest)`.
+#[allow(clippy::type_complexity)]
+fn facing_sheets() -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
     let mut positions = Vec::new();
     let mut normals = Vec::new();
     let mut rest = Vec::new();
@@ -121,6 +121,14 @@ fn a_node_pushed_through_another_part_is_a_contact() {
             }
         }
     }
+    (positions, normals, rest)
+}
+
+#[test]
+fn a_node_pushed_through_another_part_is_a_contact() {
+    // Two parallel sheets of surface nodes, far apart at rest, facing each other (normals
+    // +z below, -z above); one node of the lower sheet has passed above the upper sheet.
+    let (mut positions, normals, rest) = facing_sheets();
     positions[12][2] = 0.15; // the lower sheet's centre node, now 0.05 inside the upper part
     let support = vec![0.25; positions.len()];
     let contacts = find_contacts(&positions, &normals, &rest, &support);
@@ -153,18 +161,7 @@ fn a_contact_pushed_out_is_held_while_near_its_partner() {
     // Two facing sheets as above; the lower centre node was a contact of the upper sheet's
     // centre node and has been pushed out (0.02 below the upper sheet), so a fresh search
     // no longer reports it; held, it is kept where it is (target = its position, depth 0).
-    let mut positions = Vec::new();
-    let mut normals = Vec::new();
-    let mut rest = Vec::new();
-    for (z, nz, rest_z) in [(0.0, 1.0, 0.0), (0.1, -1.0, 10.0)] {
-        for i in 0..5 {
-            for j in 0..5 {
-                positions.push([0.1 * i as f64, 0.1 * j as f64, z]);
-                normals.push([0.0, 0.0, nz]);
-                rest.push([0.1 * i as f64, 0.1 * j as f64, rest_z]);
-            }
-        }
-    }
+    let (mut positions, normals, rest) = facing_sheets();
     let support = vec![0.25; positions.len()];
     positions[12][2] = 0.15;
     let before = find_contacts(&positions, &normals, &rest, &support);
