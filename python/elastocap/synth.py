@@ -490,6 +490,7 @@ def write_synthetic_capture(
         raise InvalidInputError(f"out must be a folder, got the existing file {root}")
 
     walker: Any
+    kind: type[Any]
     if figure == "capsules":
         walker, kind, description = Figure(seed), Figure, root / "ground_truth" / "figure.json"
     elif figure == "body":
