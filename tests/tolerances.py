@@ -229,3 +229,13 @@ BODY_SYNTH_LEG_ANGLE_DEG = 3.0
 BODY_SYNTH_ROOT_M = 0.015
 BODY_SYNTH_HEADING_DEG = 1.0
 BODY_SYNTH_SHAPE_RTOL = 0.05
+
+# --- distances to triangle meshes ---------------------------------------------------------
+
+# TriangleMesh vs. numpy brute force, relative to the mesh's bounding-box diagonal: both
+# compute a point-to-triangle distance in double precision from differences of coordinates
+# of size ~1, so they agree to a few ulps of that size (the issue asks for 1e-12).
+MESH_DISTANCE_RTOL = 1e-12
+# The winding-number reference decides inside / outside only when it is this far from 1/2
+# (its solid-angle sums are exact to ~1e-13; points on the surface give 1/2).
+WINDING_MARGIN = 1e-6
