@@ -9,10 +9,12 @@
 //! distance has a meaning.
 
 mod closest;
+mod normals;
+mod order;
 mod rays;
 
 use parry3d_f64::math::Vector;
-use parry3d_f64::shape::{TriMesh, TriMeshFlags};
+use parry3d_f64::shape::TriMesh;
 
 use crate::error::{check_finite, Error, Result};
 
@@ -25,6 +27,7 @@ pub use rays::RayHits;
 /// collapse to for distances and ray casts, and carry no normal, so they never decide a sign.
 pub struct TriangleMesh {
     mesh: TriMesh,
+    normals: normals::PseudoNormals,
 }
 
 impl TriangleMesh {
@@ -75,19 +78,15 @@ impl TriangleMesh {
             }
             indices.push(corners);
         }
-        let points = vertices
-            .iter()
-            .map(|v| Vector::new(v[0], v[1], v[2]))
-            .collect();
-        // ORIENTED: the pseudo-normals that sign the distances; nothing else is computed, so
-        // the mesh keeps the caller's vertex and triangle numbering.
-        let mesh = TriMesh::with_flags(points, indices, TriMeshFlags::ORIENTED).map_err(|_| {
-            Error::Empty {
-                argument: "triangles",
-                needed: 1,
-            }
+        let points: Vec<Vector> = vertices.iter().map(vector).collect();
+        // The pseudo-normals that sign the distances are computed here, not by parry (see
+        // `normals`); the mesh keeps the caller's vertex and triangle numbering.
+        let normals = normals::PseudoNormals::new(&points, &indices);
+        let mesh = TriMesh::new(points, indices).map_err(|_| Error::Empty {
+            argument: "triangles",
+            needed: 1,
         })?;
-        Ok(TriangleMesh { mesh })
+        Ok(TriangleMesh { mesh, normals })
     }
 
     /// Number of vertices.
@@ -110,6 +109,27 @@ impl TriangleMesh {
             .map(|t| v[t[0] as usize].dot(v[t[1] as usize].cross(v[t[2] as usize])))
             .sum::<f64>()
             / 6.0
+    }
+
+    /// Surface area, $\frac{1}{2} \sum_t |(b_t - a_t) \times (c_t - a_t)|$.
+    pub fn area(&self) -> f64 {
+        let v = self.mesh.vertices();
+        self.mesh
+            .indices()
+            .iter()
+            .map(|t| {
+                let a = v[t[0] as usize];
+                (v[t[1] as usize] - a).cross(v[t[2] as usize] - a).length()
+            })
+            .sum::<f64>()
+            / 2.0
+    }
+
+    /// Whether every edge is shared by exactly two triangles running along it in opposite
+    /// directions: a closed (watertight), consistently oriented surface, on which signed
+    /// distances and containment hold.
+    pub fn is_closed(&self) -> bool {
+        self.normals.closed
     }
 
     /// Length of the diagonal of the axis-aligned bounding box: the mesh's size, the scale

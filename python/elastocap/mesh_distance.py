@@ -89,8 +89,7 @@ class TriangleMesh:
     segment or point they collapse to; having no normal, they never decide a sign.
     Unsigned distances, closest points and ray casts hold for any triangle soup; signed
     distances and containment need a closed (watertight) mesh with consistent outward
-    orientation, such as :attr:`trimesh.Trimesh.is_watertight` and a positive
-    :attr:`volume` report.
+    orientation: :attr:`is_closed` and a positive :attr:`volume`.
 
     Examples
     --------
@@ -140,6 +139,18 @@ class TriangleMesh:
         return self._mesh.volume()
 
     @property
+    def area(self) -> float:
+        """Surface area, world units squared."""
+        return self._mesh.area()
+
+    @property
+    def is_closed(self) -> bool:
+        """Whether every edge is shared by exactly two triangles running along it in
+        opposite directions: a closed (watertight), consistently oriented surface, on which
+        signed distances and containment hold."""
+        return self._mesh.is_closed()
+
+    @property
     def size(self) -> float:
         """Diagonal of the axis-aligned bounding box, world units."""
         return self._mesh.diagonal()
@@ -162,10 +173,29 @@ class TriangleMesh:
         closest, distances, triangles = self._mesh.closest_points(_rows("points", points), bool(signed))
         return ClosestPoints(closest, distances, triangles)
 
-    def distances(self, points: Any, *, signed: bool = False) -> NDArray[np.float64]:
-        """``(M,) float64``: distance of each query ``(M, 3)`` to the mesh, world units;
-        negative inside the closed mesh when ``signed``."""
-        return self._mesh.distances(_rows("points", points), bool(signed))
+    def distances(self, points: Any, *, signed: bool = False, max_distance: float = np.inf) -> NDArray[np.float64]:
+        """Distance of each query to the mesh.
+
+        Parameters
+        ----------
+        points : (M, 3) array_like of float
+            Query points, world units.
+        signed : bool, default False
+            Sign the distances: negative inside the closed mesh.
+        max_distance : float, default inf
+            Distances beyond this are reported as ``max_distance`` (``-max_distance``
+            inside): the far points' closest triangles are not searched for, their side
+            is found by a ray cast. For when only a band around the surface matters.
+
+        Returns
+        -------
+        (M,) float64
+            World units.
+        """
+        limit = float(max_distance)
+        if not limit >= 0:
+            raise InvalidInputError(f"max_distance must be non-negative (inf for every distance exact), got {max_distance!r}")
+        return self._mesh.distances(_rows("points", points), bool(signed), limit)
 
     def contains(self, points: Any) -> NDArray[np.bool_]:
         """``(M,) bool``: whether each query ``(M, 3)`` lies inside the closed mesh (a

@@ -171,6 +171,13 @@ fn signed_distances_and_containment_of_a_cube() {
     let (v, t) = cube();
     let mesh = TriangleMesh::new(&v, &t).unwrap();
     assert!((mesh.volume() - 1.0).abs() < 1e-15);
+    assert!(mesh.is_closed());
+    assert!((mesh.area() - 6.0).abs() < 1e-14);
+    let open = TriangleMesh::new(&v, &t[1..]).unwrap();
+    assert!(!open.is_closed());
+    let mut flipped = t.clone();
+    flipped[0].swap(1, 2);
+    assert!(!TriangleMesh::new(&v, &flipped).unwrap().is_closed());
     let queries = [
         [0.5, 0.5, 0.5],
         [0.1, 0.5, 0.5],
@@ -301,4 +308,32 @@ fn bad_input_is_an_error() {
         Err(Error::InvalidOption { .. })
     ));
     assert!(mesh.closest_points(&[], true).unwrap().points.is_empty());
+}
+
+#[test]
+fn distances_past_the_band_are_clamped_with_exact_signs() {
+    let (v, t) = cube();
+    let mesh = TriangleMesh::new(&v, &t).unwrap();
+    let queries = [
+        [0.5, 0.5, 0.5],
+        [0.45, 0.5, 0.9],
+        [1.1, 0.5, 0.5],
+        [3.0, -2.0, 0.5],
+        [0.3, 0.3, 0.3],
+    ];
+    let mut d = vec![0.0; queries.len()];
+    mesh.distances_into(&queries, true, 0.2, &mut d).unwrap();
+    let expected = [-0.2, -0.1, 0.1, 0.2, -0.2];
+    for (got, want) in d.iter().zip(expected) {
+        assert!((got - want).abs() < 1e-14, "{got} vs {want}");
+    }
+    mesh.distances_into(&queries, false, 0.2, &mut d).unwrap();
+    assert!(d
+        .iter()
+        .zip(expected)
+        .all(|(got, want)| (got - want.abs()).abs() < 1e-14));
+    assert!(matches!(
+        mesh.distances_into(&queries, true, -1.0, &mut d),
+        Err(Error::InvalidOption { .. })
+    ));
 }

@@ -57,6 +57,16 @@ impl TriangleMesh {
         self.mesh.volume()
     }
 
+    /// Surface area.
+    fn area(&self) -> f64 {
+        self.mesh.area()
+    }
+
+    /// Closed and consistently oriented.
+    fn is_closed(&self) -> bool {
+        self.mesh.is_closed()
+    }
+
     /// Diagonal of the bounding box.
     fn diagonal(&self) -> f64 {
         self.mesh.diagonal()
@@ -87,19 +97,20 @@ impl TriangleMesh {
         Ok((points, distances, triangles))
     }
 
-    /// `(M,)` distances, signed (negative inside) when `signed`.
+    /// `(M,)` distances, signed (negative inside) when `signed`, at most `max_distance`.
     fn distances<'py>(
         &self,
         py: Python<'py>,
         queries: PyReadonlyArray2<'py, f64>,
         signed: bool,
+        max_distance: f64,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let q = rows::<3>(&queries, "queries")?;
         let distances = PyArray1::<f64>::zeros(py, q.len(), false);
         {
             let mut d = distances.readwrite();
             let d = d.as_slice_mut()?;
-            py.detach(|| self.mesh.distances_into(q, signed, d))
+            py.detach(|| self.mesh.distances_into(q, signed, max_distance, d))
                 .map_err(|e| to_py(py, e))?;
         }
         Ok(distances)
