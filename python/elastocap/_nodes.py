@@ -26,6 +26,9 @@ from skimage import measure
 from elastocap._core import InvalidInputError
 from elastocap.mesh_distance import TriangleMesh
 
+# Offset of the grid behind marching cubes below the mesh's bounding box, in units of h:
+# more than a cell and no simple fraction of one.
+GRID_SHIFT = 1.2345
 # Jitter of the interior grid, a fraction of h each way.
 JITTER = 0.2
 # Rounds of re-estimating h from the measured node count (a secant step on log count vs
@@ -79,9 +82,11 @@ def _lattice(lower: NDArray[np.float64], upper: NDArray[np.float64], h: float) -
 
 def _sample_mesh_at(index: TriangleMesh, mesh: trimesh.Trimesh, h: float, rng: np.random.Generator) -> NodeSet:
     lo, hi = mesh.bounds
-    # One cell beyond the mesh each way, so that marching cubes closes the surface.
-    origin = lo - h
-    shape = tuple(int(v) for v in np.floor((hi - lo) / h).astype(int) + 3)
+    # One cell beyond the mesh each way, so that marching cubes closes the surface; shifted
+    # off the bounding box, so that the flat faces of boxes and marching-cubes meshes do not
+    # lie on grid planes (corners at distance 0 give marching cubes coinciding vertices).
+    origin = lo - h * GRID_SHIFT
+    shape = tuple(int(v) for v in np.floor((hi - lo) / h + GRID_SHIFT).astype(int) + 3)
     corners = _lattice(origin, origin + (np.array(shape) - 0.5) * h, h)
     # Every corner of a cell the surface crosses is within sqrt(3) h of it: farther values
     # only need their sign, which spares searching deep inside the solid.
