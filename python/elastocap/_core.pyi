@@ -24,6 +24,7 @@ __all__ = [
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
+    "TriangleMesh",
 ]
 
 __version__: str
@@ -269,6 +270,7 @@ class BodySkeleton:
         outlier_distance: float | None,
     ) -> dict[str, Any]: ...
 
+@final
 class TriangleMesh:
     def __new__(cls, vertices: NDArray[np.float64], triangles: NDArray[np.int64]) -> TriangleMesh: ...
     @property
