@@ -29,6 +29,8 @@ from elastocap.mesh_distance import TriangleMesh
 # Offset of the grid behind marching cubes below the mesh's bounding box, in units of h:
 # more than a cell and no simple fraction of one.
 GRID_SHIFT = 1.2345
+# Smallest |signed distance| a marching-cubes corner is given, in units of h.
+CORNER_CLEARANCE = 0.125
 # Jitter of the interior grid, a fraction of h each way.
 JITTER = 0.2
 # Rounds of re-estimating h from the measured node count (a secant step on log count vs
@@ -91,6 +93,11 @@ def _sample_mesh_at(index: TriangleMesh, mesh: trimesh.Trimesh, h: float, rng: n
     # Every corner of a cell the surface crosses is within sqrt(3) h of it: farther values
     # only need their sign, which spares searching deep inside the solid.
     values = index.distances(corners, signed=True, max_distance=2 * h).reshape(shape)
+    # A corner almost on the surface puts the vertices of all its edges next to it: nodes
+    # a thousandth of h apart, which leave the stiffness near-zero-energy modes. Held at
+    # least CORNER_CLEARANCE h off the zero level (the voxelised field this replaced never
+    # came nearer than h / 8), the vertices stay apart; they are projected onto the mesh next.
+    values = np.where(values < 0, np.minimum(values, -CORNER_CLEARANCE * h), np.maximum(values, CORNER_CLEARANCE * h))
     vertices, faces, _, _ = measure.marching_cubes(values, level=0.0, spacing=(h,) * 3)
     surface = trimesh.Trimesh(index.closest_points(vertices + origin).points, faces, process=True)
     surface.remove_unreferenced_vertices()
