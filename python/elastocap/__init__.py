@@ -7,7 +7,7 @@ the public API, orchestration, I/O and the command line.
 
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
 from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_body
-from elastocap.camera import Camera, Rig
+from elastocap.camera import CalibrationWarning, Camera, Rig
 from elastocap.capture import Capture
 from elastocap.efg import stiffness_matrix
 from elastocap.fit import FrameFit, SequenceFit, fit_sequence
@@ -30,6 +30,7 @@ __all__ = [
     "BodyModel",
     "BodyObservations",
     "BodyState",
+    "CalibrationWarning",
     "Camera",
     "Capture",
     "ConvergenceError",

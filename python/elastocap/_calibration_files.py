@@ -22,9 +22,13 @@ from elastocap._core import InvalidInputError
 if TYPE_CHECKING:
     from elastocap.camera import Camera
 
-# Rot_<name> and R_<name> (Rodrigues) of one camera must agree to this, entry-wise: both
-# are written from one rotation, Rodrigues vectors with 6 or more digits.
-RODRIGUES_ATOL = 1e-6
+# Rot_<name> and R_<name> (Rodrigues) of one camera must agree to the precision the file
+# prints them with: RODRIGUES_SLACK times the rounding of both (half a unit in the last
+# printed digit of their entries), plus Rot_'s own orthonormality error. The matrix wins.
+RODRIGUES_SLACK = 4.0
+# When the printed digits cannot be read back from the text, assume this many significant
+# digits (what real tools print at the least).
+ASSUMED_DIGITS = 6
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
@@ -82,6 +86,7 @@ def read_yaml(folder: Path, size: tuple[int, int] | None) -> list[CameraRecord]:
         if not file.exists():
             raise FileNotFoundError(f"calibration file missing: {file}")
     intri, extri = _open_storage(intri_path), _open_storage(extri_path)
+    extri_text = extri_path.read_text(errors="replace")
     try:
         names = _read_names(intri, intri_path)
         assert names is not None  # required=True raises instead
@@ -102,13 +107,8 @@ def read_yaml(folder: Path, size: tuple[int, int] | None) -> list[CameraRecord]:
                     f"{extri_path}: camera {name!r} has neither Rot_{name} (3x3) nor R_{name} (3x1)"
                 )
             R = rot if rot is not None else _rodrigues(rvec, f"R_{name}", extri_path)
-            if rot is not None and rvec is not None:
-                from_rvec = _rodrigues(rvec, f"R_{name}", extri_path)
-                if rot.shape == (3, 3) and np.abs(from_rvec - rot).max() > RODRIGUES_ATOL:
-                    raise InvalidInputError(
-                        f"{extri_path}: camera {name!r}: Rot_{name} and R_{name} (Rodrigues) "
-                        f"disagree by {np.abs(from_rvec - rot).max():.3g}"
-                    )
+            if rot is not None and rvec is not None and rot.shape == (3, 3):
+                _check_rodrigues_agrees(extri_text, name, rot, rvec, extri_path)
             height = _read_scalar(intri, f"H_{name}", intri_path)
             width = _read_scalar(intri, f"W_{name}", intri_path)
             if (height is None) != (width is None):
@@ -315,6 +315,54 @@ def _read_scalar(storage: cv2.FileStorage, key: str, file: Path) -> int | None:
     if not (np.isfinite(value) and value > 0 and float(value).is_integer()):
         raise InvalidInputError(f"{file}: {key} must be a positive integer, got {value}")
     return int(value)
+
+
+def _check_rodrigues_agrees(
+    text: str, name: str, rot: NDArray[np.float64], rvec: Any, file: Path
+) -> None:
+    """Rot_<name> (3x3) and R_<name> (Rodrigues) must describe one rotation to the precision
+    the file prints them with (see RODRIGUES_SLACK)."""
+    from_rvec = _rodrigues(rvec, f"R_{name}", file)
+    disagreement = float(np.abs(from_rvec - rot).max())
+    rot_rounding = _printed_rounding(text, f"Rot_{name}", rot)
+    # A Rodrigues vector's rounding moves the rotation by at most its norm (in angle).
+    rvec_rounding = float(np.linalg.norm(_printed_rounding_entries(text, f"R_{name}", rvec)))
+    orthonormality = float(np.abs(rot.T @ rot - np.eye(3)).max())
+    tolerance = RODRIGUES_SLACK * (rot_rounding + rvec_rounding) + orthonormality + 1e-12
+    if disagreement > tolerance:
+        raise InvalidInputError(
+            f"{file}: camera {name!r}: Rot_{name} and R_{name} (Rodrigues) disagree by "
+            f"{disagreement:.3g}, more than the {tolerance:.3g} their printed precision explains"
+        )
+
+
+def _printed_rounding(text: str, key: str, values: Any) -> float:
+    """Largest rounding error of the entries of matrix ``key`` as printed in ``text``."""
+    return float(_printed_rounding_entries(text, key, values).max())
+
+
+def _printed_rounding_entries(text: str, key: str, values: Any) -> NDArray[np.float64]:
+    """Per entry of matrix ``key`` in an OpenCV YAML ``text``: its rounding error, half a
+    unit in the last significant digit the writer kept. The writer's precision is the most
+    significant digits any entry shows ("%g" drops trailing zeros, so a short entry is not a
+    coarse one); when the entries cannot be read back, ASSUMED_DIGITS are assumed."""
+    flat = np.asarray(values, dtype=np.float64).ravel()
+    match = re.search(
+        rf"^\s*{re.escape(key)}\s*:[^\n]*\n(?:[^\n]*\n){{0,6}}?\s*data\s*:\s*\[([^\]]*)\]",
+        text,
+        re.MULTILINE,
+    )
+    tokens = match.group(1).replace(",", " ").split() if match else []
+    digits = max(map(_significant_digits, tokens)) if len(tokens) == flat.size else ASSUMED_DIGITS
+    magnitude = np.floor(np.log10(np.maximum(np.abs(flat), 1e-300)))
+    rounding = 0.5 * 10.0 ** (magnitude - (digits - 1))
+    return np.asarray(np.where(flat == 0.0, 0.0, rounding), dtype=np.float64)
+
+
+def _significant_digits(token: str) -> int:
+    """Significant digits of a number written like ``-1.2345e-02`` or ``0.00120``."""
+    mantissa = token.lower().partition("e")[0].lstrip("+-").replace(".", "").lstrip("0")
+    return max(len(mantissa), 1)
 
 
 def _rodrigues(rvec: Any, key: str, file: Path) -> NDArray[np.float64]:

@@ -17,18 +17,29 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import warnings
+
 import numpy as np
 from numpy.typing import NDArray
 
 from elastocap import _calibration_files
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array
+from elastocap.polar import polar_rotation
 
-__all__ = ["Camera", "Rig"]
+__all__ = ["CalibrationWarning", "Camera", "Rig"]
 
-# R^T R = I and det R = +1 must hold to this, entry-wise: calibration files print rotations
-# with 6 to 17 digits, and a Rodrigues vector gives an orthonormal matrix to a few ulps.
-ROTATION_ATOL = 1e-6
+# A rotation is kept exactly as given when R^T R = I holds to this, entry-wise (a Rodrigues
+# vector or a matrix printed with 15 or more digits), so that files round-trip bit for bit.
+ROTATION_EXACT_ATOL = 1e-12
+# Calibration files print rotations with 6 to 17 significant digits, so a printed rotation is
+# orthonormal only to about 1e-6. Up to this error R is projected onto the nearest rotation
+# (polar decomposition) with a CalibrationWarning naming the camera and the size of the
+# change; beyond it (a scaled or sheared matrix, a typo) R is refused.
+ROTATION_TOLERANCE = 1e-3
+# K's last row must be [0, 0, 1] and K[1, 0] zero to this (relative to fy); within it they
+# are set exactly (a printed 1.0000001 or -1e-17), beyond it K is refused.
+INTRINSICS_TOLERANCE = 1e-6
 
 # Newton's method on the distortion map stops when the step is below this (normalised image
 # coordinates, i.e. about 1e-15 focal lengths: rounding level) ...
@@ -53,13 +64,20 @@ class Camera:
         The camera's name (unique within a :class:`Rig`).
     K : (3, 3) array_like of float
         Intrinsics ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels; the skew ``s`` may
-        be non-zero. ``fx`` and ``fy`` must be positive.
+        be non-zero. ``fx`` and ``fy`` must be positive. A last row within 1e-6 of
+        ``[0, 0, 1]`` and ``K[1, 0]`` within 1e-6 fy of 0 (printed precision) are set
+        exactly.
     dist : (<= 5,) array_like of float or None
         OpenCV distortion ``k1 k2 p1 p2 k3`` (radial k1 k2 k3, tangential p1 p2); shorter
         input is padded with zeros, ``None`` means no distortion. Any shape with at most 5
         entries (``(1, 5)``, ``(5, 1)``, ...) is accepted.
     R : (3, 3) array_like of float
-        World -> camera rotation (orthonormal, det +1, to 1e-6).
+        World -> camera rotation. Printed calibrations carry 6-8 digits, so a matrix whose
+        ``max |R^T R - I|`` is at most ``ROTATION_TOLERANCE`` (1e-3) is accepted and
+        replaced by the nearest rotation (polar decomposition), with a
+        :class:`CalibrationWarning` naming the camera and the size of the change when that
+        error exceeds 1e-12 (below it R is kept bit for bit). A reflection (det < 0) or a
+        matrix farther from any rotation is refused.
     t : (3,) array_like of float
         World -> camera translation (world units): ``x_cam = R X + t``. ``(3, 1)`` is
         accepted.
@@ -69,9 +87,10 @@ class Camera:
     Raises
     ------
     InvalidInputError
-        On a wrong shape, a non-finite entry, a non-rotation ``R``, a ``K`` whose last row
-        is not ``[0, 0, 1]`` or whose focal lengths are not positive, or a non-positive or
-        non-integer image size; the message names the argument.
+        On a wrong shape, a non-finite entry, an ``R`` far from any rotation or a
+        reflection, a ``K`` whose last row is not ``[0, 0, 1]`` or whose focal lengths are
+        not positive, or a non-positive or non-integer image size; the message names the
+        argument and the camera.
 
     Notes
     -----
@@ -94,24 +113,9 @@ class Camera:
     ) -> None:
         if not isinstance(name, str) or not name:
             raise InvalidInputError(f"name must be a non-empty string, got {name!r}")
-        K_ = _matrix("K", K, (3, 3))
-        if not np.array_equal(K_[2], [0.0, 0.0, 1.0]):
-            raise InvalidInputError(f"K must have last row [0, 0, 1], got {K_[2].tolist()}")
-        if K_[1, 0] != 0.0:
-            raise InvalidInputError(f"K[1, 0] must be 0, got {K_[1, 0]}")
-        if not (K_[0, 0] > 0 and K_[1, 1] > 0):
-            raise InvalidInputError(
-                f"K must have positive focal lengths, got fx = {K_[0, 0]}, fy = {K_[1, 1]}"
-            )
+        K_ = _intrinsics(name, K)
         dist_ = _distortion(dist)
-        R_ = _matrix("R", R, (3, 3))
-        orthonormality = float(np.abs(R_.T @ R_ - np.eye(3)).max())
-        determinant = float(np.linalg.det(R_))
-        if orthonormality > ROTATION_ATOL or abs(determinant - 1.0) > ROTATION_ATOL:
-            raise InvalidInputError(
-                f"R must be a rotation (orthonormal, det +1, to {ROTATION_ATOL:g}): "
-                f"max |R^T R - I| = {orthonormality:.3g}, det R = {determinant:.9g}"
-            )
+        R_ = _rotation(name, R)
         t_ = as_float_array("t", t)
         if t_.size != 3 or t_.ndim > 2:
             raise InvalidInputError(f"t must have shape (3,) or (3, 1), got {t_.shape}")
@@ -541,7 +545,10 @@ class Rig(Mapping[str, Camera]):
         ``dist_<name>`` (1x5 or shorter; missing means none), optional ``H_<name>``,
         ``W_<name>`` (image height and width). ``extri.yml``: ``Rot_<name>`` (3x3,
         preferred) or ``R_<name>`` (3x1 Rodrigues), ``T_<name>`` (3x1); when both
-        rotations are present they must agree to 1e-6. Without ``H_``/``W_``, the size
+        rotations are present they must agree to the precision the file prints them with
+        (a few units in the last digit of each) and the matrix wins. Rotations printed with
+        few digits are projected onto the nearest rotation with a
+        :class:`CalibrationWarning` (see :class:`Camera`). Without ``H_``/``W_``, the size
         comes from the camera's first image, mask, background or video in the folder
         (see :class:`elastocap.Capture`), else from ``size``; with them, images are not
         opened (:class:`elastocap.Capture` checks each image's size when reading it).
@@ -581,6 +588,61 @@ class Rig(Mapping[str, Camera]):
 # ------------------------------------------------------------------------------------------
 # helpers: validation
 # ------------------------------------------------------------------------------------------
+
+
+class CalibrationWarning(UserWarning):
+    """A calibration was accepted after a correction (a printed rotation projected onto the
+    nearest rotation, printed intrinsics rounded to their exact form) or looks implausible.
+    The message names the camera and the size of the correction."""
+
+
+def _rotation(camera: str, value: Any) -> NDArray[np.float64]:
+    """``value`` as a rotation matrix: kept when orthonormal to rounding, projected onto the
+    nearest rotation (with a warning) when within ROTATION_TOLERANCE, refused otherwise."""
+    R = _matrix("R", value, (3, 3))
+    orthonormality = float(np.abs(R.T @ R - np.eye(3)).max())
+    determinant = float(np.linalg.det(R))
+    if determinant <= 0.0:
+        raise InvalidInputError(
+            f"camera {camera!r}: R must be a rotation, got a reflection or a singular matrix "
+            f"(det R = {determinant:.9g})"
+        )
+    if orthonormality > ROTATION_TOLERANCE:
+        raise InvalidInputError(
+            f"camera {camera!r}: R must be a rotation: max |R^T R - I| = {orthonormality:.3g} "
+            f"exceeds the {ROTATION_TOLERANCE:g} that printed precision explains "
+            f"(det R = {determinant:.9g}); is it scaled or a different matrix?"
+        )
+    if orthonormality <= ROTATION_EXACT_ATOL:
+        return R
+    nearest = polar_rotation(R[None])[0]
+    warnings.warn(
+        f"camera {camera!r}: R is orthonormal only to {orthonormality:.3g} (printed "
+        f"precision); replaced by the nearest rotation, entries changed by at most "
+        f"{np.abs(nearest - R).max():.3g}",
+        CalibrationWarning,
+        stacklevel=3,
+    )
+    return np.ascontiguousarray(nearest)
+
+
+def _intrinsics(camera: str, value: Any) -> NDArray[np.float64]:
+    """``value`` as an intrinsic matrix: last row [0, 0, 1] and K[1, 0] = 0 to printed
+    precision (set exactly), positive focal lengths."""
+    K = _matrix("K", value, (3, 3))
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InvalidInputError(
+            f"camera {camera!r}: K must have positive focal lengths, got fx = {K[0, 0]}, "
+            f"fy = {K[1, 1]}"
+        )
+    if np.abs(K[2] - [0.0, 0.0, 1.0]).max() > INTRINSICS_TOLERANCE:
+        raise InvalidInputError(f"camera {camera!r}: K must have last row [0, 0, 1], got {K[2].tolist()}")
+    if abs(K[1, 0]) > INTRINSICS_TOLERANCE * K[1, 1]:
+        raise InvalidInputError(f"camera {camera!r}: K[1, 0] must be 0, got {K[1, 0]}")
+    K = K.copy()
+    K[2] = [0.0, 0.0, 1.0]
+    K[1, 0] = 0.0
+    return K
 
 
 def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
