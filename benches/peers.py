@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 import elastocap
+import elastocap.solvers
 
 
 def _uniform(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -398,7 +399,7 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
         return x
 
     def ours_cg(x0: np.ndarray | None = None, nodes: np.ndarray | None = None) -> np.ndarray:
-        x, status = elastocap.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol, nodes=nodes)
+        x, status = elastocap.solvers.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol, nodes=nodes)
         assert status.converged
         counts["ours_iterations"] = status.iterations
         return x
@@ -411,12 +412,12 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
     for case, x0 in (("solve_pcg_two_level_cold_2465_k20", None), ("solve_pcg_two_level_warm_2465_k20", start)):
         row = _compare(case, n, lambda x0=x0: ours_cg(x0, points), "scipy.sparse.linalg.cg (Jacobi preconditioner, same rtol)", lambda x0=x0: scipy_cg(x0), repeats)
         rows.append({**row, **counts})
-    factor = elastocap.SparseCholesky(matrix)
+    factor = elastocap.solvers.SparseCholesky(matrix)
     lu = sla.factorized(csc)
     assert np.allclose(factor.solve(rhs), exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
     rows.append(
         {
-            **_compare("solve_cholesky_full_2465_k20", n, lambda: elastocap.SparseCholesky(matrix).solve(rhs), "scipy.sparse.linalg.spsolve (SuperLU)", lambda: sla.spsolve(csc, rhs), max(3, repeats // 2)),
+            **_compare("solve_cholesky_full_2465_k20", n, lambda: elastocap.solvers.SparseCholesky(matrix).solve(rhs), "scipy.sparse.linalg.spsolve (SuperLU)", lambda: sla.spsolve(csc, rhs), max(3, repeats // 2)),
             "factor_entries": factor.factor_entries,
         }
     )
@@ -443,8 +444,8 @@ def fit_cases(repeats: int) -> list[dict[str, Any]]:
     import tempfile
     from pathlib import Path
 
-    from elastocap.hull_stage import load_hull, run_hull_stage
-    from elastocap.synth import write_synthetic_capture
+    from elastocap.pipeline.hull import load_hull, run_hull_stage
+    from elastocap.synth.capture import write_synthetic_capture
 
     with tempfile.TemporaryDirectory() as tmp:
         capture = write_synthetic_capture(Path(tmp) / "capture", frames=8, cameras=8, progress=False)
@@ -492,7 +493,7 @@ def elastic_memory_cases(repeats: int) -> list[dict[str, Any]]:
     import subprocess
     import sys
 
-    from elastocap.elastic import STABILIZATION
+    from elastocap.elastic.model import STABILIZATION
 
     n = 64_000
     out = subprocess.run([sys.executable, "-c", _ELASTIC_MEMORY_SCRIPT.format(n=n, stabilization=STABILIZATION)], capture_output=True, text=True, check=True)

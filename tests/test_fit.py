@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation
 
 import elastocap
 from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_stage
-from elastocap.fit_stage import load_model
-from elastocap.hull_stage import load_hull
-from elastocap.synth import write_synthetic_capture
+from elastocap.pipeline.fit import load_model
+from elastocap.pipeline.hull import load_hull
+from elastocap.synth.capture import write_synthetic_capture
 from data_paths import HORSE
 from tolerances import (
     FIT_HULL_VOXELS,

@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from elastocap import InvalidInputError
-from elastocap.hull_stage import load_hull, parse_frames, run_hull_stage
-from elastocap.synth import write_synthetic_capture
+from elastocap.pipeline.hull import load_hull, parse_frames, run_hull_stage
+from elastocap.synth.capture import write_synthetic_capture
 
 
 @pytest.fixture(scope="module")

@@ -49,7 +49,7 @@ def reference_phi(x: np.ndarray, centre: np.ndarray, neighbours: np.ndarray, ddm
     return np.linalg.solve(moments, at_x) @ (basis.T * w)
 
 
-def identity_errors(points: np.ndarray, mls: elastocap.mls.MLSShapeFunctions) -> dict[str, float]:
+def identity_errors(points: np.ndarray, mls: elastocap.elastic.mls.MLSShapeFunctions) -> dict[str, float]:
     dim = points.shape[1]
     x = points[mls.neighbors]  # (N, k, D)
     scaled_grad = mls.grad * mls.support[:, None, None]

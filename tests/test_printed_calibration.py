@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import elastocap
 from elastocap import Camera, Rig
-from elastocap.camera import CalibrationWarning
+from elastocap.cameras.camera import CalibrationWarning
 from data_paths import TEMPLE
 
 SIX_DIGITS = "{:.6g}"
@@ -135,7 +135,7 @@ def test_printed_intrinsics_are_set_exactly():
 
 
 def test_a_synthetic_rig_printed_to_six_digits_loads_with_warnings(tmp_path):
-    from elastocap.synth import ring_rig
+    from elastocap.synth.capture import ring_rig
 
     rig = ring_rig(8, seed=3)
     print_rig(rig, tmp_path)
@@ -155,7 +155,7 @@ def test_a_synthetic_rig_printed_to_six_digits_loads_with_warnings(tmp_path):
 
 
 def test_rodrigues_and_matrix_must_agree_to_their_printed_precision(tmp_path):
-    from elastocap.synth import ring_rig
+    from elastocap.synth.capture import ring_rig
 
     rig = ring_rig(3, seed=4)
     # 17 digits: the check is as tight as the file; a disagreement of 1e-6 is refused.

@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import elastocap
-from elastocap import InvalidInputError, SparseCholesky, conjugate_gradient
+from elastocap import InvalidInputError
+from elastocap.solvers import SparseCholesky, conjugate_gradient
 from tolerances import SOLVE_AGREEMENT_RTOL, SOLVE_CG_TOLERANCE, SOLVE_WARM_START_ITERATIONS, TWO_LEVEL_ITERATION_RATIO
 
 

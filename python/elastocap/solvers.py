@@ -216,7 +216,7 @@ class SparseCholesky:
     --------
     >>> import numpy as np, scipy.sparse, elastocap
     >>> A = scipy.sparse.diags([4.0] * 6) + scipy.sparse.eye(6, k=3) + scipy.sparse.eye(6, k=-3)
-    >>> chol = elastocap.SparseCholesky(A, block=3)
+    >>> chol = elastocap.solvers.SparseCholesky(A, block=3)
     >>> bool(np.allclose(A @ chol.solve(np.ones(6)), 1))
     True
     """

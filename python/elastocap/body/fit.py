@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
 from elastocap.body.model import BodyModel, BodyState
-from elastocap.camera import Camera
+from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays"]
 

@@ -36,13 +36,18 @@ from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description
-from elastocap.camera import Camera
+from elastocap.cameras.camera import Camera
 
-__all__ = ["SKIN_LEVEL", "BodyModel", "BodyState"]
+__all__ = ["SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
 
 #: The skin is the level set ``F = SKIN_LEVEL`` of the field (SPEC 6: T = 0.5).
 SKIN_LEVEL = 0.5
 FORMAT = "elastocap body model 1"
+
+# The body model is z-up (its heading is the free root angle alpha, not the Euler-limited
+# beta); captures are y-up (DESIGN: the synthetic floor is y = 0). This rotation maps body
+# coordinates to a y-up world: ``world = Z_UP_TO_WORLD @ body``.
+Z_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]).T
 # Root translation is unbounded in practice; root angles are free but beta stays away from
 # the Euler singularity at +-90 degrees.
 _ROOT_LIMITS = [(-1e3, 1e3)] * 3 + [(-4 * np.pi, 4 * np.pi), (-1.45, 1.45), (-4 * np.pi, 4 * np.pi)]

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_points
-from elastocap.grid import Grid
+from elastocap.hull.grid import Grid
 
 __all__ = ["SDF", "signed_distance"]
 
@@ -63,7 +63,7 @@ def signed_distance(occupancy: Any, spacing: float | Any = 1.0) -> NDArray[np.fl
 
 
 class SDF:
-    """A signed distance field on a :class:`~elastocap.grid.Grid`, sampled trilinearly.
+    """A signed distance field on a :class:`~elastocap.hull.grid.Grid`, sampled trilinearly.
 
     Parameters
     ----------

@@ -17,14 +17,11 @@ import trimesh
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
-from elastocap.body.model import BodyModel, BodyState
-from elastocap.body.stage import _Z_UP_TO_WORLD
+from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
 
-__all__ = ["BODY_FORMAT", "BodyFigure", "Z_UP_TO_WORLD"]
+__all__ = ["BODY_FORMAT", "BodyFigure"]
 
 BODY_FORMAT = "elastocap synthetic body 1"
-#: Body (z-up) to capture world (y-up): ``world = Z_UP_TO_WORLD @ body``.
-Z_UP_TO_WORLD: NDArray[np.float64] = _Z_UP_TO_WORLD
 #: Shape coefficients are drawn in ``1 +- SHAPE_SPREAD``.
 SHAPE_SPREAD = 0.04
 #: Frames per motion cycle (as the capsule figure's walk cycle).

@@ -23,11 +23,11 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap._core import InvalidInputError
-from elastocap._voxelize import solid_voxels
-from elastocap.elastic import ElasticModel
-from elastocap.grid import Grid
-from elastocap.hull import Hull
-from elastocap.sdf import SDF
+from elastocap.hull.voxelize import solid_voxels
+from elastocap.elastic.model import ElasticModel
+from elastocap.hull.grid import Grid
+from elastocap.hull.carve import Hull
+from elastocap.hull.sdf import SDF
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 
@@ -102,7 +102,7 @@ def _mask_field(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, f
     """A 2-D target: the signed distance (pixels) of a binary mask ``(H, W)`` as a grid one
     voxel thick over the model's pixel coordinates, pixel ``(row, column)`` at ``(column,
     row)``."""
-    from elastocap.sdf import signed_distance
+    from elastocap.hull.sdf import signed_distance
 
     if isinstance(target, (SDF, Hull, trimesh.Trimesh)):
         raise InvalidInputError(f"a 2-D model fits to masks (H, W), not to a 3-D {type(target).__name__}")

@@ -15,16 +15,13 @@ from tqdm import tqdm
 from elastocap._core import InvalidInputError
 from elastocap._io import save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations, fit_body
-from elastocap.body.model import BodyModel, BodyState
-from elastocap.camera import Camera, Rig
-from elastocap.capture import Capture
-from elastocap.pictures import contact_sheet
+from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
+from elastocap.cameras.camera import Camera, Rig
+from elastocap.capture.folder import Capture
+from elastocap.pipeline.pictures import contact_sheet
 
 __all__ = ["run_body_stage"]
 
-# Captures are y-up (DESIGN: the synthetic floor is y = 0); the body is fitted in a z-up
-# frame, where its heading is the free root angle alpha and not the Euler-limited beta.
-_Z_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]).T
 
 
 def _centre(masks: dict[str, NDArray[np.bool_]], cameras: Rig | dict[str, Camera]) -> NDArray[np.float64]:
@@ -74,7 +71,7 @@ def run_body_stage(
         return result_file
     model = BodyModel.default_human()
     names = cap.rig.names
-    cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ _Z_UP_TO_WORLD) for n in names}
+    cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ Z_UP_TO_WORLD) for n in names}
     camera_list = [cameras[n] for n in names]
     frames_obs: list[BodyObservations] = []
     states: list[BodyState] = []
@@ -89,7 +86,7 @@ def run_body_stage(
             states.append(saved)
             continue
         if i == 0:
-            centre = _Z_UP_TO_WORLD.T @ _centre(masks, cap.rig)
+            centre = Z_UP_TO_WORLD.T @ _centre(masks, cap.rig)
             best = None
             for heading in np.linspace(-np.pi, np.pi, 8, endpoint=False):
                 start = model.rest_state(position=centre)
@@ -109,7 +106,7 @@ def run_body_stage(
     (out / "body").mkdir(parents=True, exist_ok=True)
     for frame, state in zip(wanted, joint.states):
         mesh = model.skin_mesh(state, spacing=0.015)
-        mesh.vertices = mesh.vertices @ _Z_UP_TO_WORLD.T
+        mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
         save_mesh(out / "body" / f"{frame:06d}.ply", mesh)
     first = joint.states[0]
     views = []
@@ -130,7 +127,7 @@ def run_body_stage(
         "motion_names": model.motion_names,
         "motion": joint.motion.tolist(),
         "frame": "z-up body frame; world = R_body_to_world @ x",
-        "R_body_to_world": _Z_UP_TO_WORLD.tolist(),
+        "R_body_to_world": Z_UP_TO_WORLD.tolist(),
         "status": joint.status,
         "iterations": joint.iterations,
         "final_cost": joint.final_cost,

@@ -16,9 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._io import save_bytes
-from elastocap.capture import Capture
-from elastocap.fit import SequenceFit
-from elastocap.pictures import contact_sheet, mesh_over_image, save_png
+from elastocap.capture.folder import Capture
+from elastocap.elastic.fit import SequenceFit
+from elastocap.pipeline.pictures import contact_sheet, mesh_over_image, save_png
 
 __all__ = ["line_plot", "write_fit_report"]
 

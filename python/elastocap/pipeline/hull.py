@@ -16,10 +16,10 @@ from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
 from elastocap._io import save_mesh, save_npz
-from elastocap.camera import Rig
-from elastocap.capture import Capture
-from elastocap.grid import Grid, space_seen_by
-from elastocap.hull import Hull, visual_hull
+from elastocap.cameras.camera import Rig
+from elastocap.capture.folder import Capture
+from elastocap.hull.grid import Grid, space_seen_by
+from elastocap.hull.carve import Hull, visual_hull
 
 __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
 
@@ -100,7 +100,7 @@ def run_hull_stage(
     frames : iterable of int, optional
         Frames to process (default: all); frames already written are skipped.
     tolerance, footprint
-        As in :func:`~elastocap.hull.visual_hull`.
+        As in :func:`~elastocap.hull.carve.visual_hull`.
     progress : bool
         Show a progress bar.
     """

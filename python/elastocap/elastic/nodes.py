@@ -1,7 +1,7 @@
 """Node placement for element-free models (SPEC 4.1): surface nodes on a remeshed surface,
 interior nodes on a jittered grid, spacing chosen from a requested node count.
 
-3-D: the closed mesh is voxelised (:mod:`elastocap._voxelize`) at a quarter of the node
+3-D: the closed mesh is voxelised (:mod:`elastocap.hull.voxelize`) at a quarter of the node
 spacing ``h`` and turned into an exact signed distance field; the surface is re-extracted by
 marching cubes with steps of ``h`` (vertices about ``h`` apart) and its vertices are pulled
 onto the zero level; interior nodes are the points of a jittered grid of spacing ``h`` at
@@ -23,9 +23,9 @@ from scipy import ndimage
 from skimage import measure
 
 from elastocap._core import InvalidInputError
-from elastocap._voxelize import solid_voxels
-from elastocap.grid import Grid
-from elastocap.sdf import SDF
+from elastocap.hull.voxelize import solid_voxels
+from elastocap.hull.grid import Grid
+from elastocap.hull.sdf import SDF
 
 # Voxels per node spacing for the distance field behind the sampling.
 SUBDIVISION = 4

@@ -11,8 +11,8 @@ import trimesh
 from numpy.typing import NDArray
 
 from elastocap._io import save_image
-from elastocap.camera import Camera
-from elastocap.synth import render_silhouette
+from elastocap.cameras.camera import Camera
+from elastocap.render import render_silhouette
 
 __all__ = ["contact_sheet", "mesh_over_image", "save_png"]
 

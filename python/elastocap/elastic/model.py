@@ -4,7 +4,7 @@ system and a static solver with fixed nodes and loads.
 
 The kernels live in ``rust/elastic.rs`` (rotations, energy, forces, right-hand sides,
 matrix-free products) and ``rust/efg/assembly.rs`` (the block stiffness on its fixed
-pattern); node placement in :mod:`elastocap._nodes`.
+pattern); node placement in :mod:`elastocap.elastic.nodes`.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap._core import InvalidInputError
-from elastocap._nodes import NodeSet, sample_mask, sample_mesh
+from elastocap.elastic.nodes import NodeSet, sample_mask, sample_mesh
 from elastocap._validate import as_count, as_float_array, as_points
-from elastocap.neighbors import knn
+from elastocap.geometry.neighbors import knn
 
 __all__ = ["ElasticModel", "StaticSolution"]
 

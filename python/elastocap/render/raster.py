@@ -1,6 +1,6 @@
 """Vectorised triangle rasterisation: coverage and a z-buffer, sampled at pixel centres.
 
-Used by :mod:`elastocap.synth` to render exact silhouettes and shaded images of meshes.
+Used by :mod:`elastocap.synth.capture` to render exact silhouettes and shaded images of meshes.
 Pixel ``(u, v)`` = (column, row) has its centre at integer coordinates (DESIGN
 conventions), so a pixel is covered by a projected triangle when its centre lies inside it.
 

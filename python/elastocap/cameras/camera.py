@@ -22,10 +22,10 @@ import warnings
 import numpy as np
 from numpy.typing import NDArray
 
-from elastocap import _calibration_files
+from elastocap.cameras import formats as _calibration_files
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array
-from elastocap.polar import polar_rotation
+from elastocap.geometry.polar import polar_rotation
 
 __all__ = ["CalibrationWarning", "Camera", "Rig"]
 

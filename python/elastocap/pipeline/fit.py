@@ -21,10 +21,10 @@ from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
 from elastocap._io import save_bytes, save_mesh, save_npz
-from elastocap.capture import Capture
-from elastocap.elastic import ElasticModel
-from elastocap.fit import FrameFit, SequenceFit, fit_sequence
-from elastocap.hull_stage import load_hull, run_hull_stage
+from elastocap.capture.folder import Capture
+from elastocap.elastic.model import ElasticModel
+from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.pipeline.hull import load_hull, run_hull_stage
 
 __all__ = ["load_model", "run_fit_stage"]
 
@@ -81,7 +81,7 @@ def run_fit_stage(
     n_nodes, k, rotation
         As in :meth:`ElasticModel.from_mesh`.
     stiffness : float
-        As in :func:`~elastocap.fit.fit_sequence`.
+        As in :func:`~elastocap.elastic.fit.fit_sequence`.
     resolution : int
         Voxels along the longest side of each hull.
     progress : bool

@@ -19,9 +19,9 @@ from skimage import measure
 from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count
-from elastocap.camera import Rig
-from elastocap.grid import Grid
-from elastocap.sdf import SDF
+from elastocap.cameras.camera import Rig
+from elastocap.hull.grid import Grid
+from elastocap.hull.sdf import SDF
 
 __all__ = ["Hull", "visual_hull"]
 

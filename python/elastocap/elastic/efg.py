@@ -1,5 +1,5 @@
 """Linear-elastic stiffness of an element-free Galerkin model by direct nodal integration
-(SPEC 4.3), on the MLS shape functions of :mod:`elastocap.mls`.
+(SPEC 4.3), on the MLS shape functions of :mod:`elastocap.elastic.mls`.
 
 The kernel (``rust/efg.rs``) builds each node's ``k_p = V_p B_p^T C B_p`` in parallel
 without the GIL and assembles the global stiffness as CSR.
@@ -17,7 +17,7 @@ from scipy.spatial import ConvexHull, QhullError
 from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array, as_points, as_positive
-from elastocap.mls import MLSShapeFunctions, mls_shape_functions
+from elastocap.elastic.mls import MLSShapeFunctions, mls_shape_functions
 
 __all__ = ["stiffness_matrix"]
 

@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
-from elastocap._calibration_files import IMAGE_SUFFIXES
-from elastocap.camera import Rig
+from elastocap.cameras.formats import IMAGE_SUFFIXES
+from elastocap.cameras.camera import Rig
 
 __all__ = ["Capture"]
 

@@ -38,22 +38,15 @@ import trimesh
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from elastocap import _raster
+from elastocap.render.mesh import render_mesh
 from elastocap._core import InvalidInputError
-from elastocap._figure import CONTACT_DEPTH, FIGURE_FORMAT, PARTS, Capsules, Figure
+from elastocap.synth.capsules import FIGURE_FORMAT, CapsuleFigure
 from elastocap._io import save_bytes, save_image
 from elastocap._validate import as_count, as_float_array, as_positive
-from elastocap.camera import Camera, Rig
+from elastocap.cameras.camera import Camera, Rig
 
 __all__ = [
-    "CONTACT_DEPTH",
-    "FIGURE_FORMAT",
-    "PARTS",
-    "Capsules",
-    "Figure",
     "render_background",
-    "render_image",
-    "render_silhouette",
     "ring_rig",
     "write_synthetic_capture",
 ]
@@ -161,190 +154,8 @@ def _look_at_rotation(centre: NDArray[np.float64], target: NDArray[np.float64]) 
 
 
 # ------------------------------------------------------------------------------------------
-# Rendering
+# The empty scene
 # ------------------------------------------------------------------------------------------
-
-# Default direction towards the key light (world, y up): above, in front at yaw 0, a little
-# to the side.
-DEFAULT_LIGHT = (0.35, 1.0, 0.55)
-# Share of the light that reaches surfaces facing away from the key light.
-AMBIENT = 0.4
-
-
-def _project_mesh(
-    mesh: trimesh.Trimesh, camera: Camera
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if not isinstance(camera, Camera):
-        raise InvalidInputError(f"camera must be an elastocap.Camera, got {type(camera).__name__}")
-    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
-    faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-    uv, depth = camera.project(vertices)
-    if len(faces):
-        used = np.zeros(len(vertices), dtype=bool)
-        used[faces.ravel()] = True
-        behind = int(np.count_nonzero(~(depth[used] > 0)))
-        if behind:
-            raise InvalidInputError(
-                f"mesh: {behind} vertices are not in front of camera {camera.name!r} (depth <= 0): "
-                "move the camera or clip the mesh"
-            )
-        ab = camera.to_camera(vertices[used])
-        radius = np.hypot(ab[:, 0], ab[:, 1]) / ab[:, 2]
-        if not np.all(radius < camera.fold_radius):
-            raise InvalidInputError(
-                f"mesh: vertices lie beyond the distortion fold radius of camera {camera.name!r}, "
-                "where the lens model does not apply"
-            )
-    return uv, depth, faces
-
-
-def render_silhouette(mesh: trimesh.Trimesh, camera: Camera) -> NDArray[np.bool_]:
-    """The mesh's silhouette in a camera, exact at pixel centres.
-
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        World coordinates; entirely in front of the camera.
-    camera : Camera
-        With its distortion and skew.
-
-    Returns
-    -------
-    (H, W) bool
-        True where the pixel centre lies inside the projection of some triangle (the
-        union of all projected triangles, whatever their orientation).
-
-    Raises
-    ------
-    InvalidInputError
-        A vertex is not in front of the camera, or beyond its distortion fold radius.
-
-    Notes
-    -----
-    Vertices are projected with :meth:`Camera.project` (distortion included); the edges
-    between them are straight in the image, which for ~1 cm triangles departs from the
-    curved image of a straight edge by far less than a pixel. Every pixel centre in every
-    triangle's bounding box is tested at once with numpy. (``cv2.fillPoly`` given all
-    triangles in one call fills by the even-odd rule, leaving holes wherever two projected
-    triangles overlap, e.g. a limb in front of the body.)
-    """
-    return _render(mesh, camera, image=False)[0]
-
-
-def render_image(
-    mesh: trimesh.Trimesh,
-    camera: Camera,
-    *,
-    light: Any = DEFAULT_LIGHT,
-    background: Any = None,
-) -> NDArray[np.uint8]:
-    """A shaded colour image of the mesh in front of a textured grey room.
-
-    Parameters
-    ----------
-    mesh : trimesh.Trimesh
-        World coordinates, closed and outward-oriented (back faces are culled), entirely
-        in front of the camera. Vertex colours are used when present, else a light grey.
-    camera : Camera
-    light : (3,) array_like, default DEFAULT_LIGHT, keyword-only
-        Direction towards a distant light, world coordinates (normalised here).
-    background : (H, W, 3) uint8, optional, keyword-only
-        What is seen where the mesh is not, RGB; default :func:`render_background`.
-
-    Returns
-    -------
-    (H, W, 3) uint8
-        **RGB**.
-
-    Raises
-    ------
-    InvalidInputError
-        As :func:`render_silhouette`; a zero or non-finite ``light``; a ``background`` of
-        the wrong shape.
-
-    Notes
-    -----
-    Hidden surfaces: back faces are culled, and the remaining triangles rasterised at pixel
-    centres into a z-buffer (the nearest fragment per pixel, depth interpolated
-    perspective-correctly). Shading is Lambertian with an ambient floor,
-    ``colour * (AMBIENT + (1 - AMBIENT) max(0, n . l))``, with the vertex normals and
-    colours interpolated per pixel (perspective-correct); no shadows.
-    """
-    image = _render(mesh, camera, image=True, silhouette=False, light=light, background=background)[1]
-    assert image is not None
-    return image
-
-
-def _render(
-    mesh: trimesh.Trimesh,
-    camera: Camera,
-    *,
-    image: bool,
-    silhouette: bool = True,
-    light: Any = DEFAULT_LIGHT,
-    background: Any = None,
-) -> tuple[NDArray[np.bool_], NDArray[np.uint8] | None]:
-    """Silhouette and/or shaded image from one projection and one rasterisation."""
-    uv, depth, faces = _project_mesh(mesh, camera)
-    width, height = camera.width, camera.height
-    if image:
-        direction = as_float_array("light", light).reshape(-1)
-        if direction.shape != (3,) or not np.isfinite(direction).all() or not np.any(direction):
-            raise InvalidInputError(f"light must be a non-zero finite 3-vector, got {light!r}")
-        direction = direction / np.linalg.norm(direction)
-        if background is None:
-            picture = render_background(camera)
-        else:
-            picture = np.array(background, dtype=np.uint8)
-            if picture.shape != (height, width, 3):
-                raise InvalidInputError(f"background must have shape {(height, width, 3)}, got {picture.shape}")
-        vertices = np.asarray(mesh.vertices, dtype=np.float64)
-        corner = [vertices[faces[:, i]] for i in range(3)]
-        front = np.einsum("ij,ij->i", np.cross(corner[1] - corner[0], corner[2] - corner[0]), camera.center - corner[0]) > 0
-        # The silhouette needs every face; the picture only the front ones.
-        drawn_faces = np.arange(len(faces)) if silhouette else np.flatnonzero(front)
-    else:
-        drawn_faces = np.arange(len(faces))
-    found = _raster.fragments(uv, faces[drawn_faces], width, height)
-    found = _raster.Fragments(found.pixel, drawn_faces[found.face], found.barycentric)
-    mask = np.zeros(height * width, dtype=bool)
-    if silhouette:
-        mask[found.pixel] = True
-    if not image:
-        return mask.reshape(height, width), None
-    if silhouette:
-        keep = front[found.face]
-        found = _raster.Fragments(found.pixel[keep], found.face[keep], found.barycentric[keep])
-    drawn = _raster.nearest(found, depth, faces)
-    corners = faces[drawn.face]  # (M, 3)
-    weights = drawn.barycentric / depth[corners]
-    weights /= weights.sum(axis=1, keepdims=True)
-    normal = _interpolate(weights, np.asarray(mesh.vertex_normals, dtype=np.float64), corners)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-    shade = AMBIENT + (1 - AMBIENT) * np.maximum(normal @ direction, 0.0)
-    colour = _interpolate(weights, _vertex_colours(mesh), corners) * shade[:, None]
-    picture.reshape(-1, 3)[drawn.pixel] = np.clip(np.rint(colour), 0, 255).astype(np.uint8)
-    return mask.reshape(height, width), picture
-
-
-def _interpolate(
-    weights: NDArray[np.float64], values: NDArray[np.float64], corners: NDArray[np.int64]
-) -> NDArray[np.float64]:
-    """``sum_k weights[:, k] * values[corners[:, k]]``: (M, 3) weights, (V, D) values."""
-    return (
-        weights[:, 0, None] * values[corners[:, 0]]
-        + weights[:, 1, None] * values[corners[:, 1]]
-        + weights[:, 2, None] * values[corners[:, 2]]
-    )
-
-
-def _vertex_colours(mesh: trimesh.Trimesh) -> NDArray[np.float64]:
-    visual = mesh.visual
-    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-        return np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3]
-    return np.full((len(mesh.vertices), 3), 200.0)
 
 
 def render_background(camera: Camera) -> NDArray[np.uint8]:
@@ -439,7 +250,7 @@ def write_synthetic_capture(
     cameras : int, default 8, keyword-only
         At least 2; see :func:`ring_rig` for the layout.
     seed : int, default 0, keyword-only
-        The figure (:class:`Figure`) and the rig's small perturbations.
+        The figure (:class:`CapsuleFigure`) and the rig's small perturbations.
     spacing : float, default 0.01, keyword-only
         Voxel edge of the ground-truth surface's marching cubes, metres.
     image_size : (width, height), default (1024, 768), keyword-only
@@ -450,9 +261,9 @@ def write_synthetic_capture(
     progress : bool, default True, keyword-only
         Show a progress bar.
     figure : {"capsules", "body"}, default "capsules", keyword-only
-        What walks in the scene: the capsule figure (:class:`Figure`, ground truth in
+        What walks in the scene: the capsule figure (:class:`CapsuleFigure`, ground truth in
         ``ground_truth/figure.json``), or the body model itself
-        (:class:`elastocap.body.synth.BodyFigure`: the default human with a shape within
+        (:class:`elastocap.synth.body.BodyFigure`: the default human with a shape within
         4% of unit and a smooth motion drawn from ``seed``), ground truth in
         ``ground_truth/body.json`` (model description, shape, per-frame states in the
         body stage's z-up frame), so that ``elastocap body`` can be scored.
@@ -492,9 +303,9 @@ def write_synthetic_capture(
     walker: Any
     kind: type[Any]
     if figure == "capsules":
-        walker, kind, description = Figure(seed), Figure, root / "ground_truth" / "figure.json"
+        walker, kind, description = CapsuleFigure(seed), CapsuleFigure, root / "ground_truth" / "figure.json"
     elif figure == "body":
-        from elastocap.body.synth import BodyFigure
+        from elastocap.synth.body import BodyFigure
 
         walker, kind, description = BodyFigure(seed), BodyFigure, root / "ground_truth" / "body.json"
     else:
@@ -538,7 +349,7 @@ def write_synthetic_capture(
 
 
 def _check_resumable(
-    root: Path, description: Path, figure: Any, rig: Rig, settings: dict[str, Any], kind: Any = Figure
+    root: Path, description: Path, figure: Any, rig: Rig, settings: dict[str, Any], kind: Any = CapsuleFigure
 ) -> int:
     """The frame count an earlier run recorded (0 for a new folder); an error when the
     folder holds another synthetic capture."""
@@ -581,8 +392,7 @@ def _write_frame(root: Path, figure: Any, rig: Rig, frame: int, spacing: float) 
     mesh = figure.mesh(frame, spacing)
     stem = f"{frame:06d}"
     for camera in rig.cameras:
-        mask, image = _render(mesh, camera, image=True)
-        assert image is not None
+        mask, image = render_mesh(mesh, camera, background=render_background(camera))
         save_image(root / "masks" / camera.name / f"{stem}.png", mask.astype(np.uint8) * 255)
         save_image(root / "images" / camera.name / f"{stem}.jpg", image)
     ply = mesh.export(file_type="ply")

@@ -1,7 +1,7 @@
 """Solid voxelisation of a closed triangle mesh by ray parity along z.
 
 Each grid column ``(i, j)`` is a ray parallel to z; the mesh's triangles, projected onto the
-xy-plane, are rasterised at the column positions (:func:`elastocap._raster.fragments`, the
+xy-plane, are rasterised at the column positions (:func:`elastocap.render.raster.fragments`, the
 synth renderer's vectorised rasteriser) to find where each ray crosses the surface, and a
 voxel centre is inside when an odd number of crossings lies below it. Exact for watertight
 meshes (up to the rare ray through an edge, see ``COLUMN_SHIFT``), vectorised, no spatial
@@ -14,8 +14,8 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
-from elastocap._raster import fragments
-from elastocap.grid import Grid
+from elastocap.render.raster import fragments
+from elastocap.hull.grid import Grid
 
 # Columns are shifted by this fraction of a voxel so that a ray through a mesh edge or vertex
 # (which two triangles would both report, breaking the parity) is a measure-zero event even

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 
 if TYPE_CHECKING:
-    from elastocap.camera import Camera
+    from elastocap.cameras.camera import Camera
 
 # Rot_<name> and R_<name> (Rodrigues) of one camera must agree to the precision the file
 # prints them with: RODRIGUES_SLACK times the rounding of both (half a unit in the last

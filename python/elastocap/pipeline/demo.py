@@ -26,10 +26,10 @@ from tqdm import tqdm
 
 import elastocap
 from elastocap._validate import as_count
-from elastocap.capture import Capture
-from elastocap.hull_stage import load_hull, run_hull_stage
-from elastocap.pictures import contact_sheet, mesh_over_image, save_png
-from elastocap.synth import write_synthetic_capture
+from elastocap.capture.folder import Capture
+from elastocap.pipeline.hull import load_hull, run_hull_stage
+from elastocap.pipeline.pictures import contact_sheet, mesh_over_image, save_png
+from elastocap.synth.capture import write_synthetic_capture
 
 __all__ = ["run_demo"]
 
@@ -121,7 +121,7 @@ def _hull_picture(capture: Capture, out: Path, frame: int) -> Path:
 
 def _truth_distance(capture_dir: Path, frame: int, meshes: list[Any]) -> list[float]:
     """Mean distance of each mesh's vertices to the frame's ground-truth surface."""
-    from elastocap._distance import distance_to_mesh
+    from elastocap.geometry._distance import distance_to_mesh
 
     truth = trimesh.load_mesh(capture_dir / "ground_truth" / f"{frame:06d}.ply")
     # At most 4,000 vertices per mesh (the hull's surface has about 12,000): a frame's mean
@@ -134,8 +134,8 @@ def _truth_distance(capture_dir: Path, frame: int, meshes: list[Any]) -> list[fl
 
 def _fit(capture: Capture, capture_dir: Path, out: Path, resolution: int, n_nodes: int, progress: bool) -> dict[str, Any]:
     """The fit stage, its figures against the ground truth, and the report."""
-    from elastocap.fit_stage import run_fit_stage
-    from elastocap.report import write_fit_report
+    from elastocap.pipeline.fit import run_fit_stage
+    from elastocap.pipeline.report import write_fit_report
 
     seconds = _timed(lambda: run_fit_stage(capture, out, n_nodes=n_nodes, resolution=resolution, progress=progress))
     fit = seconds[0]
@@ -172,8 +172,8 @@ def _body(out: Path, progress: bool) -> dict[str, Any]:
     """The body stage on a small capture of the body model itself (1 frame, 6 cameras,
     320x240, so it takes ~10 s): skin over the camera views and the error against the
     written truth, added to report.html."""
-    from elastocap.body.stage import run_body_stage
-    from elastocap.report import add_body_section
+    from elastocap.pipeline.body import run_body_stage
+    from elastocap.pipeline.report import add_body_section
 
     capture_dir = write_synthetic_capture(
         out / "body_capture", frames=1, cameras=6, image_size=(320, 240), figure="body", seed=1, progress=False

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_points, as_positive
-from elastocap.neighbors import knn
+from elastocap.geometry.neighbors import knn
 
 __all__ = ["MLSShapeFunctions", "mls_shape_functions"]
 

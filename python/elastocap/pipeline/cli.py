@@ -16,7 +16,7 @@ __all__ = ["main"]
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from elastocap.demo import run_demo
+    from elastocap.pipeline.demo import run_demo
 
     metrics_path = run_demo(
         Path(args.out), n_points=args.points, frames=args.frames, cameras=args.cameras, progress=not args.quiet
@@ -26,7 +26,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _synth(args: argparse.Namespace) -> int:
-    from elastocap.synth import write_synthetic_capture
+    from elastocap.synth.capture import write_synthetic_capture
 
     out = write_synthetic_capture(
         Path(args.out), frames=args.frames, cameras=args.cameras, seed=args.seed, progress=not args.quiet,
@@ -37,8 +37,8 @@ def _synth(args: argparse.Namespace) -> int:
 
 
 def _hull(args: argparse.Namespace) -> int:
-    from elastocap.capture import Capture
-    from elastocap.hull_stage import parse_frames, run_hull_stage
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames, run_hull_stage
 
     capture = Capture.open(args.capture)
     written = run_hull_stage(
@@ -55,7 +55,7 @@ def _hull(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from elastocap.fit_stage import run_fit_stage
+    from elastocap.pipeline.fit import run_fit_stage
 
     result = run_fit_stage(
         args.capture,
@@ -72,9 +72,9 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _body(args: argparse.Namespace) -> int:
-    from elastocap.body.stage import run_body_stage
-    from elastocap.capture import Capture
-    from elastocap.hull_stage import parse_frames
+    from elastocap.pipeline.body import run_body_stage
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames
 
     capture = Capture.open(args.capture)
     written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)

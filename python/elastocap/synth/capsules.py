@@ -1,5 +1,5 @@
-"""The synthetic figure of :mod:`elastocap.synth`: a smooth union of capsules on a small
-human skeleton, in procedural motion (public as ``elastocap.synth.Figure``).
+"""The synthetic figure of :mod:`elastocap.synth.capture`: a smooth union of capsules on a small
+human skeleton, in procedural motion (public as ``elastocap.synth.CapsuleFigure``).
 
 World frame: metres, **y up**, the floor at ``y = 0``; at yaw 0 the figure faces +z with
 its left side on +x.
@@ -22,7 +22,7 @@ from skimage import measure
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
 
-__all__ = ["CONTACT_DEPTH", "FIGURE_FORMAT", "PARTS", "Capsules", "Figure"]
+__all__ = ["CONTACT_DEPTH", "FIGURE_FORMAT", "PARTS", "Capsules", "CapsuleFigure"]
 
 FIGURE_FORMAT = "elastocap.synth.figure/1"
 
@@ -95,7 +95,7 @@ class Capsules:
     frames: NDArray[np.float64]
 
 
-class Figure:
+class CapsuleFigure:
     """An articulated figure: a smooth union of capsules on a skeleton, in procedural motion.
 
     Parameters
@@ -182,21 +182,21 @@ class Figure:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Figure:
+    def from_dict(cls, data: Mapping[str, Any]) -> CapsuleFigure:
         """The figure :meth:`to_dict` (or ``ground_truth/figure.json``) describes."""
         if data.get("format") != FIGURE_FORMAT:
             raise InvalidInputError(f"not a figure description: format {data.get('format')!r}, expected {FIGURE_FORMAT!r}")
         return cls(int(data["seed"]), parameters=data["parameters"])
 
     def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Figure):
+        if not isinstance(other, CapsuleFigure):
             return NotImplemented
         return self.seed == other.seed and dict(self.parameters) == dict(other.parameters)
 
     __hash__ = None  # type: ignore[assignment]
 
     def __repr__(self) -> str:
-        return f"Figure(seed={self.seed}, height={self.parameters['scale'] * 1.71:.3f} m)"
+        return f"CapsuleFigure(seed={self.seed}, height={self.parameters['scale'] * 1.71:.3f} m)"
 
     # -- pose -----------------------------------------------------------------------------
 
@@ -276,7 +276,7 @@ class Figure:
         -------
         (N,) float64
             Metres, negative inside; exact distance away from the blends, a 1-Lipschitz
-            lower bound of it within ``blend`` of two parts (see Notes of :class:`Figure`).
+            lower bound of it within ``blend`` of two parts (see Notes of :class:`CapsuleFigure`).
         """
         X = _points("points", points)
         c = self.capsules(frame)
@@ -382,7 +382,7 @@ class Figure:
         return np.clip(np.rint(255 * colour), 0, 255).astype(np.uint8)
 
 
-# How many points Figure.sdf folds at once (bounds the temporaries to a few MB).
+# How many points CapsuleFigure.sdf folds at once (bounds the temporaries to a few MB).
 _CHUNK = 1 << 16
 
 

@@ -1,0 +1,6 @@
+"""Cameras and rigs: the pinhole camera with OpenCV distortion and skew, rigs of named
+cameras, and the calibration file formats they load from and save to."""
+
+from elastocap.cameras.camera import CalibrationWarning, Camera, Rig
+
+__all__ = ["CalibrationWarning", "Camera", "Rig"]
