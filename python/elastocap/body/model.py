@@ -32,7 +32,7 @@ import trimesh
 from numpy.typing import NDArray
 from skimage import measure
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description

@@ -14,7 +14,7 @@ import scipy.sparse
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array, as_points, as_positive
 from elastocap.elastic.mls import MLSShapeFunctions, mls_shape_functions

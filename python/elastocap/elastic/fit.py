@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap.hull.voxelize import solid_voxels
 from elastocap.elastic.model import ElasticModel

@@ -18,7 +18,7 @@ import scipy.sparse.linalg
 import trimesh
 from numpy.typing import NDArray
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap.elastic.nodes import NodeSet, sample_mask, sample_mesh
 from elastocap._validate import as_count, as_float_array, as_points

@@ -7,7 +7,7 @@ from typing import Any, Literal, overload
 import numpy as np
 from numpy.typing import NDArray
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array
 

@@ -16,7 +16,7 @@ import trimesh
 from numpy.typing import NDArray
 from skimage import measure
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count
 from elastocap.cameras.camera import Rig
