@@ -16,7 +16,7 @@ import scipy.ndimage as ndimage
 import elastocap.pipeline.body as stage
 from elastocap.body.model import Z_UP_TO_WORLD
 from elastocap.synth.body import BodyFigure
-from elastocap.cameras.camera import Rig
+from elastocap.cameras.rig import Rig
 from elastocap.pipeline.cli import main
 from elastocap.render import render_silhouette
 from elastocap.synth.capture import write_synthetic_capture

@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import elastocap
-from elastocap.cameras.camera import Camera, Rig
+from elastocap.cameras import Camera, Rig
 from elastocap.silhouettes.background import threshold_dark_background
 from tolerances import PROJECTION_ATOL_PX, RAY_RTOL, UNDISTORT_ATOL
 from data_paths import TEMPLE

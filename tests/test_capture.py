@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import elastocap
-from elastocap.cameras.camera import Camera, Rig
+from elastocap.cameras import Camera, Rig
 from elastocap.capture.folder import Capture
 
 WIDTH, HEIGHT = 32, 24

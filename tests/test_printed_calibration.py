@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import elastocap
 from elastocap import Camera, Rig
-from elastocap.cameras.camera import CalibrationWarning
+from elastocap.cameras import CalibrationWarning
 from data_paths import TEMPLE
 
 SIX_DIGITS = "{:.6g}"

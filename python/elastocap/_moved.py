@@ -13,7 +13,7 @@ from typing import Any
 
 # Old module path -> new module path.
 MOVED_MODULES = {
-    "elastocap.camera": "elastocap.cameras.camera",
+    "elastocap.camera": "elastocap.cameras",
     "elastocap.neighbors": "elastocap.geometry.neighbors",
     "elastocap.polar": "elastocap.geometry.polar",
     "elastocap.grid": "elastocap.hull.grid",

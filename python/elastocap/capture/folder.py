@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
 from elastocap.cameras.formats import IMAGE_SUFFIXES
-from elastocap.cameras.camera import Rig
+from elastocap.cameras.rig import Rig
 
 __all__ = ["Capture"]
 

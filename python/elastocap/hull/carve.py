@@ -19,7 +19,7 @@ from skimage import measure
 import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count
-from elastocap.cameras.camera import Rig
+from elastocap.cameras.rig import Rig
 from elastocap.hull.grid import Grid
 from elastocap.hull.sdf import SDF
 

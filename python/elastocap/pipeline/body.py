@@ -16,7 +16,7 @@ from elastocap._core import InvalidInputError
 from elastocap._io import save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations, fit_body
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
-from elastocap.cameras.camera import Camera, Rig
+from elastocap.cameras import Camera, Rig
 from elastocap.capture.folder import Capture
 from elastocap.pipeline.pictures import contact_sheet
 

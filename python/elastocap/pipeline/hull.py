@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
 from elastocap._io import save_mesh, save_npz
-from elastocap.cameras.camera import Rig
+from elastocap.cameras.rig import Rig
 from elastocap.capture.folder import Capture
 from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.hull.carve import Hull, visual_hull

@@ -43,7 +43,7 @@ from elastocap._core import InvalidInputError
 from elastocap.synth.capsules import FIGURE_FORMAT, CapsuleFigure
 from elastocap._io import save_bytes, save_image
 from elastocap._validate import as_count, as_float_array, as_positive
-from elastocap.cameras.camera import Camera, Rig
+from elastocap.cameras import Camera, Rig
 
 __all__ = [
     "render_background",
