@@ -145,7 +145,7 @@ def sdf_cases(repeats: int) -> list[dict[str, Any]]:
 
 def _carve_numpy(masks, rig, grid):
     """The vectorised numpy reference: project every voxel centre into every camera."""
-    centres = grid.centres().reshape(-1, 3)
+    centres = grid.centers().reshape(-1, 3)
     rejections = np.zeros(len(centres), np.int32)
     for mask, camera in zip(masks, rig.cameras):
         uv, depth = camera.project(centres)

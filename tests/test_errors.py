@@ -115,11 +115,11 @@ def test_points_empty(entry):
 # ------------------------------------------------------------------------------------------
 
 QUERY_ENTRIES = {
-    "knn": lambda points, queries: elastocap.knn(points, 2, queries),
-    "radius_neighbors": lambda points, queries: elastocap.radius_neighbors(points, 0.5, queries),
-    "SpatialIndex.knn": lambda points, queries: elastocap.SpatialIndex(points).knn(2, queries),
+    "knn": lambda points, queries: elastocap.knn(points, 2, queries=queries),
+    "radius_neighbors": lambda points, queries: elastocap.radius_neighbors(points, 0.5, queries=queries),
+    "SpatialIndex.knn": lambda points, queries: elastocap.SpatialIndex(points).knn(2, queries=queries),
     "SpatialIndex.radius_neighbors": lambda points, queries: elastocap.SpatialIndex(points).radius_neighbors(
-        0.5, queries
+        0.5, queries=queries
     ),
 }
 queries_entry = pytest.mark.parametrize("entry", list(QUERY_ENTRIES.values()), ids=list(QUERY_ENTRIES))
@@ -169,8 +169,8 @@ def test_queries_complex_dtype(entry):
 # ------------------------------------------------------------------------------------------
 
 KNN_ENTRIES = {
-    "knn": lambda points, k, queries=None: elastocap.knn(points, k, queries),
-    "SpatialIndex.knn": lambda points, k, queries=None: elastocap.SpatialIndex(points).knn(k, queries),
+    "knn": lambda points, k, queries=None: elastocap.knn(points, k, queries=queries),
+    "SpatialIndex.knn": lambda points, k, queries=None: elastocap.SpatialIndex(points).knn(k, queries=queries),
 }
 knn_entry = pytest.mark.parametrize("entry", list(KNN_ENTRIES.values()), ids=list(KNN_ENTRIES))
 
@@ -237,7 +237,7 @@ def test_k_too_large_for_any_integer_type(entry):
 
 RADIUS_ENTRIES = {
     "radius_neighbors": lambda points, radius: elastocap.radius_neighbors(points, radius),
-    "radius_neighbors+queries": lambda points, radius: elastocap.radius_neighbors(points, radius, points[:3]),
+    "radius_neighbors+queries": lambda points, radius: elastocap.radius_neighbors(points, radius, queries=points[:3]),
     "SpatialIndex.radius_neighbors": lambda points, radius: elastocap.SpatialIndex(points).radius_neighbors(radius),
 }
 radius_entry = pytest.mark.parametrize("entry", list(RADIUS_ENTRIES.values()), ids=list(RADIUS_ENTRIES))
@@ -341,7 +341,7 @@ def test_polar_object_dtype():
 @pytest.mark.parametrize("dim", [2, 3])
 def test_k_n_minus_one_for_self_queries(dim):
     points = RNG.random((7, dim))
-    indices, distances = elastocap.knn(points, 6)
+    distances, indices = elastocap.knn(points, 6)
     assert indices.shape == distances.shape == (7, 6)
     for i, row in enumerate(indices):
         assert sorted(row) == [j for j in range(7) if j != i]
@@ -354,14 +354,14 @@ def test_single_point_index_with_queries_and_k_one(dim):
     queries = RNG.random((5, dim)) * 10 - 5
     index = elastocap.SpatialIndex(point)
     assert index.n_points == 1 and index.dim == dim
-    indices, distances = index.knn(1, queries)
+    distances, indices = index.knn(1, queries=queries)
     np.testing.assert_array_equal(indices, np.zeros((5, 1), dtype=np.int64))
     np.testing.assert_allclose(
         distances[:, 0], np.linalg.norm(queries - point, axis=1), rtol=DISTANCE_RTOL, atol=DISTANCE_ATOL
     )
     # Self queries: no other point to find.
     assert_invalid("k", index.knn, 1)
-    indptr, found, dist = index.radius_neighbors(100.0)
+    dist, found, indptr = index.radius_neighbors(100.0)
     np.testing.assert_array_equal(indptr, [0, 0])
     assert len(found) == len(dist) == 0
 
@@ -374,7 +374,7 @@ def test_integer_points_accepted(dtype):
     for got, want in zip(elastocap.knn(points, 4), elastocap.knn(as_float, 4), strict=True):
         np.testing.assert_array_equal(got, want)
     for got, want in zip(
-        elastocap.radius_neighbors(points, 1, points[:5]), elastocap.radius_neighbors(as_float, 1.0, as_float[:5]),
+        elastocap.radius_neighbors(points, 1, queries=points[:5]), elastocap.radius_neighbors(as_float, 1.0, queries=as_float[:5]),
         strict=True,
     ):
         np.testing.assert_array_equal(got, want)
@@ -383,9 +383,9 @@ def test_integer_points_accepted(dtype):
 
 def test_numpy_integer_k_and_list_inputs_accepted():
     points = POINTS3.tolist()
-    indices, distances = elastocap.knn(points, np.int64(3), queries=[[0.5, 0.5, 0.5]])
+    distances, indices = elastocap.knn(points, np.int64(3), queries=[[0.5, 0.5, 0.5]])
     assert indices.shape == distances.shape == (1, 3)
-    indices_u, _ = elastocap.knn(POINTS3, np.uint16(3), queries=np.array([[0.5, 0.5, 0.5]]))
+    _, indices_u = elastocap.knn(POINTS3, np.uint16(3), queries=np.array([[0.5, 0.5, 0.5]]))
     np.testing.assert_array_equal(indices, indices_u)
 
 

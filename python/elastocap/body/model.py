@@ -6,7 +6,7 @@ The description is a readable dictionary (saved as JSON)::
      "parts": [{"name": "pelvis", "parent": null, "offset": [x, y, z],
                 "rest": [[3x3 rotation]],           # optional, default identity
                 "joints": [{"axis": [ax, ay, az], "limits": [lower_deg, upper_deg]}, ...],
-                "balls": [{"centre": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
+                "balls": [{"center": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
 
 Parents come before their children. A part's frame is its parent's frame moved to
 ``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, w, l)``),
@@ -21,6 +21,8 @@ The state layout is defined once, in ``rust/body.rs``: ``shape`` holds ``(l, w)`
 """
 
 from __future__ import annotations
+
+import warnings
 
 import json
 from dataclasses import dataclass
@@ -126,7 +128,7 @@ class BodyModel:
         balls = [(i, b) for i, p in enumerate(parts) for b in p["balls"]]
         self._balls = (
             np.array([i for i, _ in balls], dtype=np.int64),
-            np.array([b["centre"] for _, b in balls], dtype=float).reshape(-1, 3),
+            np.array([b["center"] for _, b in balls], dtype=float).reshape(-1, 3),
             np.array([b["radii"] for _, b in balls], dtype=float).reshape(-1, 3),
         )
         self._core = _core.BodySkeleton(
@@ -248,7 +250,12 @@ class BodyModel:
     # -- pictures -------------------------------------------------------------------------
 
     def ball_centres(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """World centres ``(M, 3)`` and largest scaled radius ``(M,)`` of the metaballs."""
+        """Deprecated spelling of :meth:`ball_centers`."""
+        warnings.warn("BodyModel.ball_centres() is now ball_centers()", DeprecationWarning, stacklevel=2)
+        return self.ball_centers(state)
+
+    def ball_centers(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """World centers ``(M, 3)`` and largest scaled radius ``(M,)`` of the metaballs."""
         shape, _ = self.check_state(state)
         rotations, origins = self.pose(state)
         part, centre, radii = self._balls
@@ -260,7 +267,7 @@ class BodyModel:
         """A box (lower, upper corners, metres) that holds the skin: every ball's centre
         plus its largest radius (a lone ball's skin reaches 0.59 of it; overlaps a little
         more)."""
-        centres, reach = self.ball_centres(state)
+        centres, reach = self.ball_centers(state)
         return (centres - reach[:, None]).min(axis=0), (centres + reach[:, None]).max(axis=0)
 
     def skin_mesh(self, state: BodyState, *, spacing: float = 0.01) -> trimesh.Trimesh:
@@ -370,11 +377,13 @@ def _normalise(description: Any) -> dict[str, Any]:
         for k, ball in enumerate(part.get("balls", [])):
             if not isinstance(ball, dict):
                 raise _bad(f"part {name!r}: balls[{k}] must be an object")
-            centre = _vector(ball.get("centre"), f"part {name!r} balls[{k}].centre", 3)
+            # "centre" is the spelling of descriptions written before 0.2.
+            key = "center" if "center" in ball else "centre"
+            centre = _vector(ball.get(key), f"part {name!r} balls[{k}].{key}", 3)
             radii = _vector(ball.get("radii"), f"part {name!r} balls[{k}].radii", 3)
             if min(radii) <= 0:
                 raise _bad(f"part {name!r} balls[{k}]: radii must be positive")
-            balls.append({"centre": centre, "radii": radii})
+            balls.append({"center": centre, "radii": radii})
         out.append(
             {
                 "name": name,

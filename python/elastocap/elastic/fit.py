@@ -125,9 +125,22 @@ def _field_arrays(target: Any) -> tuple[NDArray[np.float64], tuple[float, float,
     return np.ascontiguousarray(values, dtype=np.float64), origin, spacing
 
 
+def _frame_numbers(targets: Sequence[Any] | Mapping[int, Any]) -> list[int]:
+    """The frame numbers of ``targets``: a mapping's keys (ascending), or a sequence's
+    positions."""
+    if isinstance(targets, Mapping):
+        keys = list(targets.keys())
+        if not all(isinstance(key, (int, np.integer)) and not isinstance(key, bool) for key in keys):
+            raise InvalidInputError("targets given as a mapping must be keyed by int frame numbers")
+        return sorted(int(key) for key in keys)
+    if isinstance(targets, (str, bytes)) or not isinstance(targets, Sequence):
+        raise InvalidInputError(f"targets must be a sequence or a mapping of frame -> target, got {type(targets).__name__}")
+    return list(range(len(targets)))
+
+
 def fit_sequence(
     model: ElasticModel,
-    targets: Sequence[Any],
+    targets: Sequence[Any] | Mapping[int, Any],
     *,
     rest_frame: int = 0,
     stiffness: float = 1.0,
@@ -147,13 +160,15 @@ def fit_sequence(
     model : ElasticModel
         A model with a surface: 3-D (:meth:`ElasticModel.from_mesh`) or 2-D
         (:meth:`ElasticModel.from_mask`).
-    targets : sequence
+    targets : sequence, or mapping of int frame number -> target
         One target per frame. 3-D: :class:`SDF`, :class:`Hull` or closed trimesh, world
         units. 2-D: binary masks ``(H, W)`` in the model's pixel coordinates ``(x, y) =
-        (column, row)``.
+        (column, row)``. A mapping is keyed by the capture's frame numbers (frames in
+        ascending order are neighbours, gaps allowed); a sequence's frame numbers are its
+        positions. Results, ``rest_frame`` and ``done`` use these frame numbers.
     rest_frame : int
-        Index of the frame the model was built from; fitting starts there (from the rest
-        positions) and runs forward to the end and backward to the start.
+        The frame the model was built from; fitting starts there (from the rest positions)
+        and runs forward to the last frame and backward to the first.
     stiffness : float
         alpha / beta of SPEC 5 in units of the shear modulus times the mean node spacing:
         1 balances a node's elastic diagonal with a fully confident surface term; larger is
@@ -198,20 +213,26 @@ def fit_sequence(
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
         )
-    count = len(targets)
-    if count == 0:
+    frames = _frame_numbers(targets)
+    if not frames:
         raise InvalidInputError("targets is empty")
-    if not 0 <= rest_frame < count:
-        raise InvalidInputError(f"rest_frame = {rest_frame} is out of range: there are {count} targets")
+    if rest_frame not in frames:
+        raise InvalidInputError(
+            f"rest_frame = {rest_frame} is not a frame of the targets (frames {frames[0]}..{frames[-1]})"
+        )
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else _mask_field
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
-    order: list[tuple[int, int | None]] = [(rest_frame, None)]
-    order += [(f, f - 1) for f in range(rest_frame + 1, count)]
-    order += [(f, f + 1) for f in range(rest_frame - 1, -1, -1)]
-    for frame, neighbour in order:
+    # (frame, the neighbour it starts from, the neighbour's neighbour): outward from the rest
+    # frame, in the order of the frame numbers.
+    rest = frames.index(rest_frame)
+    forward, backward = frames[rest:], frames[rest::-1]
+    order: list[tuple[int, int | None, int | None]] = [(rest_frame, None, None)]
+    for run in (forward, backward):
+        order += [(run[i], run[i - 1], run[i - 2] if i >= 2 else None) for i in range(1, len(run))]
+    for frame, neighbour, second in order:
         if frame in previous:
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
             continue
@@ -219,8 +240,7 @@ def fit_sequence(
             start = model.nodes
         else:
             start = result.fits[neighbour].positions
-            second = 2 * neighbour - frame
-            if predict and second in result.fits:
+            if predict and second is not None and second in result.fits:
                 # The elastic solve sees only the start, so a leg that swings 0.5 m per
                 # frame is met half-way instead of pulled back onto the nearest limb.
                 start = 2 * start - result.fits[second].positions

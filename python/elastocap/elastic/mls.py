@@ -135,7 +135,7 @@ def mls_shape_functions(
         k = as_count("k", k, minimum=array.shape[1] + 1)
         if k > n:
             raise InvalidInputError(f"k = {k} exceeds the number of points ({n})")
-        indices, _ = knn(array, k - 1)
+        _, indices = knn(array, k - 1)
         lists = np.hstack([np.arange(n, dtype=np.int64)[:, None], indices])
     else:
         lists = _as_neighbors(neighbors, n, array.shape[1])

@@ -10,6 +10,7 @@ pattern); node placement in :mod:`elastocap.elastic.nodes`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -53,10 +54,18 @@ class StaticSolution:
     step: float
 
 
+def _read_only(array: Any) -> Any:
+    """A C-contiguous copy that cannot be written: derived data is never silently lost to
+    an in-place edit of a copy the model does not see."""
+    array = np.array(array, order="C")
+    array.flags.writeable = False
+    return array
+
+
 def _density_volumes(nodes: NDArray[np.float64], k: int, total: float) -> NDArray[np.float64]:
     """SPEC 4.1: ``V_p`` proportional to ``r_k^D`` (inverse local density), summing to
     ``total``."""
-    _, distances = knn(nodes, k - 1)
+    distances, _ = knn(nodes, k - 1)
     share = distances[:, -1] ** nodes.shape[1]
     return np.ascontiguousarray(total * share / share.sum())
 
@@ -145,11 +154,11 @@ class ElasticModel:
         self.rotation = rotation
         self.k = k
         self.youngs, self.poisson, self.plane = float(youngs), float(poisson), plane
-        self.surface_nodes = (
-            np.zeros(0, np.int64) if surface_nodes is None else np.ascontiguousarray(surface_nodes, dtype=np.int64)
+        self.surface_nodes = _read_only(
+            np.zeros(0, np.int64) if surface_nodes is None else np.array(surface_nodes, dtype=np.int64)
         )
-        self.surface_faces = (
-            np.zeros((0, dim), np.int64) if surface_faces is None else np.ascontiguousarray(surface_faces, dtype=np.int64)
+        self.surface_faces = _read_only(
+            np.zeros((0, dim), np.int64) if surface_faces is None else np.array(surface_faces, dtype=np.int64)
         )
         if self.surface_nodes.size and (self.surface_nodes.min() < 0 or self.surface_nodes.max() >= n):
             raise InvalidInputError(f"surface_nodes must index the {n} nodes")
@@ -258,30 +267,32 @@ class ElasticModel:
         """N."""
         return self._core.n_nodes
 
-    @property
+    @cached_property
     def nodes(self) -> NDArray[np.float64]:
-        """``(N, D)`` rest positions."""
-        return self._core.nodes
+        """``(N, D)`` rest positions (read-only, cached)."""
+        return _read_only(self._core.nodes)
 
-    @property
+    @cached_property
     def neighbors(self) -> NDArray[np.int64]:
-        """``(N, k)`` neighbour lists, fixed at rest, each row starting with its node."""
-        return self._core.neighbors
+        """``(N, k)`` neighbour lists, fixed at rest, each row starting with its node (read-only,
+        cached)."""
+        return _read_only(self._core.neighbors)
 
-    @property
+    @cached_property
     def grad(self) -> NDArray[np.float64]:
-        """``(N, k, D)`` MLS shape-function gradients at the nodes (order of ``neighbors``)."""
-        return self._core.grad
+        """``(N, k, D)`` MLS shape-function gradients at the nodes (order of ``neighbors``;
+        read-only, cached)."""
+        return _read_only(self._core.grad)
 
-    @property
+    @cached_property
     def support(self) -> NDArray[np.float64]:
-        """``(N,)`` MLS support radii ``ddm_p``."""
-        return self._core.support
+        """``(N,)`` MLS support radii ``ddm_p`` (read-only, cached)."""
+        return _read_only(self._core.support)
 
-    @property
+    @cached_property
     def volumes(self) -> NDArray[np.float64]:
-        """``(N,)`` nodal volumes."""
-        return self._core.volumes
+        """``(N,)`` nodal volumes (read-only, cached)."""
+        return _read_only(self._core.volumes)
 
     @property
     def surface(self) -> trimesh.Trimesh:

@@ -7,7 +7,7 @@ that clustered clouds with outliers stay fast. Queries run in parallel without t
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,7 +16,28 @@ import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_points, as_positive
 
-__all__ = ["SpatialIndex", "knn", "radius_neighbors"]
+__all__ = ["Neighbors", "RadiusNeighbors", "SpatialIndex", "knn", "radius_neighbors"]
+
+
+class Neighbors(NamedTuple):
+    """The ``k`` nearest neighbours of ``M`` queries, in scipy's ``cKDTree.query`` order."""
+
+    #: (M, k) float64: Euclidean distances, ascending, in the units of the points.
+    distances: NDArray[np.float64]
+    #: (M, k) int64: indices into the indexed points, nearest first (ties in index order).
+    indices: NDArray[np.int64]
+
+
+class RadiusNeighbors(NamedTuple):
+    """The neighbours within a radius of ``M`` queries, in CSR form: row ``i`` is
+    ``indices[indptr[i]:indptr[i + 1]]``, nearest first."""
+
+    #: (nnz,) float64: Euclidean distances matching ``indices``.
+    distances: NDArray[np.float64]
+    #: (nnz,) int64: indices into the indexed points.
+    indices: NDArray[np.int64]
+    #: (M + 1,) int64: row offsets.
+    indptr: NDArray[np.int64]
 
 
 class SpatialIndex:
@@ -36,7 +57,7 @@ class SpatialIndex:
     --------
     >>> import numpy as np, elastocap
     >>> index = elastocap.SpatialIndex(np.random.default_rng(0).random((1000, 3)))
-    >>> indices, distances = index.knn(8)
+    >>> distances, indices = index.knn(8)
     >>> indices.shape
     (1000, 8)
     """
@@ -66,52 +87,50 @@ class SpatialIndex:
             )
         return q
 
-    def knn(self, k: int, queries: Any = None) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    def knn(self, k: int, *, queries: Any = None) -> Neighbors:
         """The ``k`` nearest indexed points of each query.
 
         Parameters
         ----------
         k : int
             Neighbours per query: ``1 <= k <= N``, or ``k <= N - 1`` without queries.
-        queries : (M, D) array_like of float, optional
+        queries : (M, D) array_like of float, optional, keyword-only
             Query points. When omitted, the queries are the indexed points themselves and
             each point is left out of its own neighbours.
 
         Returns
         -------
-        indices : (M, k) int64
-            Indices into the indexed points, nearest first (ties in index order).
-        distances : (M, k) float64
-            Euclidean distances, ascending, in the units of the points.
+        Neighbors
+            ``(distances (M, k) float64, indices (M, k) int64)``, nearest first, as
+            scipy's ``cKDTree.query``; the fields are named so they cannot be swapped.
         """
-        return self._index.knn(as_count("k", k), self._queries(queries))
+        indices, distances = self._index.knn(as_count("k", k), self._queries(queries))
+        return Neighbors(distances, indices)
 
-    def radius_neighbors(
-        self, radius: float, queries: Any = None
-    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    def radius_neighbors(self, radius: float, *, queries: Any = None) -> RadiusNeighbors:
         """Indexed points within ``radius`` (inclusive) of each query, in CSR form.
 
         Parameters
         ----------
         radius : float
             Search radius, positive, in the units of the points.
-        queries : (M, D) array_like of float, optional
+        queries : (M, D) array_like of float, optional, keyword-only
             Query points. When omitted, the queries are the indexed points themselves and
             each point is left out of its own neighbours.
 
         Returns
         -------
-        indptr : (M + 1,) int64
-            Row ``i`` is ``indices[indptr[i]:indptr[i + 1]]``.
-        indices : (nnz,) int64
-            Indices into the indexed points, nearest first within each row.
-        distances : (nnz,) float64
-            Euclidean distances matching ``indices``.
+        RadiusNeighbors
+            ``(distances (nnz,) float64, indices (nnz,) int64, indptr (M + 1,) int64)``:
+            row ``i`` is ``indices[indptr[i]:indptr[i + 1]]``, nearest first.
         """
-        return self._index.radius_neighbors(as_positive("radius", radius), self._queries(queries))
+        indptr, indices, distances = self._index.radius_neighbors(
+            as_positive("radius", radius), self._queries(queries)
+        )
+        return RadiusNeighbors(distances, indices, indptr)
 
 
-def knn(points: Any, k: int, queries: Any = None) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+def knn(points: Any, k: int, *, queries: Any = None) -> Neighbors:
     """The ``k`` nearest neighbours among ``points`` of each query.
 
     Builds a :class:`SpatialIndex` and queries it once; keep the index to query again.
@@ -122,27 +141,25 @@ def knn(points: Any, k: int, queries: Any = None) -> tuple[NDArray[np.int64], ND
         Points to search.
     k : int
         Neighbours per query: ``1 <= k <= N``, or ``k <= N - 1`` without queries.
-    queries : (M, D) array_like of float, optional
+    queries : (M, D) array_like of float, optional, keyword-only
         Query points; when omitted, every point is queried, excluding itself.
 
     Returns
     -------
-    indices : (M, k) int64
-        Indices into ``points``, nearest first.
-    distances : (M, k) float64
-        Euclidean distances, ascending.
+    Neighbors
+        ``(distances (M, k) float64, indices (M, k) int64)``, nearest first: unpack as
+        ``distances, indices = knn(...)`` (scipy's and scikit-learn's order) or use the
+        named fields.
 
     Notes
     -----
     Exact: equals ``scipy.spatial.cKDTree(points).query(queries, k)`` up to the order of
     equidistant points.
     """
-    return SpatialIndex(points).knn(k, queries)
+    return SpatialIndex(points).knn(k, queries=queries)
 
 
-def radius_neighbors(
-    points: Any, radius: float, queries: Any = None
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+def radius_neighbors(points: Any, radius: float, *, queries: Any = None) -> RadiusNeighbors:
     """Neighbours among ``points`` within ``radius`` of each query, in CSR form.
 
     Parameters
@@ -151,19 +168,18 @@ def radius_neighbors(
         Points to search.
     radius : float
         Search radius, positive, in the units of the points.
-    queries : (M, D) array_like of float, optional
+    queries : (M, D) array_like of float, optional, keyword-only
         Query points; when omitted, every point is queried, excluding itself.
 
     Returns
     -------
-    indptr : (M + 1,) int64
-    indices : (nnz,) int64
-        Nearest first within each row.
-    distances : (nnz,) float64
+    RadiusNeighbors
+        ``(distances (nnz,) float64, indices (nnz,) int64, indptr (M + 1,) int64)``:
+        row ``i`` is ``indices[indptr[i]:indptr[i + 1]]``, nearest first.
 
     Notes
     -----
     Exact: row ``i`` holds the same points as
     ``scipy.spatial.cKDTree(points).query_ball_point(queries[i], radius)``.
     """
-    return SpatialIndex(points).radius_neighbors(radius, queries)
+    return SpatialIndex(points).radius_neighbors(radius, queries=queries)

@@ -35,15 +35,22 @@ class Hull:
         True for voxels inside the hull.
     grid : Grid
         Where the voxels are.
+    sdf : SDF, optional, keyword-only
+        The hull's signed distance when already known (e.g. read back from the hull
+        stage's files); computed from the occupancy on first use otherwise.
     """
 
-    def __init__(self, occupancy: NDArray[np.bool_], grid: Grid) -> None:
+    def __init__(self, occupancy: NDArray[np.bool_], grid: Grid, *, sdf: SDF | None = None) -> None:
         occ = np.ascontiguousarray(occupancy, dtype=bool)
         if occ.shape != tuple(grid.shape):
             raise InvalidInputError(f"occupancy must have the grid's shape {grid.shape}, got {occ.shape}")
+        if sdf is not None and (not isinstance(sdf, SDF) or sdf.values.shape != occ.shape):
+            raise InvalidInputError("sdf must be an SDF on the hull's grid")
         occ.flags.writeable = False
         self._occupancy = occ
         self.grid = grid
+        if sdf is not None:
+            self.__dict__["_sdf"] = sdf  # the cached_property's slot: not computed again
 
     @property
     def occupancy(self) -> NDArray[np.bool_]:
@@ -67,13 +74,18 @@ class Hull:
         """The hull surface: marching cubes of the signed distance at level 0, in world units.
 
         The field is padded by one outside voxel so that a hull touching the grid's border
-        still gives a closed surface.
+        still gives a closed surface. Computed once; each call returns a copy, so editing
+        it does not change the hull's.
 
         Raises
         ------
         InvalidInputError
             For an empty hull (nothing to mesh).
         """
+        return self._mesh.copy()
+
+    @cached_property
+    def _mesh(self) -> trimesh.Trimesh:
         if not self._occupancy.any():
             raise InvalidInputError("the hull is empty: every voxel was carved")
         h = self.grid.spacing

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,10 +85,15 @@ class Grid:
         lo = self.origin - self.spacing / 2
         return np.stack([lo, lo + self.spacing * np.array(self.shape)])
 
-    def centres(self) -> NDArray[np.float64]:
-        """``(nx, ny, nz, 3)`` world positions of all voxel centres."""
+    def centers(self) -> NDArray[np.float64]:
+        """``(nx, ny, nz, 3)`` world positions of all voxel centers."""
         axes = [self.origin[a] + self.spacing * np.arange(self.shape[a]) for a in range(3)]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+
+    def centres(self) -> NDArray[np.float64]:
+        """Deprecated spelling of :meth:`centers` (the API spells it as numpy and OpenCV do)."""
+        warnings.warn("Grid.centres() is now Grid.centers()", DeprecationWarning, stacklevel=2)
+        return self.centers()
 
     def to_index(self, points: Any) -> NDArray[np.float64]:
         """``(N, 3)`` continuous voxel indices of world points (centre of voxel = integer)."""

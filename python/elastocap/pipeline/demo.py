@@ -50,10 +50,10 @@ def _surface_points(n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _neighbour_check(name: str, points: np.ndarray, k: int) -> dict[str, Any]:
-    (indices, distances), seconds = _timed(lambda: elastocap.knn(points, k))
+    (distances, indices), seconds = _timed(lambda: elastocap.knn(points, k))
     (ref_distances, _), ref_seconds = _timed(lambda: cKDTree(points).query(points, k=k + 1, workers=-1))
     radius = float(np.median(distances[:, -1]))
-    (indptr, _, _), radius_seconds = _timed(lambda: elastocap.radius_neighbors(points, radius))
+    (_, _, indptr), radius_seconds = _timed(lambda: elastocap.radius_neighbors(points, radius))
     ref_counts = cKDTree(points).query_ball_point(points, radius, return_length=True, workers=-1) - 1
     return {
         "cloud": name,
@@ -139,13 +139,11 @@ def _fit(capture: Capture, capture_dir: Path, out: Path, resolution: int, n_node
 
     seconds = _timed(lambda: run_fit_stage(capture, out, n_nodes=n_nodes, resolution=resolution, progress=progress))
     fit = seconds[0]
-    frames = list(capture.frames)
     rows = []
-    for index in fit.frames:
-        frame = frames[index]
+    for frame in fit.frames:
         hull_surface_mesh = trimesh.load_mesh(out / "hull" / f"{frame:06d}.ply")  # as the hull stage wrote it
-        fitted, hull_surface = _truth_distance(capture_dir, frame, [fit.surface(index), hull_surface_mesh])
-        rows.append({"frame": frame, "fit_to_truth_mean_m": fitted, "hull_to_truth_mean_m": hull_surface, **fit.fits[index].metrics})
+        fitted, hull_surface = _truth_distance(capture_dir, frame, [fit.surface(frame), hull_surface_mesh])
+        rows.append({"frame": frame, "fit_to_truth_mean_m": fitted, "hull_to_truth_mean_m": hull_surface, **fit.fits[frame].metrics})
     summary = {
         "frames fitted": len(rows),
         "nodes": fit.model.n_nodes,

@@ -12,7 +12,7 @@ back and their neighbours start from them).
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -113,29 +113,28 @@ def run_fit_stage(
             stabilization=np.float64(model.stabilization),
         )
     done: dict[int, np.ndarray] = {}
-    for index, frame in enumerate(frames):
+    for frame in frames:
         ply, npz = _fit_files(out, frame)
         if ply.exists() and npz.exists():
-            with np.load(npz) as data:
-                done[index] = data["positions"]
+            with np.load(npz, allow_pickle=False) as data:
+                done[frame] = data["positions"]
     bar = tqdm(total=len(frames), initial=len(done), desc="fit", unit="frame", disable=not progress)
 
     def write(fit: FrameFit) -> None:
-        frame = frames[fit.frame]
-        ply, npz = _fit_files(out, frame)
+        ply, npz = _fit_files(out, fit.frame)
         save_npz(npz, positions=fit.positions, **{key: np.asarray(value) for key, value in fit.metrics.items()})
         save_mesh(ply, model.surface_at(fit.positions))
         bar.update(1)
 
     targets = _LazyHulls(out, frames)
-    result = fit_sequence(model, targets, rest_frame=frames.index(rest), stiffness=stiffness, done=done, callback=write)
+    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, done=done, callback=write)
     bar.close()
-    _write_metrics(out, frames, result)
+    _write_metrics(out, result)
     return result
 
 
-class _LazyHulls(Sequence[Any]):
-    """The capture's hulls, loaded when the fit reaches them."""
+class _LazyHulls(Mapping[int, Any]):
+    """The capture's hulls by frame number, loaded when the fit reaches them."""
 
     def __init__(self, out: Path, frames: list[int]) -> None:
         self._out, self._frames = out, frames
@@ -143,20 +142,23 @@ class _LazyHulls(Sequence[Any]):
     def __len__(self) -> int:
         return len(self._frames)
 
-    def __getitem__(self, index: Any) -> Any:
-        if isinstance(index, slice):
-            return [self[i] for i in range(len(self))[index]]
-        return load_hull(self._out, self._frames[index])
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._frames)
+
+    def __getitem__(self, frame: int) -> Any:
+        if frame not in self._frames:
+            raise KeyError(frame)
+        return load_hull(self._out, frame)
 
 
-def _write_metrics(out: Path, frames: list[int], result: SequenceFit) -> None:
+def _write_metrics(out: Path, result: SequenceFit) -> None:
     per_frame = []
-    for index in result.frames:
-        _, npz = _fit_files(out, frames[index])
-        with np.load(npz) as data:
+    for frame in result.frames:
+        _, npz = _fit_files(out, frame)
+        with np.load(npz, allow_pickle=False) as data:
             figures = {key: data[key].item() for key in data.files if key != "positions"}
-        per_frame.append({"frame": frames[index], **figures})
-    summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": frames[result.rest_frame]}
+        per_frame.append({"frame": frame, **figures})
+    summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame}
     for key in ("mean_distance", "max_distance", "volume_ratio", "seconds", "iterations", "penetrating"):
         values = [f[key] for f in per_frame if key in f]
         if values:

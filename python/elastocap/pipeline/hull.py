@@ -19,6 +19,7 @@ from elastocap._io import save_mesh, save_npz
 from elastocap.cameras.rig import Rig
 from elastocap.capture.folder import Capture
 from elastocap.hull.grid import Grid, space_seen_by
+from elastocap.hull.sdf import SDF
 from elastocap.hull.carve import Hull, visual_hull
 
 __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
@@ -31,7 +32,7 @@ def coarse_visibility(rig: Rig, seen: tuple[np.ndarray, np.ndarray]) -> np.ndarr
     """Which voxels of :func:`frame_grid`'s coarse grid every camera sees, ``(nx, ny, nz)``
     bool: the same for every frame of a rig, so a stage computes it once."""
     grid = Grid.around(seen[0], seen[1], _COARSE)
-    centres = grid.centres().reshape(-1, 3)
+    centres = grid.centers().reshape(-1, 3)
     return np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras]).reshape(grid.shape)
 
 
@@ -69,12 +70,15 @@ def _frame_files(out: Path, frame: int) -> tuple[Path, Path]:
 
 
 def load_hull(out: Path, frame: int) -> Hull:
-    """The hull of ``frame`` written by :func:`run_hull_stage` into ``out``."""
-    with np.load(_frame_files(Path(out), frame)[1]) as data:
+    """The hull of ``frame`` written by :func:`run_hull_stage` into ``out``, with the signed
+    distance the stage saved (float32, so the fit samples what was written, not a field
+    computed again)."""
+    with np.load(_frame_files(Path(out), frame)[1], allow_pickle=False) as data:
         grid = Grid(data["origin"], float(data["spacing"]), tuple(data["shape"]))
         count = int(np.prod(grid.shape))
         occupancy = np.unpackbits(data["occupancy"], count=count).astype(bool).reshape(grid.shape)
-    return Hull(occupancy, grid)
+        sdf = SDF(data["sdf"], grid) if "sdf" in data.files else None
+    return Hull(occupancy, grid, sdf=sdf)
 
 
 def run_hull_stage(

@@ -76,22 +76,21 @@ def write_fit_report(
     """Write ``fit_views.png``, ``fit_strip.png``, ``fit_plots.png`` and ``report.html`` into
     ``out``; returns the page. ``extra`` adds per-frame series to the error plot (e.g. the
     distance to a ground truth), ``summary`` figures to the page's table."""
-    frames = list(capture.frames)
     fitted = fit.frames
     cameras = capture.cameras
     picks = [fitted[round(i * (len(fitted) - 1) / 3)] for i in range(4)] if len(fitted) >= 4 else fitted
     views, labels = [], []
-    for index in picks:
-        surface = fit.surface(index)
+    for frame in picks:
+        surface = fit.surface(frame)
         for name in (cameras[0], cameras[len(cameras) // 2]):
-            views.append(mesh_over_image(capture.image(name, frames[index]), surface, capture.rig[name]))
-            labels.append(f"{name}, frame {frames[index]}")
+            views.append(mesh_over_image(capture.image(name, frame), surface, capture.rig[name]))
+            labels.append(f"{name}, frame {frame}")
     save_png(out / "fit_views.png", contact_sheet(views, labels, columns=4))
     strip_frames = fitted[:: max(1, len(fitted) // 8)][:8]
     name = cameras[0]
-    strip = [mesh_over_image(capture.image(name, frames[i]), fit.surface(i), capture.rig[name]) for i in strip_frames]
-    save_png(out / "fit_strip.png", contact_sheet(strip, [f"frame {frames[i]}" for i in strip_frames], columns=8, width=200))
-    x = [frames[i] for i in fitted]
+    strip = [mesh_over_image(capture.image(name, f), fit.surface(f), capture.rig[name]) for f in strip_frames]
+    save_png(out / "fit_strip.png", contact_sheet(strip, [f"frame {f}" for f in strip_frames], columns=8, width=200))
+    x = list(fitted)
     errors = {"mean |d| to hull (mm)": [1000 * fit.fits[i].metrics.get("mean_distance", np.nan) for i in fitted]}
     for key, values in (extra or {}).items():
         errors[key] = list(values)
