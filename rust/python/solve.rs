@@ -6,7 +6,7 @@ use std::sync::Mutex;
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, to_py};
+use super::{c_slice, invalid_input};
 use crate::solve::{BlockCsr, Pcg, PcgStatus, SparseCholesky as Cholesky, TwoLevel, STRENGTH};
 
 /// `(x, converged, iterations, relative_residual)`.
@@ -167,12 +167,10 @@ impl SparseCholesky {
         check_block(block)?;
         let index = index_arrays(&indptr, &indices)?;
         let csr = csr(size, &index, &data)?;
-        let factor = py
-            .detach(|| match block {
-                2 => analyse_and_factorize::<2>(&csr).map(Factor::Two),
-                _ => analyse_and_factorize::<3>(&csr).map(Factor::Three),
-            })
-            .map_err(|e| to_py(py, e))?;
+        let factor = py.detach(|| match block {
+            2 => analyse_and_factorize::<2>(&csr).map(Factor::Two),
+            _ => analyse_and_factorize::<3>(&csr).map(Factor::Three),
+        })?;
         Ok(Self {
             factor: Mutex::new(factor),
             size,
@@ -192,11 +190,10 @@ impl SparseCholesky {
         let csr = csr(self.size, &index, &data)?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        py.detach(|| match factor {
+        Ok(py.detach(|| match factor {
             Factor::Two(f) => factorize(f, &csr),
             Factor::Three(f) => factorize(f, &csr),
-        })
-        .map_err(|e| to_py(py, e))
+        })?)
     }
 
     /// `x = A^-1 rhs` for `rhs` of shape `(size,)`.
@@ -208,12 +205,10 @@ impl SparseCholesky {
         let rhs = c_slice(&rhs, "rhs")?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        let x = py
-            .detach(|| match factor {
-                Factor::Two(f) => solve(f, rhs),
-                Factor::Three(f) => solve(f, rhs),
-            })
-            .map_err(|e| to_py(py, e))?;
+        let x = py.detach(|| match factor {
+            Factor::Two(f) => solve(f, rhs),
+            Factor::Three(f) => solve(f, rhs),
+        })?;
         Ok(PyArray1::from_vec(py, x))
     }
 
@@ -304,8 +299,7 @@ fn conjugate_gradient<'py>(
                 cg::<3>(&csr, rhs, out, tolerance, max_iterations, Some(f), nodes)
             }
             _ => cg::<3>(&csr, rhs, out, tolerance, max_iterations, None, nodes),
-        })
-        .map_err(|e| to_py(py, e))?
+        })?
     };
     Ok((
         x,
