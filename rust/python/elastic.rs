@@ -325,13 +325,7 @@ impl ElasticCore {
     ) -> PyResult<Csr<'py>> {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let (indptr, indices, data) = py
-                .detach(|| {
-                    let pattern = m.pattern();
-                    let mut values = vec![[[0.0; D]; D]; pattern.nnz()];
-                    m.system_blocks(&r, &mut values)?;
-                    Ok::<_, crate::Error>(pattern.to_scalar_csr(&values))
-                })?;
+            let (indptr, indices, data) = py.detach(|| m.system_csr(&r))?;
             let as_i64 = |v: Vec<usize>| v.into_iter().map(|x| x as i64).collect::<Vec<_>>();
             Ok((
                 as_i64(indptr).into_pyarray(py),
