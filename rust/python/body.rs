@@ -8,7 +8,7 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::body::fit::{fit, FitOptions};
 use crate::body::observe::Observations;
 use crate::body::{self, Cutoff, Metaball, PartSpec, Skeleton};
@@ -124,8 +124,7 @@ impl BodySkeleton {
                 radii: radii[i],
             })
             .collect();
-        let skeleton =
-            Skeleton::new(parts, balls).map_err(|e| Python::attach(|py| to_py(py, e)))?;
+        let skeleton = Skeleton::new(parts, balls)?;
         Ok(Self { skeleton })
     }
 
@@ -150,8 +149,7 @@ impl BodySkeleton {
     ) -> PyResult<PoseArrays<'py>> {
         let pose = self
             .skeleton
-            .pose(c_slice(&shape, "shape")?, c_slice(&motion, "motion")?)
-            .map_err(|e| to_py(py, e))?;
+            .pose(c_slice(&shape, "shape")?, c_slice(&motion, "motion")?)?;
         let n = pose.rotation.len();
         let rotations: Vec<f64> = pose
             .rotation
@@ -178,9 +176,7 @@ impl BodySkeleton {
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let (f, g, h) = py
-            .detach(|| body::field_at(&self.skeleton, s, m, p))
-            .map_err(|e| to_py(py, e))?;
+        let (f, g, h) = py.detach(|| body::field_at(&self.skeleton, s, m, p))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
@@ -209,9 +205,7 @@ impl BodySkeleton {
         } else {
             Cutoff::Bounded
         };
-        let (f, j) = py
-            .detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))
-            .map_err(|e| to_py(py, e))?;
+        let (f, j) = py.detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
@@ -234,9 +228,7 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let (t, x, f, hit, j) = py
-            .detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))
-            .map_err(|e| to_py(py, e))?;
+        let (t, x, f, hit, j) = py.detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))?;
         let n = t.len();
         Ok((
             t.into_pyarray(py),
@@ -262,9 +254,7 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let inside = py
-            .detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))
-            .map_err(|e| to_py(py, e))?;
+        let inside = py.detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))?;
         Ok(inside.into_pyarray(py))
     }
 
@@ -296,9 +286,7 @@ impl BodySkeleton {
         };
         let (s, m) = (c_slice(&shape, "shape")?, c_slice(&motion, "motion")?);
         let (lo, hi) = (c_slice(&lower, "lower")?, c_slice(&upper, "upper")?);
-        let result = py
-            .detach(|| fit(&self.skeleton, &obs, s, m, (lo, hi), &options))
-            .map_err(|e| to_py(py, e))?;
+        let result = py.detach(|| fit(&self.skeleton, &obs, s, m, (lo, hi), &options))?;
         let out = PyDict::new(py);
         let frames = obs.frames;
         out.set_item(

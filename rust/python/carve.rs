@@ -4,11 +4,10 @@ use numpy::{
     PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
-use rayon::prelude::*;
 
-use super::{c_slice, invalid_input, to_py};
+use super::{c_slice, invalid_input};
 use crate::camera::Camera;
-use crate::carve::{carve as core_carve, Footprint, GridSpec, Silhouette};
+use crate::carve::{carve_masks, Footprint, GridSpec, Mask};
 
 /// Row `c` of a flat array of rows of `N` (lengths are checked by the caller).
 fn row<const N: usize>(flat: &[f64], c: usize) -> [f64; N] {
@@ -56,25 +55,20 @@ fn carve<'py>(
     let mut views = Vec::with_capacity(n);
     for (c, mask) in masks.iter().enumerate() {
         let (height, width) = (mask.shape()[0], mask.shape()[1]);
-        let camera = Camera::new(row(k, c), row(dist, c), row(r, c), row(t, c), width, height)
-            .map_err(|e| to_py(py, e))?;
+        let camera = Camera::new(row(k, c), row(dist, c), row(r, c), row(t, c), width, height)?;
         cameras.push(camera);
-        views.push((c_slice(mask, "masks")?, width, height));
+        views.push(Mask {
+            pixels: c_slice(mask, "masks")?,
+            width,
+            height,
+        });
     }
     let grid = GridSpec {
         origin,
         spacing,
         shape,
     };
-    let occupancy = py
-        .detach(|| {
-            let silhouettes: Vec<Silhouette> = views
-                .par_iter()
-                .map(|&(m, w, h)| Silhouette::new(m, w, h))
-                .collect();
-            core_carve(&cameras, &silhouettes, grid, tolerance, footprint)
-        })
-        .map_err(|e| to_py(py, e))?;
+    let occupancy = py.detach(|| carve_masks(&cameras, &views, grid, tolerance, footprint))?;
     PyArray1::from_vec(py, occupancy).reshape(shape)
 }
 

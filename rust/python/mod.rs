@@ -16,7 +16,6 @@ mod solve;
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use crate::Error;
 pub(crate) use errors::invalid_input;
 
 /// The data of a C-contiguous array. (`as_slice` alone also accepts Fortran order, whose
@@ -44,11 +43,6 @@ pub(crate) fn rows<'a, const D: usize>(
         )));
     }
     Ok(c_slice(array, argument)?.as_chunks::<D>().0)
-}
-
-/// Maps a core error onto the exception hierarchy.
-pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
-    errors::from_core(py, error)
 }
 
 #[pymodule]
