@@ -87,7 +87,7 @@ def choose_model(camera: Camera, model: str | None) -> str:
     """The simplest COLMAP model that holds ``camera`` (or ``model``, checked)."""
     if camera.K[0, 1] != 0.0:
         raise InvalidInputError(
-            f"camera {camera.name!r} has skew K[0, 1] = {camera.K[0, 1]!r}, which no COLMAP camera model can hold"
+            f"camera {camera.name!r} has skew K[0, 1] = {float(camera.K[0, 1])!r}, which no COLMAP camera model can hold"
         )
     dist = np.zeros(12)
     dist[: camera.dist.size] = camera.dist
@@ -115,11 +115,11 @@ def choose_model(camera: Camera, model: str | None) -> str:
     names = set(MODELS[model][1])
     missing = sorted(nonzero - names, key=_DIST_INDEX.__getitem__)
     if missing:
-        listed = ", ".join(f"{n} = {dist[_DIST_INDEX[n]]!r}" for n in missing)
+        listed = ", ".join(f"{n} = {float(dist[_DIST_INDEX[n]])!r}" for n in missing)
         raise InvalidInputError(f"camera {camera.name!r} has distortion {listed}, which COLMAP's {model} model cannot hold")
     if "f" in names and not square:
         raise InvalidInputError(
-            f"camera {camera.name!r} has fx = {camera.K[0, 0]!r} != fy = {camera.K[1, 1]!r}, which COLMAP's "
+            f"camera {camera.name!r} has fx = {float(camera.K[0, 0])!r} != fy = {float(camera.K[1, 1])!r}, which COLMAP's "
             f"{model} model (one focal length) cannot hold"
         )
     return model

@@ -57,7 +57,7 @@ def refuse_skew(cameras: Sequence[Camera], fmt: str) -> None:
     for camera in cameras:
         if camera.K[0, 1] != 0.0:
             raise InvalidInputError(
-                f"camera {camera.name!r} has skew K[0, 1] = {camera.K[0, 1]!r}, which the {fmt} "
+                f"camera {camera.name!r} has skew K[0, 1] = {float(camera.K[0, 1])!r}, which the {fmt} "
                 "format cannot hold"
             )
 
