@@ -118,3 +118,19 @@ def test_coefficients_are_kept_at_the_shortest_opencv_length():
 def test_unsupported_distortion_is_refused_by_name(dist, message):
     with pytest.raises(elastocap.InvalidInputError, match=message):
         Camera("c", K, dist, np.eye(3), [0, 0, 1], 640, 480)
+
+
+def test_carving_honours_the_rational_and_thin_prism_terms():
+    """An ellipsoid seen through strongly distorting lenses (rational k4-k6, thin prism):
+    the conservative hull keeps every voxel inside it; carving with the same cameras but
+    only their first five coefficients cuts into it, so the extra terms reach the carving."""
+    from test_hull import GRID, ellipsoid, ring, render
+
+    lens = np.array([0.3, 0.1, 1e-3, -1e-3, 0.05, 3.0, 0.1, 0.02, 4e-3, 0.0, -4e-3, 0.0])
+    rig = elastocap.Rig(c.replace(dist=lens) for c in ring(8).cameras)
+    mesh = ellipsoid()
+    masks = [render(mesh, camera) for camera in rig.cameras]
+    inside = ((GRID.centers() / np.array([0.5, 0.35, 0.25])) ** 2).sum(axis=-1) <= 1
+    assert elastocap.visual_hull(masks, rig, GRID).occupancy[inside].all()
+    truncated = elastocap.Rig(c.replace(dist=c.dist[:5]) for c in rig.cameras)
+    assert not elastocap.visual_hull(masks, truncated, GRID).occupancy[inside].all()
