@@ -159,7 +159,7 @@ def output_format(path: Path, fmt: str | None = None) -> tuple[str, Path]:
         _check_format(fmt)
         kind, default = FORMATS[fmt][2], FORMATS[fmt][3]
         if kind == "folder":
-            return fmt, path.parent if path.suffix else path
+            return fmt, path.parent if path.suffix in (".txt", ".bin", ".yml") else path
         return fmt, path / default if not path.suffix else path
     name, suffix = path.name, path.suffix.lower()
     if name in ("intri.yml", "extri.yml"):
@@ -176,8 +176,7 @@ def output_format(path: Path, fmt: str | None = None) -> tuple[str, Path]:
         return "anipose", path
     if suffix in _YAML_SUFFIXES:
         return "opencv-stereo", path
-    if suffix:
-        raise InvalidInputError(f"cannot tell a calibration format from the name {path.name!r}: pass format=")
+    # Anything else is a folder (whose name may hold a dot) for EasyMocap's pair of files.
     return "easymocap", path
 
 
