@@ -119,13 +119,13 @@ def settle_frames(
     inside = {f: cameras for f, cameras in present.items() if lo <= f <= hi}
     if policy == "error":
         for source, table in sources:
-            for name, frames in lacking(table, names).items():
-                frames = [f for f in frames if lo <= f <= hi]
-                if frames:
+            for name, gap in lacking(table, names).items():
+                frames_lacked = [f for f in gap if lo <= f <= hi]
+                if frames_lacked:
                     sample = next(iter(table[name].values()), None)
                     where = sample[0] if isinstance(sample, tuple) else masks_dir.parent / source / name
                     raise InvalidInputError(
-                        f"{where} lacks frame(s) {listing(frames)} that other cameras have (set missing = "
+                        f"{where} lacks frame(s) {listing(frames_lacked)} that other cameras have (set missing = "
                         f"\"skip\" or \"present\" in capture.toml, or pass missing=, to leave such frames out or "
                         "carve them with the cameras present)"
                     )

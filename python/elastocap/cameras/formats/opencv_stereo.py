@@ -109,12 +109,12 @@ def _size(storages: list[tuple[cv2.FileStorage, Path]], i: int, where: str) -> t
         if flat.size != 2 or not all(np.isfinite(flat)) or not all(float(v).is_integer() and v > 0 for v in flat):
             raise InvalidInputError(f"{where}: {key} must be [width, height] in pixels, got {flat.tolist()}")
         return int(flat[0]), int(flat[1])
-    found = {}
+    found: dict[str, int] = {}
     for key in ("image_width", "image_height"):
         for storage, file in storages:
-            found.setdefault(key, read_scalar(storage, key, file))
-            if found[key] is None:
-                del found[key]
+            scalar = read_scalar(storage, key, file)
+            if scalar is not None and key not in found:
+                found[key] = scalar
     if not found:
         return None
     if len(found) != 2:
