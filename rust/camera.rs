@@ -50,12 +50,13 @@ impl Camera {
     /// image, a distortion vector of another length or a non-zero sensor tilt.
     pub fn new(
         k: [f64; 9],
-        dist: &[f64],
+        dist: impl AsRef<[f64]>,
         r: [f64; 9],
         t: [f64; 3],
         width: usize,
         height: usize,
     ) -> Result<Self> {
+        let dist = dist.as_ref();
         check_finite("camera parameters", &[k, r])?;
         if let Some(row) = dist.iter().position(|v| !v.is_finite()) {
             return Err(Error::NonFinite {
@@ -116,7 +117,8 @@ impl Camera {
             return None;
         }
         // Without k4..k6 the denominator is exactly 1: the division changes nothing.
-        let radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)));
+        let radial =
+            (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)));
         let ad = a * radial + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a) + r2 * (s1 + r2 * s2);
         let bd = b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b + r2 * (s3 + r2 * s4);
         let k = &self.k;
@@ -189,8 +191,15 @@ mod tests {
 
     #[test]
     fn projects_with_skew_and_distortion() {
-        let cam = Camera::new(K, &[0.1, -0.05, 0.001, 0.002, 0.01], IDENTITY, [0.0, 0.0, 2.0], 640, 480)
-            .unwrap();
+        let cam = Camera::new(
+            K,
+            [0.1, -0.05, 0.001, 0.002, 0.01],
+            IDENTITY,
+            [0.0, 0.0, 2.0],
+            640,
+            480,
+        )
+        .unwrap();
         let [u, v] = cam.project(&[0.2, -0.1, 0.0]).unwrap();
         let (a, b) = (0.1f64, -0.05f64);
         let r2 = a * a + b * b;
@@ -204,16 +213,23 @@ mod tests {
 
     #[test]
     fn rational_and_thin_prism_terms() {
-        let dist = [0.1, -0.05, 0.001, 0.002, 0.01, 0.05, 0.01, -0.002, 0.003, -0.001, 0.002, 0.0005];
-        let cam = Camera::new(K, &dist, IDENTITY, [0.0, 0.0, 2.0], 640, 480).unwrap();
+        let dist = [
+            0.1, -0.05, 0.001, 0.002, 0.01, 0.05, 0.01, -0.002, 0.003, -0.001, 0.002, 0.0005,
+        ];
+        let cam = Camera::new(K, dist, IDENTITY, [0.0, 0.0, 2.0], 640, 480).unwrap();
         let [u, v] = cam.project(&[0.2, -0.1, 0.0]).unwrap();
         let (a, b) = (0.1f64, -0.05f64);
         let r2 = a * a + b * b;
         let num = 1.0 + 0.1 * r2 - 0.05 * r2 * r2 + 0.01 * r2.powi(3);
         let den = 1.0 + 0.05 * r2 + 0.01 * r2 * r2 - 0.002 * r2.powi(3);
         let q = num / den;
-        let ad = a * q + 2.0 * 0.001 * a * b + 0.002 * (r2 + 2.0 * a * a) + 0.003 * r2 - 0.001 * r2 * r2;
-        let bd = b * q + 0.001 * (r2 + 2.0 * b * b) + 2.0 * 0.002 * a * b + 0.002 * r2 + 0.0005 * r2 * r2;
+        let ad =
+            a * q + 2.0 * 0.001 * a * b + 0.002 * (r2 + 2.0 * a * a) + 0.003 * r2 - 0.001 * r2 * r2;
+        let bd = b * q
+            + 0.001 * (r2 + 2.0 * b * b)
+            + 2.0 * 0.002 * a * b
+            + 0.002 * r2
+            + 0.0005 * r2 * r2;
         assert!((u - (500.0 * ad + 2.0 * bd + 320.0)).abs() < 1e-10);
         assert!((v - (510.0 * bd + 240.0)).abs() < 1e-10);
     }
@@ -221,25 +237,32 @@ mod tests {
     #[test]
     fn fold_radius_of_barrel_distortion() {
         // r (1 + k1 r^2) folds where 1 + 3 k1 r^2 = 0.
-        let cam = Camera::new(K, &[-0.5, 0.0, 0.0, 0.0], IDENTITY, [0.0; 3], 640, 480).unwrap();
+        let cam = Camera::new(K, [-0.5, 0.0, 0.0, 0.0], IDENTITY, [0.0; 3], 640, 480).unwrap();
         assert!((cam.fold_radius() - (1.0f64 / 1.5).sqrt()).abs() < 1e-12);
         // Beyond it a point is not projected, even though its pixel would be finite.
         assert!(cam.project(&[1.0, 0.0, 1.0]).is_none());
         assert!(cam.project(&[0.5, 0.0, 1.0]).is_some());
-        let none = Camera::new(K, &[0.1, 0.0, 0.0, 0.0, 0.0], IDENTITY, [0.0; 3], 640, 480).unwrap();
+        let none = Camera::new(K, [0.1, 0.0, 0.0, 0.0, 0.0], IDENTITY, [0.0; 3], 640, 480).unwrap();
         assert!(none.fold_radius().is_infinite());
         // A vanishing denominator 1 + k4 r^2 limits the range too.
-        let pole = Camera::new(K, &[0.0, 0.0, 0.0, 0.0, 0.0, -0.25, 0.0, 0.0], IDENTITY, [0.0; 3], 640, 480)
-            .unwrap();
+        let pole = Camera::new(
+            K,
+            [0.0, 0.0, 0.0, 0.0, 0.0, -0.25, 0.0, 0.0],
+            IDENTITY,
+            [0.0; 3],
+            640,
+            480,
+        )
+        .unwrap();
         assert!(pole.fold_radius() <= 2.0 + 1e-12);
     }
 
     #[test]
     fn refuses_other_lengths_and_tilt() {
-        assert!(Camera::new(K, &[0.0; 6], IDENTITY, [0.0; 3], 640, 480).is_err());
+        assert!(Camera::new(K, [0.0; 6], IDENTITY, [0.0; 3], 640, 480).is_err());
         let mut tilted = [0.0; 14];
         tilted[12] = 0.01;
-        assert!(Camera::new(K, &tilted, IDENTITY, [0.0; 3], 640, 480).is_err());
-        assert!(Camera::new(K, &[0.0; 14], IDENTITY, [0.0; 3], 640, 480).is_ok());
+        assert!(Camera::new(K, tilted, IDENTITY, [0.0; 3], 640, 480).is_err());
+        assert!(Camera::new(K, [0.0; 14], IDENTITY, [0.0; 3], 640, 480).is_ok());
     }
 }

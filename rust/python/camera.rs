@@ -31,7 +31,8 @@ fn camera_project<'py>(
     let t: [f64; 3] = c_slice(&t, "t")?
         .try_into()
         .map_err(|_| invalid_input("t must have shape (3,)".to_string()))?;
-    let camera = Camera::new(k, c_slice(&dist, "dist")?, r, t, width, height).map_err(|e| to_py(py, e))?;
+    let camera =
+        Camera::new(k, c_slice(&dist, "dist")?, r, t, width, height).map_err(|e| to_py(py, e))?;
     let points = rows::<3>(&points, "points")?;
     let uv: Vec<[f64; 2]> = py.detach(|| {
         points
