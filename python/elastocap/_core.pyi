@@ -24,6 +24,7 @@ __all__ = [
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
+    "camera_project",
 ]
 
 __version__: str
@@ -268,3 +269,13 @@ class BodySkeleton:
         refresh_every: int,
         outlier_distance: float | None,
     ) -> dict[str, Any]: ...
+
+def camera_project(
+    points: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    width: int,
+    height: int,
+) -> NDArray[np.float64]: ...

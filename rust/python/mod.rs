@@ -12,6 +12,7 @@ mod neighbors;
 mod polar;
 mod sdf;
 mod solve;
+mod camera;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -58,6 +59,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     polar::register(m)?;
     sdf::register(m)?;
     solve::register(m)?;
+    camera::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

@@ -170,6 +170,9 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
+    from elastocap.cameras.commands import add_rig_parser
+
+    add_rig_parser(commands)
     return parser
 
 

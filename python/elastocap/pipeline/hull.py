@@ -121,14 +121,16 @@ def run_hull_stage(
     visibility = coarse_visibility(cap.rig, seen)
     for frame in tqdm(todo, desc="hull", unit="frame", disable=not progress):
         masks = cap.masks(frame)
+        # missing = "present": a frame some cameras lack is carved with the others.
+        rig = cap.rig_at(frame)
         blank = [name for name, mask in masks.items() if not mask.any()]
         if blank:
             raise InvalidInputError(
                 f"frame {frame}: the mask of camera(s) {blank} is all background, which carves "
                 f"the whole hull away; frames written so far are kept"
             )
-        grid = frame_grid(masks, cap.rig, resolution, seen, visibility)
-        hull = visual_hull(masks, cap.rig, grid, tolerance=tolerance, footprint=footprint)
+        grid = frame_grid(masks, rig, resolution, seen, visibility if rig is cap.rig else None)
+        hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint=footprint)
         ply, npz = _frame_files(out, frame)
         save_npz(
             npz,
