@@ -4,7 +4,7 @@ use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::camera::Camera;
 
 /// Pixels `(N, 2)` of world points `(N, 3)` through one camera; NaN rows for points behind
@@ -31,8 +31,7 @@ fn camera_project<'py>(
     let t: [f64; 3] = c_slice(&t, "t")?
         .try_into()
         .map_err(|_| invalid_input("t must have shape (3,)".to_string()))?;
-    let camera =
-        Camera::new(k, c_slice(&dist, "dist")?, r, t, width, height).map_err(|e| to_py(py, e))?;
+    let camera = Camera::new(k, c_slice(&dist, "dist")?, r, t, width, height)?;
     let points = rows::<3>(&points, "points")?;
     let uv: Vec<[f64; 2]> = py.detach(|| {
         points
