@@ -4,12 +4,13 @@ holds a pair: the first two views, re-expressed in the first camera's frame."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
+import elastocap
 from elastocap import Grid, Rig, visual_hull
 from data_paths import TEMPLE
-from test_hull import temple_rig_and_masks
 
 pytestmark = pytest.mark.skipif(not TEMPLE.exists(), reason="shared data not present")
 
@@ -21,7 +22,21 @@ OUTPUTS = ["easymocap", "rig.json", "rig_par.txt", "colmap/cameras.txt", "colmap
 
 @pytest.fixture(scope="module")
 def temple():
-    rig, masks, _, grid = temple_rig_and_masks()
+    """The rig, threshold silhouettes inside the data set's bounding box (as in
+    tests/test_hull.py; the segmentation does not matter here, only that every format
+    carves the same hull from the same masks) and test_hull's 250-voxel grid."""
+    rig = Rig.load(TEMPLE / "templeSR_par.txt")
+    lo = np.array([-0.073568, 0.021728, -0.012445]) - 0.005
+    hi = np.array([0.028855, 0.181892, 0.062736]) + 0.005
+    corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, -1).T
+    masks = {}
+    for name, camera in zip(rig.names, rig.cameras):
+        image = cv2.imread(str(TEMPLE / f"{name}.png"))[:, :, ::-1]
+        uv, _ = camera.project(corners)
+        roi = np.zeros(image.shape[:2], np.uint8)
+        cv2.fillConvexPoly(roi, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
+        masks[name] = elastocap.threshold_dark_background(image, 48, open_radius=1, close_radius=4, min_area=500) & roi.astype(bool)
+    grid = Grid.around(lo, hi, 250)
     return rig, masks, grid, visual_hull(masks, rig, grid, footprint="center").occupancy
 
 
