@@ -22,7 +22,7 @@ from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.camera import Camera
 
-__all__ = ["Board", "BoardRenderer", "Chessboard", "CharucoTarget", "random_board_poses"]
+__all__ = ["Board", "BoardRenderer", "Chessboard", "CharucoTarget", "random_board_poses", "subpixel_rays"]
 
 # Grey levels of the printed board and of the empty scene (0..255 scale).
 DARK, LIGHT = 25.0, 225.0
@@ -219,24 +219,7 @@ class BoardRenderer:
             raise InvalidInputError(f"camera must be an elastocap Camera, got {type(camera).__name__}")
         self.camera = camera
         self.supersample = as_count("supersample", supersample)
-        n = self.supersample
-        # Exact back-projection on a lattice of pixel corners, bilinearly interpolated at the
-        # sub-pixels: the lens map is smooth, so this differs from back-projecting every
-        # sub-pixel by under 1e-3 px (tests/test_calibration.py checks it) at n^2 times less
-        # Newton work.
-        local = camera.replace(R=np.eye(3), t=np.zeros(3))
-        lu = np.arange(camera.width + 1) - 0.5
-        lv = np.arange(camera.height + 1) - 0.5
-        grid_u, grid_v = np.meshgrid(lu, lv)
-        _, lattice = local.rays(np.stack([grid_u.ravel(), grid_v.ravel()], axis=1))
-        ab = (lattice[:, :2] / lattice[:, 2:]).reshape(camera.height + 1, camera.width + 1, 2)
-        offsets = (np.arange(n) + 0.5) / n  # within a pixel, from its top-left corner
-        f = offsets[:, None] * np.ones(n)[None, :]  # (n, n): [row offset, column offset]
-        fv, fu = f[:, :, None], f.T[:, :, None]
-        top = ab[:-1, :-1, None, None] * (1 - fu) + ab[:-1, 1:, None, None] * fu
-        bottom = ab[1:, :-1, None, None] * (1 - fu) + ab[1:, 1:, None, None] * fu
-        sub = (top * (1 - fv) + bottom * fv).reshape(-1, 2)  # (H * W * n * n, 2), pixel-major
-        directions = np.hstack([sub, np.ones((len(sub), 1))]) @ camera.R
+        directions = subpixel_rays(camera, self.supersample)
         # World frame, one column per axis (float32 halves the memory traffic; hit points
         # then err by ~1e-7 of the distance), NaN where no ray.
         self._directions = [np.ascontiguousarray(directions[:, k], dtype=np.float32) for k in range(3)]
@@ -285,6 +268,32 @@ class BoardRenderer:
         grey = np.where(np.isnan(grey), background, grey).reshape(h, w, n * n).mean(axis=2)
         grey = grey + rng.normal(0.0, noise, grey.shape)
         return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+
+
+def subpixel_rays(camera: Camera, supersample: int) -> NDArray[np.float64]:
+    """World directions ``(H * W * n * n, 3)`` (not normalised; NaN where the lens model has
+    no ray) of the ``n x n`` sub-pixels of every pixel, pixel by pixel in row-major order,
+    sub-pixels row-major within a pixel.
+
+    Notes
+    -----
+    Exact back-projection (:meth:`Camera.rays`, Newton on the distortion) on the lattice of
+    pixel corners, bilinearly interpolated at the sub-pixels: the lens map is smooth, so this
+    differs from back-projecting every sub-pixel by under 1e-3 px (tests/test_calibration.py
+    checks it) at n^2 times less Newton work.
+    """
+    n = supersample
+    local = camera.replace(R=np.eye(3), t=np.zeros(3))
+    grid_u, grid_v = np.meshgrid(np.arange(camera.width + 1) - 0.5, np.arange(camera.height + 1) - 0.5)
+    _, lattice = local.rays(np.stack([grid_u.ravel(), grid_v.ravel()], axis=1))
+    ab = (lattice[:, :2] / lattice[:, 2:]).reshape(camera.height + 1, camera.width + 1, 2)
+    offsets = (np.arange(n) + 0.5) / n  # within a pixel, from its top-left corner
+    fv = offsets[:, None, None] * np.ones((1, n, 1))  # (n, n, 1): sub-pixel row offset
+    fu = offsets[None, :, None] * np.ones((n, 1, 1))  # (n, n, 1): sub-pixel column offset
+    top = ab[:-1, :-1, None, None] * (1 - fu) + ab[:-1, 1:, None, None] * fu
+    bottom = ab[1:, :-1, None, None] * (1 - fu) + ab[1:, 1:, None, None] * fu
+    sub = (top * (1 - fv) + bottom * fv).reshape(-1, 2)
+    return np.hstack([sub, np.ones((len(sub), 1))]) @ camera.R
 
 
 def _smooth_background(height: int, width: int, rng: np.random.Generator) -> NDArray[np.float64]:
