@@ -188,9 +188,18 @@ class CharucoTarget:
         """Grey level (0..255) of board points ``(N, 2)`` (board frame); NaN off the board."""
         texture, scale = self._texture
         # Texture pixel (c, r) covers board [c, c + 1) / scale: centres at (c + 0.5) / scale.
-        map_xy = (xy * scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
-        grey = cv2.remap(texture, map_xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        grey = grey.reshape(-1).astype(np.float64)
+        # Bilinear lookup (cv2.remap cannot take more than 32767 points per row or column).
+        with np.errstate(invalid="ignore"):
+            at = np.nan_to_num(xy * scale - 0.5, nan=-1.0, posinf=-1.0, neginf=-1.0)
+        rows, columns = texture.shape
+        c0 = np.clip(np.floor(at[:, 0]), 0, columns - 2).astype(np.int64)
+        r0 = np.clip(np.floor(at[:, 1]), 0, rows - 2).astype(np.int64)
+        fc = np.clip(at[:, 0] - c0, 0.0, 1.0)
+        fr = np.clip(at[:, 1] - r0, 0.0, 1.0)
+        grey = (
+            (texture[r0, c0] * (1 - fc) + texture[r0, c0 + 1] * fc) * (1 - fr)
+            + (texture[r0 + 1, c0] * (1 - fc) + texture[r0 + 1, c0 + 1] * fc) * fr
+        ).astype(np.float64)
         (x0, y0), (x1, y1) = self.extent
         inside_squares = (xy[:, 0] >= 0) & (xy[:, 1] >= 0) & (xy * scale < texture.shape[::-1]).all(axis=1)
         on_board = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)

@@ -127,12 +127,12 @@ def run_calibrate(
             print_line(f"warning: {warning.message}")
         else:
             warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
-    for name, camera in result.rig.items():
-        fx, fy = camera.K[0, 0], camera.K[1, 1]
+    for calibrated in result.rig.cameras:
+        K, name = calibrated.K, calibrated.name
         print_line(
             f"{name}: RMS {result.rms[name]:.3f} px over {len(result.cameras[name].views)} views; "
-            f"fx {fx:.2f} fy {fy:.2f} cx {camera.K[0, 2]:.2f} cy {camera.K[1, 2]:.2f} px, "
-            f"dist {np.array2string(camera.dist, precision=4)}; centre {np.array2string(camera.center, precision=4)}"
+            f"fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px, "
+            f"dist {np.array2string(calibrated.dist, precision=4)}; centre {np.array2string(calibrated.center, precision=4)}"
         )
     result.rig.save(out)
     print_line(f"wrote {out} (world frame: {result.world}, units of --square-size)")

@@ -14,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from elastocap._core import InvalidInputError
 from elastocap.stereo.board import CharucoTarget, Chessboard
@@ -132,9 +133,9 @@ def _square_grey(grey: NDArray[np.uint8], grid: NDArray[np.float64], j: int, i: 
     quad = grid[[j, j, j + 1, j + 1], [i, i + 1, i + 1, i]]
     centre = quad.mean(axis=0)
     samples = centre + 0.25 * (quad - centre)  # halfway to the corners: inside the square
-    points = np.vstack([centre, samples]).astype(np.float32).reshape(-1, 1, 2)
-    values = cv2.remap(grey.astype(np.float32), points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return float(values.mean())
+    points = np.vstack([centre, samples])
+    values = ndimage.map_coordinates(grey.astype(np.float32), [points[:, 1], points[:, 0]], order=1, mode="nearest")
+    return float(np.mean(values))
 
 
 def find_charuco_corners(image: Any, board: CharucoTarget, *, minimum: int = 6) -> BoardView | None:
@@ -161,7 +162,7 @@ def find_charuco_corners(image: Any, board: CharucoTarget, *, minimum: int = 6) 
     corners, ids, _, _ = detector.detectBoard(grey)
     if ids is None or len(ids) < minimum:
         return None
-    return BoardView(ids.reshape(-1), corners.reshape(-1, 2))
+    return BoardView(np.asarray(ids, dtype=np.int64).reshape(-1), np.asarray(corners, dtype=np.float64).reshape(-1, 2))
 
 
 def find_board(image: Any, board: Chessboard | CharucoTarget) -> BoardView | None:

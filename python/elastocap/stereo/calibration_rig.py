@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 import scipy.optimize
 from numpy.typing import NDArray
@@ -87,9 +88,7 @@ def _skew(r: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _rotation_vector(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    import cv2
-
-    return np.asarray(cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0]).reshape(3)
+    return np.asarray(cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0], dtype=np.float64).reshape(3)
 
 
 def _compose(a: Pose, b: Pose) -> Pose:
@@ -330,25 +329,26 @@ class _Bundle:
         w = p[:, 1] * bd + p[:, 3]
         return np.concatenate([u - self.uv[:, 0], w - self.uv[:, 1]])
 
-    def _column_groups(self, n_params: int) -> list[tuple[NDArray[np.int64], NDArray[np.bool_]]]:
+    def _column_groups(self, n_params: int) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
         """Sets of parameters whose residual rows do not overlap, so that one residual
         evaluation differentiates them all: the k-th intrinsic of every camera, the k-th pose
         parameter of every moving camera, the k-th pose parameter of every view. Each set
         comes with its residual rows per column (as a mask per observation)."""
-        groups: list[tuple[NDArray[np.int64], NDArray[np.bool_]]] = []
+        groups: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
         by_camera: dict[int, list[int]] = {}
         for j, (c, _) in enumerate(self.groups):
             by_camera.setdefault(c, []).append(j)
         for k in range(max((len(v) for v in by_camera.values()), default=0)):
-            columns = np.array([cols[k] for cols in by_camera.values() if k < len(cols)])
-            groups.append((columns, np.array([self.groups[j][0] for j in columns])))
+            columns = np.array([cols[k] for cols in by_camera.values() if k < len(cols)], dtype=np.int64)
+            groups.append((columns, np.array([self.groups[j][0] for j in columns], dtype=np.int64)))
         g = len(self.groups)
         moving = np.array([self.names.index(n) for n in self.moving], dtype=np.int64)
         for q in range(6 if len(moving) else 0):
-            groups.append((g + 6 * np.arange(len(moving)) + q, moving))
+            groups.append((g + 6 * np.arange(len(moving), dtype=np.int64) + q, moving))
         base = g + 6 * len(self.moving)
         for q in range(6):
-            groups.append((base + 6 * np.arange(len(self.view_keys)) + q, -1 - np.arange(len(self.view_keys))))
+            views = np.arange(len(self.view_keys), dtype=np.int64)
+            groups.append((base + 6 * views + q, -1 - views))
         return groups
 
     def jacobian(self, x: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -155,7 +155,7 @@ def sgbm_matcher(
     ``P2 = p2 * channels * block_size^2`` (OpenCV's documented scaling), no internal
     left-right check (done outside, in both directions)."""
     area = channels * block_size * block_size
-    return cv2.StereoSGBM_create(
+    return cv2.StereoSGBM.create(
         minDisparity=int(min_disparity),
         numDisparities=int(num_disparities),
         blockSize=int(block_size),

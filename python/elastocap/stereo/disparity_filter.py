@@ -103,14 +103,16 @@ class _GuidedFilter:
         self.inverse = np.ascontiguousarray(np.linalg.inv(cov))
 
     def _box(self, x: NDArray[np.float32]) -> NDArray[np.float32]:
-        return np.asarray(cv2.boxFilter(x, -1, self.size, normalize=True, borderType=cv2.BORDER_REFLECT), dtype=np.float32)
+        # OpenCV returns (H, W) for a one-channel (H, W, 1) input: keep the input's shape.
+        filtered = cv2.boxFilter(np.ascontiguousarray(x), -1, self.size, normalize=True, borderType=cv2.BORDER_REFLECT)
+        return np.asarray(filtered, dtype=np.float32).reshape(x.shape)
 
     def __call__(self, p: NDArray[np.float32]) -> NDArray[np.float32]:
         """Filter ``(H, W, K)`` inputs (``K <= CHANNEL_CHUNK``) at once."""
-        mean_p = self._box(p).reshape(p.shape)
+        mean_p = self._box(p)
         channels = self.I.shape[2]
         # Per guide channel c: cov(I_c, p) over the window, (H, W, K) each.
-        cov = [self._box(self.I[..., c : c + 1] * p).reshape(p.shape) - self.mean_I[..., c : c + 1] * mean_p for c in range(channels)]
+        cov = [self._box(self.I[..., c : c + 1] * p) - self.mean_I[..., c : c + 1] * mean_p for c in range(channels)]
         # q = box(b) + sum_i box(a_i) I_i, a = Sigma^-1 cov(I, p), b = mean_p - a . mean_I.
         b = mean_p.copy()
         out = np.zeros_like(mean_p)
@@ -119,8 +121,8 @@ class _GuidedFilter:
             for j in range(1, channels):
                 a += self.inverse[..., i, j, None] * cov[j]
             b -= a * self.mean_I[..., i : i + 1]
-            out += self._box(a).reshape(p.shape) * self.I[..., i : i + 1]
-        out += self._box(b).reshape(p.shape)
+            out += self._box(a) * self.I[..., i : i + 1]
+        out += self._box(b)
         return out
 
 
@@ -217,7 +219,10 @@ def window_correlation(
     height, width = grey_left.shape
     rows, columns = np.mgrid[0:height, 0:width].astype(np.float32)
     has = np.isfinite(disparity)
-    warped = cv2.remap(grey_right, columns - np.where(has, disparity, 0).astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    warped = np.asarray(
+        cv2.remap(grey_right, columns - np.where(has, disparity, 0).astype(np.float32), rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+        dtype=np.float32,
+    )
     size = (2 * radius + 1, 2 * radius + 1)
 
     def box(x: NDArray[np.float32]) -> NDArray[np.float32]:

@@ -107,15 +107,15 @@ def disparity_mask(
     (H, W) bool
     """
     points, pixels = disparity_to_points(disparity.disparity, pair, mask=disparity.valid)
-    foreground = np.zeros(disparity.valid.shape, np.uint8)
+    foreground: NDArray[np.uint8] = np.zeros(disparity.valid.shape, np.uint8)
     keep = _inside(points, volume)
     foreground[pixels[keep, 1], pixels[keep, 0]] = 1
     if opening > 0:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * opening + 1, 2 * opening + 1))
-        foreground = cv2.morphologyEx(foreground, cv2.MORPH_OPEN, kernel)
+        foreground = np.asarray(cv2.morphologyEx(foreground, cv2.MORPH_OPEN, kernel), dtype=np.uint8)
     if closing > 0:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * closing + 1, 2 * closing + 1))
-        foreground = cv2.morphologyEx(foreground, cv2.MORPH_CLOSE, kernel)
+        foreground = np.asarray(cv2.morphologyEx(foreground, cv2.MORPH_CLOSE, kernel), dtype=np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(foreground, connectivity=8)
     smallest = min_area * foreground.size
     big = np.zeros(count, bool)

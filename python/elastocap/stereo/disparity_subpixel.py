@@ -91,8 +91,8 @@ def refine_subpixel(
     energy = np.zeros_like(L)
     for _ in range(iterations):
         x = columns - d
-        warped = cv2.remap(R, x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
-        g = cv2.remap(gradient, x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        warped = np.asarray(cv2.remap(R, x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), dtype=np.float32)
+        g = np.asarray(cv2.remap(gradient, x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), dtype=np.float32)
         r = (L - mean_L) - (warped - box(warped))
         g = g - box(g)
         g2 = g * g

@@ -184,9 +184,9 @@ class RectifiedPair:
         """For each pixel of the original left image, its rectified position: float32
         ``(height, width)`` tables for ``cv2.remap`` from rectified back to original."""
         v, u = np.mgrid[0 : self.left.height, 0 : self.left.width]
-        uv = self.to_rectified("left", np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))
-        uv = np.where(np.isfinite(uv), uv, OUTSIDE).astype(np.float32).reshape(self.left.height, self.left.width, 2)
-        return np.ascontiguousarray(uv[..., 0]), np.ascontiguousarray(uv[..., 1])
+        rectified = self.to_rectified("left", np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64))
+        table = np.where(np.isfinite(rectified), rectified, OUTSIDE).astype(np.float32).reshape(self.left.height, self.left.width, 2)
+        return np.ascontiguousarray(table[..., 0]), np.ascontiguousarray(table[..., 1])
 
     def to_left_original(self, image: Any, *, interpolation: int = cv2.INTER_NEAREST) -> NDArray[Any]:
         """A rectified-left image (e.g. a mask) resampled into the original left camera."""
