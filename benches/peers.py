@@ -555,7 +555,7 @@ CASES["horse"] = horse_cases
 
 
 def disparity_cases(repeats: int) -> list[dict[str, Any]]:
-    """Tsukuba (Middlebury): elastocap's disparity stage against the best of the 768
+    """Tsukuba (Middlebury): elastocap's disparity stage against the best of the 864
     StereoSGBM settings of benches/sgbm_grid.py, both scored as bad-1 with unmatched pixels
     counted wrong (sgbm_grid.py prints the grid's details)."""
     from sgbm_grid import peer_disparity, peer_settings, score, tsukuba
@@ -568,7 +568,7 @@ def disparity_cases(repeats: int) -> list[dict[str, Any]]:
         "tsukuba_disparity_384x288",
         left.shape[0] * left.shape[1],
         lambda: compute_disparity(left, right, min_disparity=0, num_disparities=16),
-        "StereoSGBM, best of 768 settings",
+        "StereoSGBM, best of 864 settings",
         lambda: peer_disparity(left, right, best),
         repeats,
     )
