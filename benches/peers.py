@@ -555,6 +555,33 @@ def horse_cases(repeats: int) -> list[dict[str, Any]]:
 CASES["horse"] = horse_cases
 
 
+def disparity_cases(repeats: int) -> list[dict[str, Any]]:
+    """Tsukuba (Middlebury): elastocap's disparity stage against the best of the 864
+    StereoSGBM settings of benches/sgbm_grid.py, both scored as bad-1 with unmatched pixels
+    counted wrong (sgbm_grid.py prints the grid's details)."""
+    from sgbm_grid import peer_disparity, peer_settings, score, tsukuba
+
+    from elastocap.stereo import compute_disparity
+
+    left, right, truth = tsukuba()
+    best = min(peer_settings(), key=lambda setting: score(peer_disparity(left, right, setting), truth)[0])
+    row = _compare(
+        "tsukuba_disparity_384x288",
+        left.shape[0] * left.shape[1],
+        lambda: compute_disparity(left, right, min_disparity=0, num_disparities=16),
+        "StereoSGBM, best of 864 settings",
+        lambda: peer_disparity(left, right, best),
+        repeats,
+    )
+    ours_bad, ours_matched = score(compute_disparity(left, right, min_disparity=0, num_disparities=16).disparity, truth)
+    peer_bad, peer_matched = score(peer_disparity(left, right, best), truth)
+    row.update(ours_bad=round(ours_bad, 4), peer_bad=round(peer_bad, 4), peer_bad_matched_only=round(peer_matched, 4), peer_setting=best)
+    return [row]
+
+
+CASES["disparity"] = disparity_cases
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("filter", nargs="?", default="", help="run only case groups whose name contains this")

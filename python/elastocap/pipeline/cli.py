@@ -82,6 +82,13 @@ def _body(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from elastocap.stereo.calibration_cli import run_calibrate
+
+    run_calibrate(args.images, args.board, args.square_size, args.out, world=args.world, focal_length=args.focal_length)
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -173,6 +180,20 @@ def _parser() -> argparse.ArgumentParser:
     from elastocap.cameras.commands import add_rig_parser
 
     add_rig_parser(commands)
+    calibrate = commands.add_parser(
+        "calibrate",
+        help="calibrate a rig from chessboard images (per-camera RMS; warns on what the views cannot determine)",
+        description="Find the chessboard in IMAGES/<camera>/<view>.png|jpg (or a flat folder of "
+        "<camera><view>.png|jpg, e.g. left01.jpg right01.jpg), calibrate every camera and their "
+        "relative poses, and write the rig (a folder: intri.yml + extri.yml; or a .json file).",
+    )
+    calibrate.add_argument("images", metavar="IMAGES", help="folder of board images")
+    calibrate.add_argument("--board", required=True, help="inner corners COLUMNSxROWS, e.g. 7x5")
+    calibrate.add_argument("--square-size", type=float, default=1.0, help="square edge in the rig's unit (default: 1)")
+    calibrate.add_argument("--out", required=True, metavar="RIG", help="output folder (intri/extri.yml) or .json")
+    calibrate.add_argument("--world", default=None, help="camera whose frame is the world (default: first board pose)")
+    calibrate.add_argument("--focal-length", type=float, default=None, help="focal length (px) to hold if undetermined")
+    calibrate.set_defaults(run=_calibrate)
     return parser
 
 
