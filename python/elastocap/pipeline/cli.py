@@ -82,6 +82,15 @@ def _body(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.export import export_settings, export_take
+
+    settings = export_settings(args.out, take=args.take, fps=args.fps, units=args.units, up=args.up)
+    for path in export_take(args.out, args.format, settings):
+        print(f"wrote {path}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -170,6 +179,24 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
+    export = commands.add_parser(
+        "export",
+        help="animation files of an output folder: glb, pc2 (+ obj), usd; bvh, trc, c3d",
+        description="Write OUT/export/<take>.<format> in metres with +Y up: glb (rest mesh with a "
+        "morph target per frame and the weights animated at the frame rate), pc2 (Blender Mesh "
+        "Cache point cache, with <take>.obj, the rest mesh) and usd (time-sampled points, needs "
+        "usd-core) from the elastic fit; bvh (skeleton), trc and c3d (joint trajectories) from the "
+        "body fit. Frame rate, units and up axis come from OUT/capture.toml unless given.",
+    )
+    export.add_argument("out", metavar="OUT", help="output folder of the capture stages")
+    export.add_argument(
+        "--format", nargs="+", required=True, choices=["glb", "pc2", "usd", "bvh", "trc", "c3d"], help="one or more formats"
+    )
+    export.add_argument("--fps", type=float, default=None, help="frames per second (default: OUT/capture.toml, else 30)")
+    export.add_argument("--units", default=None, help="the capture's units: m, cm, mm or metres per unit (default: m)")
+    export.add_argument("--up", choices=["y", "z"], default=None, help="the capture's up axis (default: y)")
+    export.add_argument("--take", default=None, help="file name of the exports (default: the capture folder's name)")
+    export.set_defaults(run=_export)
     return parser
 
 
