@@ -91,6 +91,19 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _capture(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.capture import run_capture
+    from elastocap.pipeline.options import resolve_options
+
+    options, extra = resolve_options(args.config, args)
+    capture = args.capture if args.capture is not None else extra.get("capture")
+    if capture is None:
+        raise ElastocapError("name the capture folder (CAPTURE, or capture = \"...\" in the --config file)")
+    run = run_capture(capture, Path(args.out), options, progress=not args.quiet)
+    print(f"wrote {run.out / 'report.html'}, {run.out / 'metrics.json'} and {len(run.exports)} export(s) in {run.out / 'export'}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -179,6 +192,23 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
+    from elastocap.pipeline.options import add_option_flags
+
+    capture = commands.add_parser(
+        "capture",
+        help="every stage the capture allows, the report and the animation files, in one command",
+        description="Silhouettes (the capture's masks, its background/ plates or a dark background), "
+        "visual hulls, the elastic fit through every frame (and the body model with --body), then "
+        "OUT/metrics.json, OUT/report.html and OUT/export/<take>.glb, .pc2 (+ .obj). Options come from "
+        "--config (TOML; keys as below with underscores), overridden by the flags given; the options "
+        "used are written to OUT/capture.toml. Interrupted runs resume where they stopped.",
+    )
+    capture.add_argument("capture", metavar="CAPTURE", nargs="?", default=None, help="capture folder (default: capture = in --config)")
+    capture.add_argument("--out", required=True, help="output folder")
+    capture.add_argument("--config", default=None, metavar="capture.toml", help="options file (TOML)")
+    add_option_flags(capture)
+    capture.add_argument("--quiet", action="store_true", help="no progress bars")
+    capture.set_defaults(run=_capture)
     export = commands.add_parser(
         "export",
         help="animation files of an output folder: glb, pc2 (+ obj), usd; bvh, trc, c3d",
