@@ -104,6 +104,22 @@ def _capture(args: argparse.Namespace) -> int:
     return 0
 
 
+def _batch(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.batch import run_batch
+    from elastocap.pipeline.options import resolve_options
+
+    options, _ = resolve_options(args.config, args)
+    result = run_batch(
+        args.takes, Path(args.out), options, scheduler=args.scheduler, workers=args.workers, threads=options.threads,
+        serial=args.serial, progress=not args.quiet,
+    )
+    summary = result.summary
+    print(f"{summary['done']} of {summary['takes']} take(s) done, {len(summary['failed'])} failed; see {Path(args.out) / 'batch.json'}")
+    for take in summary["failed"]:
+        print(f"  {take}: {result.takes[take]['reason']}", file=sys.stderr)
+    return 0 if not summary["failed"] else 1
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -209,6 +225,24 @@ def _parser() -> argparse.ArgumentParser:
     add_option_flags(capture)
     capture.add_argument("--quiet", action="store_true", help="no progress bars")
     capture.set_defaults(run=_capture)
+    batch = commands.add_parser(
+        "batch",
+        help="many takes through elastocap capture on a Dask cluster (a take per task)",
+        description="Run elastocap capture on every take under TAKES_DIR (a folder holding a "
+        "calibration, at any depth) into OUT/<take>/, on a local cluster of worker processes or "
+        "on a running Dask scheduler (--scheduler; e.g. dask-jobqueue on SLURM). A failing take is "
+        "recorded with its reason in OUT/batch.json and the others go on; a rerun skips the takes "
+        "already done. Exits 1 when a take failed.",
+    )
+    batch.add_argument("takes", metavar="TAKES_DIR", help="folder of takes (capture folders)")
+    batch.add_argument("--out", required=True, help="output folder")
+    batch.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address (default: a local cluster)")
+    batch.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster (default: cores / 2)")
+    batch.add_argument("--serial", action="store_true", help="no cluster: one take after the other in this process")
+    batch.add_argument("--config", default=None, metavar="capture.toml", help="options of every take (TOML)")
+    add_option_flags(batch)  # --threads: each take's threads (default: cores / workers)
+    batch.add_argument("--quiet", action="store_true", help="no progress bar")
+    batch.set_defaults(run=_batch)
     export = commands.add_parser(
         "export",
         help="animation files of an output folder: glb, pc2 (+ obj), usd; bvh, trc, c3d",
