@@ -99,7 +99,8 @@ def run_take(capture: str, out: str, options: dict[str, Any]) -> dict[str, Any]:
     start = time.time()
     record: dict[str, Any] = {"worker": f"{os.uname().nodename}:{os.getpid()}", "started": start}
     try:
-        capture_options = CaptureOptions(**{k: tuple(v) if isinstance(v, list) else v for k, v in options.items()})
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+        capture_options = CaptureOptions(**values)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             run = run_capture(capture, out, capture_options, progress=False)
