@@ -15,7 +15,7 @@ import json
 import os
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -26,6 +26,7 @@ import trimesh
 from elastocap._core import InvalidInputError
 from elastocap._io import save_bytes
 from elastocap.capture.folder import Capture
+from elastocap.elastic.fit import SequenceFit
 from elastocap.pipeline.body import run_body_stage
 from elastocap.pipeline.export import FrameRateWarning, export_settings, export_take
 from elastocap.pipeline.export.settings import DEFAULT_FPS
@@ -103,6 +104,7 @@ def run_capture(
     *,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    report_figures: Callable[[SequenceFit], tuple[dict[str, Sequence[float]], dict[str, Any]]] | None = None,
 ) -> CaptureRun:
     """Run every stage the capture allows and write the figures, report and exports.
 
@@ -119,6 +121,10 @@ def run_capture(
         Progress bars per stage.
     log : callable, optional
         Receives one line per stage as it starts (default: print when ``progress``).
+    report_figures : callable, optional
+        ``report_figures(fit) -> (series, summary)``: per-frame series added to the
+        report's error plot and figures added to its table (the demo's distances to the
+        ground truth).
 
     Returns
     -------
@@ -168,7 +174,8 @@ def run_capture(
     say(f"elastocap capture: [{len(stages) + 1}/{len(stages) + 2}] report")
     start = time.perf_counter()
     _hull_picture(cap, out, cap.frames[0])
-    page = write_fit_report(out, cap, results["fit"], summary=_summary(results["fit"], run))
+    series, figures = report_figures(results["fit"]) if report_figures is not None else ({}, {})
+    page = write_fit_report(out, cap, results["fit"], extra=series, summary={**_summary(results["fit"], run), **figures})
     run.stages["report"] = round(time.perf_counter() - start, 3)
 
     say(f"elastocap capture: [{len(stages) + 2}/{len(stages) + 2}] exports ({', '.join(options.exports)})")

@@ -129,11 +129,11 @@ def _parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo",
         help="synthetic capture -> visual hulls -> elastic fit, plus kernel checks; writes a report",
-        description="Write a synthetic capture, carve its visual hulls, fit an elastic model "
-        "through all frames, measure it against the ground truth, draw the fits over the camera "
-        "images (OUT/report.html with fit_views.png, fit_strip.png, fit_plots.png, "
-        "hull_views.png), check the kernels against scipy and numpy, and write "
-        "OUT/metrics.json. A second run resumes the first.",
+        description="Write a synthetic capture and run elastocap capture on it (visual hulls, an "
+        "elastic model fitted through all frames, OUT/report.html with fit_views.png, fit_strip.png, "
+        "fit_plots.png, hull_views.png, and OUT/export/capture.glb, .pc2, .obj), measure it against "
+        "the ground truth, check the kernels against scipy and numpy, and write OUT/metrics.json. "
+        "A second run resumes the first.",
     )
     demo.add_argument("--out", default="demo-out", help="output folder (default: demo-out)")
     demo.add_argument("--points", type=int, default=100_000, help="points per generated cloud (default: 100000)")
