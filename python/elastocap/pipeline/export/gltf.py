@@ -10,6 +10,10 @@ Memory: the writer streams (it reads the frames twice, once for the bounds glTF 
 every POSITION accessor, once to write), but a viewer holds all targets: ``24 V`` bytes per
 frame (float32 position and normal deltas) plus the dense weights ``4 N^2`` bytes. For long
 takes use the point caches (PC2, USD), which stream on both sides.
+
+Blender's importer (checked with 3.4) turns the targets into shape keys and the weights into
+constant-interpolated keys at ``t x`` the scene's frame rate: set the scene to the capture's
+rate to see frame ``f`` at Blender frame ``f - first``.
 """
 
 from __future__ import annotations

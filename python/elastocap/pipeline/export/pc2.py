@@ -13,8 +13,10 @@ The PC2 layout (little-endian)::
 
 Written frame by frame: memory does not grow with the take's length. PC2 stores frames,
 not seconds: the animation plays at the scene's frame rate. Both files are in export
-space (metres, +Y up, like glTF): in Blender, import the OBJ with its default axes
-(forward -Z, up Y) and set the Mesh Cache modifier's axes to the same.
+space (metres, +Y up, like glTF). In Blender (checked with 3.4): import the OBJ with its
+default axes (forward -Z, up Y: the importer turns the object, not the vertices), add a
+Mesh Cache modifier with format PC2 and leave its axes at their defaults; every frame's
+vertices then match the fit to float32 precision.
 """
 
 from __future__ import annotations
