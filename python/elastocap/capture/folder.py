@@ -384,6 +384,20 @@ class Capture:
         self._check_size(file, camera, data.shape, what=f"frame {index}")
         return data
 
+    def with_masks(self, folder: str | Path) -> Capture:
+        """This capture with its silhouettes read from ``folder`` instead, laid out as
+        ``masks/`` is (``<camera>/<frame:06d>.png``), e.g. the masks elastocap wrote into
+        an output folder. Its frames are those it has that every camera has in ``folder``.
+
+        Raises
+        ------
+        FileNotFoundError
+            ``folder`` lacks a camera's folder.
+        """
+        masks = _list_frames(Path(folder), self.cameras)
+        shared = set.intersection(*(set(table) for table in masks.values()))
+        return Capture(self.root, self.rig, self._images, masks, self._videos, sorted(shared & set(self._frames)))
+
     # -- helpers --------------------------------------------------------------------------
 
     def _check_camera(self, camera: Any) -> None:
