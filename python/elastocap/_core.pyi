@@ -231,6 +231,9 @@ class BodySkeleton:
     def field(
         self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
+    def values(
+        self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
+    ) -> NDArray[np.float64]: ...
     def jacobian(
         self,
         shape: NDArray[np.float64],
