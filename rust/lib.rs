@@ -18,6 +18,7 @@ pub mod polar;
 pub mod sdf;
 pub mod solve;
 pub mod spatial_hash;
+pub mod snake;
 
 #[cfg(feature = "python")]
 mod python;

@@ -271,3 +271,21 @@ class BodySkeleton:
         refresh_every: int,
         outlier_distance: float | None,
     ) -> dict[str, Any]: ...
+
+def active_contour(
+    image: NDArray[np.float64],
+    init: NDArray[np.float64],
+    *,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    kappa: float,
+    max_move: float,
+    spacing: float,
+    min_spacing: float,
+    max_spacing: float,
+    max_iterations: int,
+    tolerance: float,
+    window: int,
+    min_area: float,
+) -> tuple[NDArray[np.float64], str, int, int]: ...

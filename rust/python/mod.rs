@@ -12,6 +12,7 @@ mod neighbors;
 mod polar;
 mod sdf;
 mod solve;
+mod snake;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -64,6 +65,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     polar::register(m)?;
     sdf::register(m)?;
     solve::register(m)?;
+    snake::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())
