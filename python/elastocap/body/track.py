@@ -26,6 +26,10 @@ from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "observation_distances", "track_body"]
 
+#: Shoulder starts of the global search (left, right first shoulder angle, radians): both
+#: hanging, both reaching forward, one forward and one back (a walk's swing).
+ARM_STARTS = ((0.0, 0.0), (-1.0, -1.0), (-0.8, 0.8), (0.8, -0.8))
+
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
 
@@ -279,8 +283,9 @@ class BodyTracker:
             return state
 
         coarse = [
-            self._fit([frame], [start(h)], shape=shape, iterations=15, rays=400)
+            self._fit([frame], [self._arms(start(h), arms)], shape=shape, iterations=15, rays=400)
             for h in np.linspace(-np.pi, np.pi, self.headings, endpoint=False)
+            for arms in ARM_STARTS
         ]
         best: tuple[BodyState, FrameQuality, float] | None = None
         for fit in sorted(coarse, key=lambda f: f.final_cost)[:2]:
@@ -294,6 +299,15 @@ class BodyTracker:
                     best = (state, self.quality(state, frame), score)
         assert best is not None
         return best[0], best[1]
+
+    def _arms(self, state: BodyState, arms: tuple[float, float]) -> BodyState:
+        """``state`` with the first shoulder angle of each arm set (radians): the fit
+        does not swing an arm from hanging to reaching forward on its own."""
+        motion = state.motion.copy()
+        for name, angle in zip(("l_upperarm.0", "r_upperarm.0"), arms):
+            if name in self.model.motion_names:
+                motion[self.model.motion_names.index(name)] = angle
+        return state.replace(motion=motion)
 
     def _predict(self) -> BodyState:
         last = self._states[-1]

@@ -11,6 +11,7 @@ projected back into each camera. No background plate, no hand-drawn mask.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -27,18 +28,30 @@ from elastocap.capture.folder import Capture
 from elastocap.hull.carve import Hull, visual_hull
 from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.render.mesh import render_silhouette
+from elastocap.silhouettes.background import clean_mask
 from elastocap.silhouettes.gradient import filtered_gradient
 from elastocap.silhouettes.snake import snake_silhouette
 
 __all__ = ["SilhouetteTracker", "agreed_silhouettes", "extract_silhouettes"]
 
+#: Snake options for silhouettes (tuned on seed 1 of the clutter scene): a soft contour
+#: that follows limbs, pulled hard by the filtered edges.
+SNAKE_DEFAULTS = {"alpha": 0.01, "beta": 0.02, "kappa": 10.0, "max_iterations": 150}
+#: Body tracker options in the loop (seed 1): the first contours are noisy, so they are
+#: weighted less than clean masks and give outline rays only (one-sided rays through a wrong
+#: silhouette pull limbs into the clutter).
+TRACKER_DEFAULTS = {"inside_per_mask": 0, "sigma_ray": 0.3}
+#: Pixels: the second contour starts from the first one where it lies within this of the
+#: fitted model's silhouette, and from the model's silhouette shrunk by it elsewhere.
+MODEL_MARGIN = 6
+
 #: Voxels along the longest side of the hull that locates the subject on the first frame.
 AGREEMENT_RESOLUTION = 64
 
 
-def agreed_silhouettes(rig: Rig, disparity_masks: Mapping[str, Any], *, tolerance: int = 1) -> dict[str, NDArray[np.bool_]]:
-    """Silhouettes of what the cameras agree on: the visual hull of the disparity masks
-    (``tolerance`` cameras may disagree, for the holes stereo leaves) inside the space every
+def agreed_silhouettes(rig: Rig, disparity_masks: Mapping[str, Any], *, tolerance: int = 0) -> dict[str, NDArray[np.bool_]]:
+    """Silhouettes of what the cameras agree on: the visual hull of the cleaned disparity
+    masks (``tolerance`` cameras may disagree) inside the space every
     camera sees, its largest connected part kept, projected into every camera.
 
     Raises
@@ -48,15 +61,29 @@ def agreed_silhouettes(rig: Rig, disparity_masks: Mapping[str, Any], *, toleranc
     """
     from scipy import ndimage
 
+    # Holes (poor texture) and speckle of each mask cleaned first, so that every camera
+    # must agree.
+    masks = {name: clean_mask(np.asarray(disparity_masks[name]) != 0, open_radius=2, close_radius=4) for name in rig.names}
+    blank = [name for name, mask in masks.items() if not mask.any()]
+    if len(blank) > tolerance:
+        raise InvalidInputError(f"the cameras' disparity masks agree on nothing: camera(s) {blank} have an empty disparity mask")
     lower, upper = space_seen_by(rig)
-    grid = Grid.around(lower, upper, AGREEMENT_RESOLUTION)
-    masks = {name: np.asarray(disparity_masks[name]) != 0 for name in rig.names}
-    hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint="center")
-    labels, count = ndimage.label(hull.occupancy)
-    if count == 0:
-        raise InvalidInputError("the cameras' disparity masks agree on nothing: no subject to start from")
-    sizes = ndimage.sum(hull.occupancy, labels, index=np.arange(1, count + 1))
-    occupancy = labels == 1 + int(np.argmax(sizes))
+    # A coarse hull over the whole shared space locates the subject; a finer one around it
+    # gives its outline.
+    for resolution in (AGREEMENT_RESOLUTION, 2 * AGREEMENT_RESOLUTION):
+        grid = Grid.around(lower, upper, resolution)
+        hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint="center")
+        # Only the volume every camera sees: a voxel outside some view is not carved by it.
+        centres = grid.centers().reshape(-1, 3)
+        seen = np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras]).reshape(grid.shape)
+        labels, count = ndimage.label(hull.occupancy & seen)
+        if count == 0:
+            raise InvalidInputError("the cameras' disparity masks agree on nothing: no subject to start from")
+        sizes = ndimage.sum(hull.occupancy, labels, index=np.arange(1, count + 1))
+        occupancy = labels == 1 + int(np.argmax(sizes))
+        index = np.argwhere(occupancy)
+        lower = grid.origin + grid.spacing * (index.min(axis=0) - 2)
+        upper = grid.origin + grid.spacing * (index.max(axis=0) + 2)
     mesh = Hull(occupancy, grid).mesh()
     return {camera.name: render_silhouette(mesh, camera) for camera in rig.cameras}
 
@@ -75,6 +102,10 @@ class SilhouetteTracker:
         Options of :func:`~elastocap.silhouettes.gradient.filtered_gradient`.
     tracker : dict, optional, keyword-only
         Options of :class:`~elastocap.body.track.BodyTracker`.
+    model_margin : int, keyword-only
+        See :data:`MODEL_MARGIN`: the model corrects the first contour where it strays
+        (into clutter, or away from a limb) rather than replacing it, since the body model
+        is not the subject's exact shape.
     """
 
     def __init__(
@@ -85,26 +116,43 @@ class SilhouetteTracker:
         snake: Mapping[str, Any] | None = None,
         gradient: Mapping[str, Any] | None = None,
         tracker: Mapping[str, Any] | None = None,
+        model_margin: int = MODEL_MARGIN,
     ) -> None:
         if not isinstance(rig, Rig):
             raise InvalidInputError(f"rig must be an elastocap.Rig, got {type(rig).__name__}")
         self.rig = rig
         self.model = BodyModel.default_human() if model is None else model
-        self.snake_options = {"max_iterations": 150, **(snake or {})}
+        self.snake_options = {**SNAKE_DEFAULTS, **(snake or {})}
         self.gradient_options = dict(gradient or {})
+        self.model_margin = int(model_margin)
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
-        self.body = BodyTracker(self.model, cameras=body_cameras, **(tracker or {}))
+        self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
         self.previous: dict[str, NDArray[np.bool_]] | None = None
         self.states: list[BodyState] = []
         self.first_pass: dict[str, NDArray[np.bool_]] = {}
         self.model_masks: dict[str, NDArray[np.bool_]] = {}
+        #: Seconds spent so far in the snakes, the body fit and the rest.
+        self.timings = {"snakes": 0.0, "body": 0.0, "other": 0.0}
 
     def _snake(self, attraction: NDArray[np.float64], init: NDArray[np.bool_]) -> NDArray[np.bool_]:
         if not init.any() or not attraction.any():
             return init
+        started = time.perf_counter()
         mask, _ = snake_silhouette(attraction, init, **self.snake_options)
+        self.timings["snakes"] += time.perf_counter() - started
         # A contour that collapsed is reported by the snake; the start is kept instead.
         return init if mask is None else mask
+
+    def _second_start(self, first: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        import cv2
+
+        if self.model_margin <= 0 or not model.any():
+            return model
+        r = self.model_margin
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        near = cv2.dilate(model.astype(np.uint8), kernel) != 0
+        core = cv2.erode(model.astype(np.uint8), kernel) != 0
+        return np.asarray((first & near) | core)
 
     def step(
         self,
@@ -136,6 +184,12 @@ class SilhouetteTracker:
         attraction = {}
         for n in names:
             near = disparity.get(n)
+            if disparity and (near is None or not np.asarray(near).any()):
+                # Stereo saw nothing in this view while it did in others: the unfiltered
+                # gradient would pull the contour into the clutter, so this view keeps its
+                # starts (previous silhouette, then the model's) without a snake.
+                attraction[n] = np.zeros(np.asarray(images[n]).shape[:2])
+                continue
             attraction[n] = filtered_gradient(images[n], near, **self.gradient_options)[0]
         if self.previous is None:
             if not disparity or any(n not in disparity for n in names):
@@ -149,12 +203,14 @@ class SilhouetteTracker:
             masks=[first[n] if first[n].any() else None for n in names],
             points=None if world is None or len(world) == 0 else world @ Z_UP_TO_WORLD,
         )
+        started = time.perf_counter()
         state = self.body.update(observed)
+        self.timings["body"] += time.perf_counter() - started
         self.states.append(state)
         mesh = self.model.skin_mesh(state, spacing=0.015)
         mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
         projected = {c.name: render_silhouette(mesh, c) for c in self.rig.cameras}
-        final = {n: self._snake(attraction[n], projected[n]) for n in names}
+        final = {n: self._snake(attraction[n], self._second_start(first[n], projected[n])) for n in names}
         self.first_pass, self.model_masks, self.previous = first, projected, final
         return final
 
