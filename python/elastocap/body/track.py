@@ -30,6 +30,12 @@ __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "observation_distances", 
 #: hanging, both reaching forward, one forward and one back (a walk's swing).
 ARM_STARTS = ((0.0, 0.0), (-1.0, -1.0), (-0.8, 0.8), (0.8, -0.8))
 
+#: Limb restarts of the search (first joint angle of the upper arm / thigh, radians).
+ARM_SWINGS = (-1.0, -0.4, 0.4, 1.0)
+LEG_SWINGS = (-0.3, 0.3, 0.9)
+#: A search result explaining this share of the observations is not refined further.
+WELL_EXPLAINED = 0.98
+
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
 
@@ -175,7 +181,8 @@ class BodyTracker:
         Levenberg-Marquardt iterations per tracked frame.
     lost_distance : float, default 0.015, keyword-only
         A tracked frame whose observations lie farther than this (median, metres) from the
-        fitted skin, or of which less than ``0.7`` are explained, is searched for again.
+        fitted skin, or of which clearly less are explained than in the frames before
+        (0.1 less, and below 0.9), is searched for again.
     refuse_distance : float, default 0.03, keyword-only
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
@@ -298,7 +305,36 @@ class BodyTracker:
                 if best is None or score < best[2]:
                     best = (state, self.quality(state, frame), score)
         assert best is not None
-        return best[0], best[1]
+        # A limb can settle in a wrong valley (an arm twisted or swung the other way, a leg
+        # on the other leg's data) while the rest fits: while observations are left
+        # unexplained, each limb is restarted alone from a few swings, straight and bent,
+        # and a restart is kept when the observations end up closer to the skin.
+        state, quality, score = best
+        names = self.model.motion_names
+        for side in ("l", "r"):
+            for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
+                if quality.explained >= WELL_EXPLAINED:
+                    break
+                for angle in swings:
+                    for bend in (0.0, 0.5):
+                        motion = state.motion.copy()
+                        for k in range(3):
+                            name = f"{side}_{root}.{k}"
+                            if name in names:
+                                motion[names.index(name)] = angle if k == 0 else 0.0
+                        name = f"{side}_{distal}.0"
+                        if name in names:
+                            i = names.index(name)
+                            lo, hi = self.model.lower[i], self.model.upper[i]
+                            # part-way into the joint's range, whichever its sign
+                            motion[i] = (1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi)
+                        refined = self._fit([frame], [state.replace(motion=motion)], shape=None if fit_shape else shape, iterations=30, rays=1200)
+                        trial = refined.states[0]
+                        d = observation_distances(self.model, trial, frame.points, frame.origins, frame.directions, frame.side)
+                        trial_score = float(np.mean(np.minimum(d, 0.05))) if len(d) else 0.0
+                        if trial_score < score:
+                            state, quality, score = trial, self.quality(trial, frame), trial_score
+        return state, quality
 
     def _arms(self, state: BodyState, arms: tuple[float, float]) -> BodyState:
         """``state`` with the first shoulder angle of each arm set (radians): the fit
@@ -318,7 +354,12 @@ class BodyTracker:
         return BodyState(last.shape, np.clip(motion, self.model.lower, self.model.upper))
 
     def _lost(self, quality: FrameQuality) -> bool:
-        return quality.median_distance > self.lost_distance or quality.explained < 0.7
+        """Farther than ``lost_distance`` (median), or explaining clearly less than the
+        frames before did (a subject the model fits only roughly explains less every
+        frame; a lost track falls from there)."""
+        recent = [q.explained for q, seen in zip(self._quality[-10:], self._observed[-10:]) if seen]
+        reference = float(np.median(recent)) if recent else 1.0
+        return quality.median_distance > self.lost_distance or quality.explained < min(reference - 0.1, 0.9)
 
     def update(self, observations: BodyObservations | Mapping[str, Any]) -> BodyState:
         """Fits the next frame and returns its state (shape may still change until
