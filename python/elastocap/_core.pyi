@@ -24,6 +24,7 @@ __all__ = [
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
+    "active_contour",
 ]
 
 __version__: str

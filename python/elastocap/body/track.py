@@ -269,7 +269,9 @@ class BodyTracker:
             init=init,
             shape=shape,
             max_iterations=iterations,
-            **self._sigmas,
+            sigma_point=self._sigmas["sigma_point"],
+            sigma_ray=self._sigmas["sigma_ray"],
+            sigma_joint=self._sigmas["sigma_joint"],
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:

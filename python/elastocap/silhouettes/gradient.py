@@ -107,7 +107,7 @@ def filtered_gradient(
     edges = apply_hysteresis_threshold(magnitude, low, high)
     attraction = np.where(edges, magnitude, 0.0).astype(np.float32)
     if blur > 0:
-        attraction = cv2.GaussianBlur(attraction, (0, 0), blur)
+        attraction = np.asarray(cv2.GaussianBlur(attraction, (0, 0), blur), dtype=np.float32)
     top = float(attraction.max())
     if top > 0:
         attraction /= top

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -103,7 +104,7 @@ class ClutterScene:
         self._rng_root = np.random.SeedSequence([self.seed, 0xC1A7])
 
     @cached_property
-    def _backdrops(self) -> dict[str, NDArray[np.float32]]:
+    def _backdrops(self) -> dict[str, Any]:
         out = {}
         for k, camera in enumerate(self.rig.cameras):
             rng = np.random.default_rng([self.seed, 0xBAC, k])
@@ -124,7 +125,7 @@ class ClutterScene:
         return out
 
     @cached_property
-    def _distractors(self) -> dict[str, list[dict[str, float | tuple[float, ...]]]]:
+    def _distractors(self) -> dict[str, list[dict[str, Any]]]:
         out = {}
         for k, camera in enumerate(self.rig.cameras):
             rng = np.random.default_rng([self.seed, 0xD15, k])
