@@ -19,6 +19,7 @@ pub mod polar;
 pub mod sdf;
 pub mod solve;
 pub mod spatial_hash;
+pub mod snake;
 
 #[cfg(feature = "python")]
 mod python;

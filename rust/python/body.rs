@@ -185,6 +185,25 @@ impl BodySkeleton {
         ))
     }
 
+    /// `F (N,)` alone at the points (balls cut at the field's bound).
+    fn values<'py>(
+        &self,
+        py: Python<'py>,
+        shape: PyReadonlyArray1<'py, f64>,
+        motion: PyReadonlyArray1<'py, f64>,
+        points: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (s, m, p) = (
+            c_slice(&shape, "shape")?,
+            c_slice(&motion, "motion")?,
+            rows::<3>(&points, "points")?,
+        );
+        let f = py
+            .detach(|| body::field_values(&self.skeleton, s, m, p))
+            .map_err(|e| to_py(py, e))?;
+        Ok(f.into_pyarray(py))
+    }
+
     /// `(F (N,), J (N, n_motion + n_shape))`: the state Jacobian at fixed points.
     #[pyo3(signature = (shape, motion, points, exact=true))]
     fn jacobian<'py>(
@@ -334,6 +353,15 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         let array: PyReadonlyArray1<'_, i64> = item.extract()?;
         indices(c_slice(&array, key)?, key, bound)
     }
+    fn optional(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<f64>> {
+        match d.get_item(key)? {
+            Some(v) if !v.is_none() => {
+                let array: PyReadonlyArray1<'_, f64> = v.extract()?;
+                Ok(c_slice(&array, key)?.to_vec())
+            }
+            _ => Ok(Vec::new()),
+        }
+    }
     let sigma: Vec<f64> = d
         .get_item("sigma")?
         .ok_or_else(|| invalid_input("observations lack sigma".into()))?
@@ -355,6 +383,15 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         log_epsilon: match d.get_item("log_epsilon")? {
             Some(v) if !v.is_none() => Some(v.extract()?),
             _ => None,
+        },
+        point_scale: optional(d, "point_scale")?,
+        ray_scale: optional(d, "ray_scale")?,
+        ray_side: match d.get_item("ray_side")? {
+            Some(v) if !v.is_none() => {
+                let array: PyReadonlyArray1<'_, i8> = v.extract()?;
+                c_slice(&array, "ray_side")?.to_vec()
+            }
+            _ => Vec::new(),
         },
     })
 }

@@ -13,6 +13,7 @@ mod polar;
 mod sdf;
 mod solve;
 mod camera;
+mod snake;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -60,6 +61,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     sdf::register(m)?;
     solve::register(m)?;
     camera::register(m)?;
+    snake::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

@@ -127,6 +127,17 @@ def _batch(args: argparse.Namespace) -> int:
     return 0 if not summary["failed"] else 1
 
 
+def _silhouettes(args: argparse.Namespace) -> int:
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames
+    from elastocap.silhouettes.model_based import run_silhouettes_stage
+
+    capture = Capture.open(args.capture)
+    written = run_silhouettes_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
+    print(f"wrote the masks of {len(written)} frame(s) into {Path(args.out) / 'masks'}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -285,6 +296,19 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--up", choices=["y", "z"], default=None, help="the capture's up axis (default: y)")
     export.add_argument("--take", default=None, help="file name of the exports (default: the capture folder's name)")
     export.set_defaults(run=_export)
+    silhouettes = commands.add_parser(
+        "silhouettes",
+        help="model-based silhouettes without a background plate (snakes + body model)",
+        description="Extract every frame's silhouettes in clutter (SPEC 8): active contours on "
+        "the disparity-filtered gradient, corrected by the body model fitted to them. Reads "
+        "OUT/disparity/<cam>/<frame>.png and OUT/points/<frame>.npz from the stereo stage; "
+        "writes OUT/masks/<cam>/<frame>.png, which hull, fit and body then use.",
+    )
+    silhouettes.add_argument("capture", metavar="CAPTURE", help="capture folder (calibration, images/ or videos/)")
+    silhouettes.add_argument("--out", required=True, help="output folder")
+    silhouettes.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    silhouettes.add_argument("--quiet", action="store_true", help="no progress bar")
+    silhouettes.set_defaults(run=_silhouettes)
     return parser
 
 
