@@ -17,9 +17,9 @@ pub mod lm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;
+pub mod snake;
 pub mod solve;
 pub mod spatial_hash;
-pub mod snake;
 
 #[cfg(feature = "python")]
 mod python;

@@ -120,7 +120,8 @@ impl Image<'_> {
         let g01 = self.gradient_at(x0, y0 + 1);
         let g11 = self.gradient_at(x0 + 1, y0 + 1);
         std::array::from_fn(|k| {
-            (1.0 - ty) * ((1.0 - tx) * g00[k] + tx * g10[k]) + ty * ((1.0 - tx) * g01[k] + tx * g11[k])
+            (1.0 - ty) * ((1.0 - tx) * g00[k] + tx * g10[k])
+                + ty * ((1.0 - tx) * g01[k] + tx * g11[k])
         })
     }
 }
@@ -157,7 +158,11 @@ pub fn resample(points: &[[f64; 2]], spacing: f64) -> Vec<[f64; 2]> {
             segment += 1;
         }
         let length = cumulative[segment + 1] - cumulative[segment];
-        let t = if length > 0.0 { (s - cumulative[segment]) / length } else { 0.0 };
+        let t = if length > 0.0 {
+            (s - cumulative[segment]) / length
+        } else {
+            0.0
+        };
         let (a, b) = (points[segment], points[(segment + 1) % n]);
         out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
     }
@@ -191,7 +196,13 @@ fn inverse_band(n: usize, options: &SnakeOptions) -> Vec<f64> {
     band
 }
 
-fn check(values: &[f64], width: usize, height: usize, init: &[[f64; 2]], o: &SnakeOptions) -> Result<()> {
+fn check(
+    values: &[f64],
+    width: usize,
+    height: usize,
+    init: &[[f64; 2]],
+    o: &SnakeOptions,
+) -> Result<()> {
     if width < 2 || height < 2 || values.len() != width * height {
         return Err(Error::WrongLength {
             argument: "image",
@@ -304,7 +315,11 @@ pub fn active_contour(
                 }
                 let (dx, dy) = (v[0] - x[i][0], v[1] - x[i][1]);
                 let step = (dx * dx + dy * dy).sqrt();
-                let scale = if step > options.max_move { options.max_move / step } else { 1.0 };
+                let scale = if step > options.max_move {
+                    options.max_move / step
+                } else {
+                    1.0
+                };
                 largest = largest.max(step.min(options.max_move));
                 [
                     (x[i][0] + scale * dx).clamp(0.0, w),
@@ -329,10 +344,22 @@ pub fn active_contour(
             moved.remove(0);
         }
         if moved.len() == options.window && moved.iter().all(|m| *m < options.tolerance) {
-            return Ok(finish(x, SnakeStatus::Converged, iteration, resamplings, &collapsed));
+            return Ok(finish(
+                x,
+                SnakeStatus::Converged,
+                iteration,
+                resamplings,
+                &collapsed,
+            ));
         }
     }
-    Ok(finish(x, SnakeStatus::MaxIterations, options.max_iterations, resamplings, &collapsed))
+    Ok(finish(
+        x,
+        SnakeStatus::MaxIterations,
+        options.max_iterations,
+        resamplings,
+        &collapsed,
+    ))
 }
 
 fn finish(
@@ -400,7 +427,10 @@ mod tests {
             for &(k, s) in &stencil[1..] {
                 v += s * (c(i + k) + c(i - k));
             }
-            assert!((v - if i == 0 { 1.0 } else { 0.0 }).abs() < 1e-9, "row {i}: {v}");
+            assert!(
+                (v - if i == 0 { 1.0 } else { 0.0 }).abs() < 1e-9,
+                "row {i}: {v}"
+            );
         }
     }
 
@@ -408,8 +438,14 @@ mod tests {
     fn converges_to_a_ring_from_inside_and_outside() {
         let image = ring();
         for r0 in [24.0, 36.0] {
-            let result =
-                active_contour(&image, 100, 100, &circle(50.0, 50.0, r0, 30), &SnakeOptions::default()).unwrap();
+            let result = active_contour(
+                &image,
+                100,
+                100,
+                &circle(50.0, 50.0, r0, 30),
+                &SnakeOptions::default(),
+            )
+            .unwrap();
             assert_eq!(result.status, SnakeStatus::Converged);
             for p in &result.points {
                 let r = ((p[0] - 50.0).powi(2) + (p[1] - 50.0).powi(2)).sqrt();
@@ -427,7 +463,8 @@ mod tests {
             max_iterations: 2000,
             ..SnakeOptions::default()
         };
-        let result = active_contour(&flat, 100, 100, &circle(50.0, 50.0, 20.0, 40), &options).unwrap();
+        let result =
+            active_contour(&flat, 100, 100, &circle(50.0, 50.0, 20.0, 40), &options).unwrap();
         assert_eq!(result.status, SnakeStatus::Collapsed);
         assert!(result.points.is_empty());
     }
@@ -437,6 +474,13 @@ mod tests {
         let o = SnakeOptions::default();
         assert!(active_contour(&[0.0; 10], 100, 100, &circle(5.0, 5.0, 3.0, 8), &o).is_err());
         assert!(active_contour(&vec![0.0; 100], 10, 10, &[[1.0, 1.0], [2.0, 2.0]], &o).is_err());
-        assert!(active_contour(&vec![0.0; 100], 10, 10, &[[f64::NAN, 1.0], [2.0, 2.0], [3.0, 1.0]], &o).is_err());
+        assert!(active_contour(
+            &vec![0.0; 100],
+            10,
+            10,
+            &[[f64::NAN, 1.0], [2.0, 2.0], [3.0, 1.0]],
+            &o
+        )
+        .is_err());
     }
 }

@@ -146,7 +146,9 @@ impl Observations {
             .find(|s| !(s.is_finite() && **s > 0.0))
         {
             return Err(Error::BadModel {
-                reason: format!("point and ray sigma scales must be positive and finite, got {bad}"),
+                reason: format!(
+                    "point and ray sigma scales must be positive and finite, got {bad}"
+                ),
             });
         }
         check_index("point_frame", &self.point_frame, self.frames)?;

@@ -198,9 +198,7 @@ impl BodySkeleton {
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let f = py
-            .detach(|| body::field_values(&self.skeleton, s, m, p))
-            .map_err(|e| to_py(py, e))?;
+        let f = py.detach(|| body::field_values(&self.skeleton, s, m, p))?;
         Ok(f.into_pyarray(py))
     }
 

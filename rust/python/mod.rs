@@ -2,6 +2,7 @@
 //! map errors, return numpy arrays. No algorithm lives here.
 
 mod body;
+mod camera;
 mod carve;
 mod efg;
 mod elastic;
@@ -11,9 +12,8 @@ mod mls;
 mod neighbors;
 mod polar;
 mod sdf;
-mod solve;
-mod camera;
 mod snake;
+mod solve;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;

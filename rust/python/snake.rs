@@ -3,7 +3,7 @@
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{c_slice, rows, to_py};
+use super::{c_slice, rows};
 use crate::snake::{active_contour, SnakeOptions, SnakeStatus};
 
 /// `(points (M, 2), status, iterations, resamplings)`; `points` is `(0, 2)` when collapsed.
@@ -45,16 +45,18 @@ fn active_contour_py<'py>(
         window: window.max(1),
         min_area,
     };
-    let result = py
-        .detach(|| active_contour(values, width, height, init, &options))
-        .map_err(|e| to_py(py, e))?;
+    let result = py.detach(|| active_contour(values, width, height, init, &options))?;
     let status = match result.status {
         SnakeStatus::Converged => "converged",
         SnakeStatus::MaxIterations => "maximum iterations",
         SnakeStatus::Collapsed => "collapsed",
     };
     let n = result.points.len();
-    let points = result.points.into_flattened().into_pyarray(py).reshape([n, 2])?;
+    let points = result
+        .points
+        .into_flattened()
+        .into_pyarray(py)
+        .reshape([n, 2])?;
     Ok((points, status, result.iterations, result.resamplings))
 }
 
