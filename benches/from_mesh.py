@@ -23,15 +23,15 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from elastocap import _nodes
-from elastocap.elastic import ElasticModel, _density_volumes
-from elastocap.mesh_distance import TriangleMesh
+from elastocap.elastic import nodes as _nodes
+from elastocap.elastic.model import ElasticModel, _density_volumes
+from elastocap.geometry.mesh_distance import TriangleMesh
 
 
 def _mesh() -> trimesh.Trimesh:
-    from elastocap._figure import Figure
+    from elastocap.synth import CapsuleFigure
 
-    return Figure(0).mesh(0, spacing=0.012)
+    return CapsuleFigure(0).mesh(0, spacing=0.012)
 
 
 def _timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from tolerances import MESH_DISTANCE_RTOL, WINDING_MARGIN
 
 from elastocap._core import InvalidInputError
-from elastocap._distance import distance_to_mesh
-from elastocap.mesh_distance import TriangleMesh
+from elastocap.geometry._distance import distance_to_mesh
+from elastocap.geometry.mesh_distance import TriangleMesh
 
 # Slivers down to this log10 of height over length (10,000:1). Past ~1e5:1 a double-precision
 # plane normal is off by more than 1e-12 of the size in parry and in the numpy reference alike

@@ -3,7 +3,7 @@
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::mesh;
 
 /// A triangle mesh with its BVH, for exact closest points, distances and ray casts.
@@ -34,9 +34,7 @@ impl TriangleMesh {
             )));
         }
         let t = c_slice(&triangles, "triangles")?.as_chunks::<3>().0;
-        let mesh = py
-            .detach(|| mesh::TriangleMesh::new(v, t))
-            .map_err(|e| to_py(py, e))?;
+        let mesh = py.detach(|| mesh::TriangleMesh::new(v, t))?;
         Ok(TriangleMesh { mesh })
     }
 
@@ -91,8 +89,7 @@ impl TriangleMesh {
             );
             let (p, d, t) = (p.as_slice_mut()?, d.as_slice_mut()?, t.as_slice_mut()?);
             let p = p.as_chunks_mut::<3>().0;
-            py.detach(|| self.mesh.closest_points_into(q, signed, p, d, t))
-                .map_err(|e| to_py(py, e))?;
+            py.detach(|| self.mesh.closest_points_into(q, signed, p, d, t))?;
         }
         Ok((points, distances, triangles))
     }
@@ -110,8 +107,7 @@ impl TriangleMesh {
         {
             let mut d = distances.readwrite();
             let d = d.as_slice_mut()?;
-            py.detach(|| self.mesh.distances_into(q, signed, max_distance, d))
-                .map_err(|e| to_py(py, e))?;
+            py.detach(|| self.mesh.distances_into(q, signed, max_distance, d))?;
         }
         Ok(distances)
     }
@@ -123,9 +119,7 @@ impl TriangleMesh {
         queries: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
         let q = rows::<3>(&queries, "queries")?;
-        let inside = py
-            .detach(|| self.mesh.contains(q))
-            .map_err(|e| to_py(py, e))?;
+        let inside = py.detach(|| self.mesh.contains(q))?;
         Ok(PyArray1::from_vec(py, inside))
     }
 
@@ -139,9 +133,7 @@ impl TriangleMesh {
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
         let o = rows::<3>(&origins, "origins")?;
         let d = rows::<3>(&directions, "directions")?;
-        let hits = py
-            .detach(|| self.mesh.cast_rays(o, d, max_distance))
-            .map_err(|e| to_py(py, e))?;
+        let hits = py.detach(|| self.mesh.cast_rays(o, d, max_distance))?;
         Ok((
             PyArray1::from_vec(py, hits.distances),
             PyArray1::from_vec(py, hits.triangles),
