@@ -13,6 +13,7 @@ pub mod error;
 pub mod fit;
 pub mod grid_sample;
 pub mod lm;
+pub mod lsm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;

@@ -7,6 +7,7 @@ mod efg;
 mod elastic;
 mod errors;
 mod fit;
+mod lsm;
 mod mls;
 mod neighbors;
 mod polar;
@@ -64,6 +65,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     polar::register(m)?;
     sdf::register(m)?;
     solve::register(m)?;
+    lsm::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

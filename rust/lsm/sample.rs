@@ -1,0 +1,427 @@
+//! Patch sampling: the template patch with its gradients, sampled once per point, and the
+//! search patch resampled bilinearly under the current affine map, every iteration.
+//!
+//! Pixel `(u, v)` = (column, row), pixel centres at integers. Search coordinates are split
+//! into an integer base (the patch centre's floor) and small `f32` offsets, so single
+//! precision keeps ~1e-6 px however large the image.
+
+use super::types::{ImageView, Interpolation};
+
+/// The template patch of one point: grey values and central-difference gradients on the
+/// `size x size` grid of offsets `(dx, dy)`, `dx, dy in -h..=h`, plus the sums that make
+/// the geometric part of the normal equations constant over the iterations.
+#[derive(Debug, Clone)]
+pub(crate) struct TemplatePatch {
+    /// Side of the patch.
+    pub size: usize,
+    /// Offsets of each patch pixel from the centre, columns and rows.
+    pub dx: Vec<f32>,
+    /// See `dx`.
+    pub dy: Vec<f32>,
+    /// Grey values.
+    pub value: Vec<f32>,
+    /// The six geometric Jacobian columns per pixel, `[gx, gy, gx dx, gx dy, gy dx, gy dy]`,
+    /// stored column after column (`geo[k * n + i]`).
+    pub geo: Vec<f32>,
+    /// `sum g g^T` over the patch (6x6, row-major, f64).
+    pub geo_normal: [f64; 36],
+    /// `sum g`.
+    pub geo_sum: [f64; 6],
+    /// `sum g T`.
+    pub geo_value: [f64; 6],
+    /// `sum T`.
+    pub value_sum: f64,
+    /// `sum T^2`.
+    pub value_square: f64,
+    /// Grid of `(size + 2)^2` samples for the gradients (scratch).
+    border: Vec<f32>,
+}
+
+impl Default for TemplatePatch {
+    fn default() -> Self {
+        Self {
+            size: 0,
+            dx: Vec::new(),
+            dy: Vec::new(),
+            value: Vec::new(),
+            geo: Vec::new(),
+            geo_normal: [0.0; 36],
+            geo_sum: [0.0; 6],
+            geo_value: [0.0; 6],
+            value_sum: 0.0,
+            value_square: 0.0,
+            border: Vec::new(),
+        }
+    }
+}
+
+impl TemplatePatch {
+    /// Number of pixels.
+    pub fn len(&self) -> usize {
+        self.size * self.size
+    }
+
+    /// Samples the patch around `centre`; false when it (with the one-pixel border the
+    /// gradients need) does not lie inside the image.
+    pub fn sample(
+        &mut self,
+        image: &ImageView<'_>,
+        centre: [f64; 2],
+        size: usize,
+        interpolation: Interpolation,
+    ) -> bool {
+        let h = (size / 2) as f64;
+        let reach = h + 1.0;
+        if !inside(image, centre, [[reach, 0.0], [0.0, reach]], interpolation) {
+            return false;
+        }
+        if self.size != size {
+            self.resize(size);
+        }
+        let n = size * size;
+        let m = size + 2;
+        let base = [centre[0].floor(), centre[1].floor()];
+        let frac = [(centre[0] - base[0]) as f32, (centre[1] - base[1]) as f32];
+        let reach = size / 2 + 1;
+        if frac == [0.0, 0.0] {
+            // A pixel centre: the samples are the pixels themselves.
+            let (u0, v0) = (base[0] as usize - reach, base[1] as usize - reach);
+            for r in 0..m {
+                let row = (v0 + r) * image.width + u0;
+                self.border[r * m..(r + 1) * m].copy_from_slice(&image.data[row..row + m]);
+            }
+        } else {
+            for r in 0..m {
+                for c in 0..m {
+                    let offset = [
+                        frac[0] + (c as f32 - reach as f32),
+                        frac[1] + (r as f32 - reach as f32),
+                    ];
+                    self.border[r * m + c] = match interpolation {
+                        Interpolation::Bilinear => bilinear(image, base, offset),
+                        Interpolation::Bicubic => bicubic(image, base, offset),
+                    };
+                }
+            }
+        }
+        let (mut sum_value, mut sum_square) = (0.0f64, 0.0f64);
+        for r in 0..size {
+            for c in 0..size {
+                let i = r * size + c;
+                let at = |rr: usize, cc: usize| self.border[rr * m + cc];
+                let t = at(r + 1, c + 1);
+                let gx = 0.5 * (at(r + 1, c + 2) - at(r + 1, c));
+                let gy = 0.5 * (at(r + 2, c + 1) - at(r, c + 1));
+                let (dx, dy) = (self.dx[i], self.dy[i]);
+                self.value[i] = t;
+                let row = [gx, gy, gx * dx, gx * dy, gy * dx, gy * dy];
+                for (k, g) in row.into_iter().enumerate() {
+                    self.geo[k * n + i] = g;
+                }
+                sum_value += t as f64;
+                sum_square += (t as f64) * (t as f64);
+            }
+        }
+        self.value_sum = sum_value;
+        self.value_square = sum_square;
+        self.geo_normal = [0.0; 36];
+        self.geo_sum = [0.0; 6];
+        self.geo_value = [0.0; 6];
+        for k in 0..6 {
+            let gk = &self.geo[k * n..(k + 1) * n];
+            self.geo_sum[k] = sum(gk);
+            self.geo_value[k] = dot(gk, &self.value);
+            for l in k..6 {
+                let s = dot(gk, &self.geo[l * n..(l + 1) * n]);
+                self.geo_normal[k * 6 + l] = s;
+                self.geo_normal[l * 6 + k] = s;
+            }
+        }
+        true
+    }
+
+    /// Root mean square gradient along the patch's weakest direction: the square root of
+    /// the smaller eigenvalue of the mean structure tensor `mean(grad T grad T^T)`.
+    pub fn weakest_gradient(&self) -> f64 {
+        let n = self.len() as f64;
+        let (a, b, c) = (
+            self.geo_normal[0] / n,
+            self.geo_normal[1] / n,
+            self.geo_normal[7] / n,
+        );
+        let mean = 0.5 * (a + c);
+        let spread = (0.25 * (a - c) * (a - c) + b * b).sqrt();
+        (mean - spread).max(0.0).sqrt()
+    }
+
+    fn resize(&mut self, size: usize) {
+        let n = size * size;
+        let h = (size / 2) as f32;
+        self.size = size;
+        self.dx = (0..n).map(|i| (i % size) as f32 - h).collect();
+        self.dy = (0..n).map(|i| (i / size) as f32 - h).collect();
+        self.value = vec![0.0; n];
+        self.geo = vec![0.0; 6 * n];
+        self.border = vec![0.0; (size + 2) * (size + 2)];
+    }
+}
+
+/// `sum a_i b_i` in eight `f32` lanes (so that it vectorises), then `f64`: over a patch
+/// of at most 255^2 pixels, about 1e-6 relative.
+#[inline]
+pub(crate) fn dot(a: &[f32], b: &[f32]) -> f64 {
+    let mut lanes = [0.0f32; 8];
+    let (ca, ra) = a.as_chunks::<8>();
+    let (cb, rb) = b.as_chunks::<8>();
+    for (x, y) in ca.iter().zip(cb) {
+        for l in 0..8 {
+            lanes[l] += x[l] * y[l];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(&x, &y)| x as f64 * y as f64).sum();
+    lanes.iter().map(|&l| l as f64).sum::<f64>() + tail
+}
+
+/// `sum a_i` in eight `f32` lanes, then `f64`.
+#[inline]
+pub(crate) fn sum(a: &[f32]) -> f64 {
+    let mut lanes = [0.0f32; 8];
+    let (chunks, rest) = a.as_chunks::<8>();
+    for x in chunks {
+        for l in 0..8 {
+            lanes[l] += x[l];
+        }
+    }
+    lanes.iter().map(|&l| l as f64).sum::<f64>() + rest.iter().map(|&x| x as f64).sum::<f64>()
+}
+
+/// Whether the square of half-width `h` around the origin, mapped by `x -> A x + b`
+/// (`linear = [[a11, a12], [a21, a22]]` scaled by `h` already), lies inside the image
+/// where the interpolation is defined without padding: `0 <= u <= width - 1` for bilinear,
+/// `1 <= u <= width - 2` for bicubic, likewise `v`. The image of a square is a
+/// parallelogram, so its corners decide.
+pub(crate) fn inside(
+    image: &ImageView<'_>,
+    b: [f64; 2],
+    linear: [[f64; 2]; 2],
+    interpolation: Interpolation,
+) -> bool {
+    let margin = match interpolation {
+        Interpolation::Bilinear => 0.0,
+        Interpolation::Bicubic => 1.0,
+    };
+    let du = linear[0][0].abs() + linear[0][1].abs() + margin;
+    let dv = linear[1][0].abs() + linear[1][1].abs() + margin;
+    let (w, h) = ((image.width - 1) as f64, (image.height - 1) as f64);
+    // Written so that NaN fails.
+    b[0] - du >= 0.0 && b[0] + du <= w && b[1] - dv >= 0.0 && b[1] + dv <= h
+}
+
+/// Bilinear sample at `base + offset` (`base` integral, `offset` small); the caller has
+/// checked that the point lies inside. Indices are clamped so that rounding at the very
+/// border cannot read outside.
+#[inline(always)]
+pub(crate) fn bilinear(image: &ImageView<'_>, base: [f64; 2], offset: [f32; 2]) -> f32 {
+    let fu = floor(offset[0]);
+    let fv = floor(offset[1]);
+    let iu = base[0] as isize + fu as isize;
+    let iv = base[1] as isize + fv as isize;
+    let mut tu = offset[0] - fu;
+    let mut tv = offset[1] - fv;
+    let max_u = image.width as isize - 2;
+    let max_v = image.height as isize - 2;
+    let iu = if iu < 0 {
+        tu = 0.0;
+        0
+    } else if iu > max_u {
+        tu = 1.0;
+        max_u
+    } else {
+        iu
+    } as usize;
+    let iv = if iv < 0 {
+        tv = 0.0;
+        0
+    } else if iv > max_v {
+        tv = 1.0;
+        max_v
+    } else {
+        iv
+    } as usize;
+    let row = iv * image.width + iu;
+    let d = image.data;
+    let (p00, p01) = (d[row], d[row + 1]);
+    let (p10, p11) = (d[row + image.width], d[row + image.width + 1]);
+    let top = p00 + tu * (p01 - p00);
+    let bottom = p10 + tu * (p11 - p10);
+    top + tv * (bottom - top)
+}
+
+/// `x.floor()` for the small offsets of a patch (|x| < 2^14), without a libm call: a
+/// float-to-int cast truncates, which is the floor for non-negative numbers.
+#[inline(always)]
+fn floor(x: f32) -> f32 {
+    const BIAS: f32 = 16384.0;
+    ((x + BIAS) as i32) as f32 - BIAS
+}
+
+/// Keys' cubic convolution (a = -1/2) at `base + offset`, from the 4x4 neighbourhood; the
+/// caller has checked that the point lies at least one pixel inside. Indices are clamped
+/// as in [`bilinear`].
+#[inline(always)]
+pub(crate) fn bicubic(image: &ImageView<'_>, base: [f64; 2], offset: [f32; 2]) -> f32 {
+    let fu = floor(offset[0]);
+    let fv = floor(offset[1]);
+    let iu = (base[0] as isize + fu as isize).clamp(1, image.width as isize - 3) as usize;
+    let iv = (base[1] as isize + fv as isize).clamp(1, image.height as isize - 3) as usize;
+    let tu = (offset[0] - fu).clamp(0.0, 1.0);
+    let tv = (offset[1] - fv).clamp(0.0, 1.0);
+    let weights = |t: f32| {
+        let t2 = t * t;
+        let t3 = t2 * t;
+        [
+            -0.5 * t3 + t2 - 0.5 * t,
+            1.5 * t3 - 2.5 * t2 + 1.0,
+            -1.5 * t3 + 2.0 * t2 + 0.5 * t,
+            0.5 * t3 - 0.5 * t2,
+        ]
+    };
+    let (wu, wv) = (weights(tu), weights(tv));
+    let d = image.data;
+    let mut value = 0.0;
+    for (r, w) in wv.iter().enumerate() {
+        let row = (iv + r - 1) * image.width + iu - 1;
+        let p = &d[row..row + 4];
+        value += w * (wu[0] * p[0] + wu[1] * p[1] + wu[2] * p[2] + wu[3] * p[3]);
+    }
+    value
+}
+
+/// Resamples the search image under `x -> A x + b` at the template's offsets into `out`;
+/// false (and `out` untouched) when the warped patch leaves the image.
+pub(crate) fn sample_search(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    patch: &TemplatePatch,
+    interpolation: Interpolation,
+    out: &mut [f32],
+) -> bool {
+    let h = (patch.size / 2) as f64;
+    if !inside(
+        image,
+        b,
+        [[a[0] * h, a[1] * h], [a[2] * h, a[3] * h]],
+        interpolation,
+    ) {
+        return false;
+    }
+    resample(image, a, b, patch, out, interpolation);
+    true
+}
+
+/// A separable interpolation kernel of `TAPS` taps per axis, the first at `floor - FIRST`.
+trait Kernel<const TAPS: usize> {
+    const FIRST: i32;
+    fn weights(t: f32) -> [f32; TAPS];
+}
+
+struct Linear;
+impl Kernel<2> for Linear {
+    const FIRST: i32 = 0;
+    #[inline(always)]
+    fn weights(t: f32) -> [f32; 2] {
+        [1.0 - t, t]
+    }
+}
+
+struct Cubic;
+impl Kernel<4> for Cubic {
+    const FIRST: i32 = 1;
+    #[inline(always)]
+    fn weights(t: f32) -> [f32; 4] {
+        let t2 = t * t;
+        let t3 = t2 * t;
+        [
+            -0.5 * t3 + t2 - 0.5 * t,
+            1.5 * t3 - 2.5 * t2 + 1.0,
+            -1.5 * t3 + 2.0 * t2 + 0.5 * t,
+            0.5 * t3 - 0.5 * t2,
+        ]
+    }
+}
+
+/// Resamples eight pixels at a time: positions, floors and weights for all eight first
+/// (straight-line arithmetic the compiler vectorises), then the taps.
+#[inline(always)]
+fn resample(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    patch: &TemplatePatch,
+    out: &mut [f32],
+    interpolation: Interpolation,
+) {
+    match interpolation {
+        Interpolation::Bilinear => resample_with::<2, Linear>(image, a, b, patch, out),
+        Interpolation::Bicubic => resample_with::<4, Cubic>(image, a, b, patch, out),
+    }
+}
+
+fn resample_with<const TAPS: usize, K: Kernel<TAPS>>(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    patch: &TemplatePatch,
+    out: &mut [f32],
+) {
+    const LANES: usize = 8;
+    let base = [b[0].floor(), b[1].floor()];
+    let frac = [(b[0] - base[0]) as f32, (b[1] - base[1]) as f32];
+    let [a11, a12, a21, a22] = a.map(|x| x as f32);
+    let width = image.width;
+    // The first tap's index stays within [0, size - TAPS]: the caller checked that the
+    // patch lies inside, so clamping only catches rounding at the very border, where the
+    // recomputed fraction then reaches 0 or 1.
+    let lo = K::FIRST as f32;
+    let hi_u = (width - TAPS) as f32 + lo;
+    let hi_v = (image.height - TAPS) as f32 + lo;
+    let (bu, bv) = (base[0] as f32, base[1] as f32);
+    let mut first = [0usize; LANES];
+    let mut wu = [[0.0f32; TAPS]; LANES];
+    let mut wv = [[0.0f32; TAPS]; LANES];
+    let n = out.len();
+    let mut start = 0;
+    while start < n {
+        let m = LANES.min(n - start);
+        let (dx, dy) = (&patch.dx[start..start + m], &patch.dy[start..start + m]);
+        for l in 0..m {
+            let u = frac[0] + a11 * dx[l] + a12 * dy[l];
+            let v = frac[1] + a21 * dx[l] + a22 * dy[l];
+            // Integral parts relative to the base are small: floor by a biased cast.
+            let iu = (floor(u) + bu).clamp(lo, hi_u);
+            let iv = (floor(v) + bv).clamp(lo, hi_v);
+            // Integers below 2^24 are exact in f32, so the difference is too, and the
+            // fraction keeps the offset's precision however large the image.
+            let tu = (u - (iu - bu)).clamp(0.0, 1.0);
+            let tv = (v - (iv - bv)).clamp(0.0, 1.0);
+            first[l] = (iv as usize - K::FIRST as usize) * width + iu as usize - K::FIRST as usize;
+            wu[l] = K::weights(tu);
+            wv[l] = K::weights(tv);
+        }
+        for l in 0..m {
+            let mut value = 0.0;
+            for (r, w) in wv[l].iter().enumerate() {
+                let row = first[l] + r * width;
+                let p = &image.data[row..row + TAPS];
+                let mut across = 0.0;
+                for c in 0..TAPS {
+                    across += wu[l][c] * p[c];
+                }
+                value += w * across;
+            }
+            out[start + l] = value;
+        }
+        start += m;
+    }
+}
