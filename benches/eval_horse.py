@@ -1,7 +1,7 @@
 """Issue 5's evaluation on real motion: the horse gallop (48 frames with ground truth).
 
 Renders each frame's silhouettes from 8 virtual cameras (``synth.ring_rig`` around the
-horse, ``synth.render_silhouette``), carves the visual hulls on one fixed grid, builds
+horse, ``elastocap.render.render_silhouette``), carves the visual hulls on one fixed grid, builds
 ``ElasticModel.from_mesh`` on the rest frame's hull (6,000 nodes by default, k = 20, the
 corotational mode ``elastocap fit`` uses), runs ``fit_sequence`` through every frame, and
 measures against the ground-truth meshes:
@@ -40,8 +40,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import elastocap
-from elastocap._distance import distance_to_mesh
-from elastocap.synth import render_silhouette, ring_rig
+from elastocap.geometry._distance import distance_to_mesh
+from elastocap.render import render_silhouette
+from elastocap.synth.capture import ring_rig
 
 DATA = Path(os.environ.get("ELASTOCAP_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 HORSE = DATA / "horse_gallop" / "horse_gallop.npz"

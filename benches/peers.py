@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 import elastocap
+import elastocap.solvers
 
 
 def _uniform(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -144,7 +145,7 @@ def sdf_cases(repeats: int) -> list[dict[str, Any]]:
 
 def _carve_numpy(masks, rig, grid):
     """The vectorised numpy reference: project every voxel centre into every camera."""
-    centres = grid.centres().reshape(-1, 3)
+    centres = grid.centers().reshape(-1, 3)
     rejections = np.zeros(len(centres), np.int32)
     for mask, camera in zip(masks, rig.cameras):
         uv, depth = camera.project(centres)
@@ -398,7 +399,7 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
         return x
 
     def ours_cg(x0: np.ndarray | None = None, nodes: np.ndarray | None = None) -> np.ndarray:
-        x, status = elastocap.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol, nodes=nodes)
+        x, status = elastocap.solvers.conjugate_gradient(matrix, rhs, x0=x0, tolerance=tol, nodes=nodes)
         assert status.converged
         counts["ours_iterations"] = status.iterations
         return x
@@ -411,12 +412,12 @@ def solve_cases(repeats: int) -> list[dict[str, Any]]:
     for case, x0 in (("solve_pcg_two_level_cold_2465_k20", None), ("solve_pcg_two_level_warm_2465_k20", start)):
         row = _compare(case, n, lambda x0=x0: ours_cg(x0, points), "scipy.sparse.linalg.cg (Jacobi preconditioner, same rtol)", lambda x0=x0: scipy_cg(x0), repeats)
         rows.append({**row, **counts})
-    factor = elastocap.SparseCholesky(matrix)
+    factor = elastocap.solvers.SparseCholesky(matrix)
     lu = sla.factorized(csc)
     assert np.allclose(factor.solve(rhs), exact, rtol=1e-6, atol=1e-9 * np.abs(exact).max())
     rows.append(
         {
-            **_compare("solve_cholesky_full_2465_k20", n, lambda: elastocap.SparseCholesky(matrix).solve(rhs), "scipy.sparse.linalg.spsolve (SuperLU)", lambda: sla.spsolve(csc, rhs), max(3, repeats // 2)),
+            **_compare("solve_cholesky_full_2465_k20", n, lambda: elastocap.solvers.SparseCholesky(matrix).solve(rhs), "scipy.sparse.linalg.spsolve (SuperLU)", lambda: sla.spsolve(csc, rhs), max(3, repeats // 2)),
             "factor_entries": factor.factor_entries,
         }
     )
@@ -443,8 +444,8 @@ def fit_cases(repeats: int) -> list[dict[str, Any]]:
     import tempfile
     from pathlib import Path
 
-    from elastocap.hull_stage import load_hull, run_hull_stage
-    from elastocap.synth import write_synthetic_capture
+    from elastocap.pipeline.hull import load_hull, run_hull_stage
+    from elastocap.synth.capture import write_synthetic_capture
 
     with tempfile.TemporaryDirectory() as tmp:
         capture = write_synthetic_capture(Path(tmp) / "capture", frames=8, cameras=8, progress=False)
@@ -492,7 +493,7 @@ def elastic_memory_cases(repeats: int) -> list[dict[str, Any]]:
     import subprocess
     import sys
 
-    from elastocap.elastic import STABILIZATION
+    from elastocap.elastic.model import STABILIZATION
 
     n = 64_000
     out = subprocess.run([sys.executable, "-c", _ELASTIC_MEMORY_SCRIPT.format(n=n, stabilization=STABILIZATION)], capture_output=True, text=True, check=True)
@@ -552,6 +553,71 @@ def horse_cases(repeats: int) -> list[dict[str, Any]]:
 
 
 CASES["horse"] = horse_cases
+
+
+def disparity_cases(repeats: int) -> list[dict[str, Any]]:
+    """Tsukuba (Middlebury): elastocap's disparity stage against the best of the 864
+    StereoSGBM settings of benches/sgbm_grid.py, both scored as bad-1 with unmatched pixels
+    counted wrong (sgbm_grid.py prints the grid's details)."""
+    from sgbm_grid import peer_disparity, peer_settings, score, tsukuba
+
+    from elastocap.stereo import compute_disparity
+
+    left, right, truth = tsukuba()
+    best = min(peer_settings(), key=lambda setting: score(peer_disparity(left, right, setting), truth)[0])
+    row = _compare(
+        "tsukuba_disparity_384x288",
+        left.shape[0] * left.shape[1],
+        lambda: compute_disparity(left, right, min_disparity=0, num_disparities=16),
+        "StereoSGBM, best of 864 settings",
+        lambda: peer_disparity(left, right, best),
+        repeats,
+    )
+    ours_bad, ours_matched = score(compute_disparity(left, right, min_disparity=0, num_disparities=16).disparity, truth)
+    peer_bad, peer_matched = score(peer_disparity(left, right, best), truth)
+    row.update(ours_bad=round(ours_bad, 4), peer_bad=round(peer_bad, 4), peer_bad_matched_only=round(peer_matched, 4), peer_setting=best)
+    return [row]
+
+
+CASES["disparity"] = disparity_cases
+
+
+def snake_cases(repeats: int) -> list[dict[str, Any]]:
+    """Issue 16: one silhouette contour on the disparity-filtered gradient of a cluttered
+    480x360 view (seed 2 of the clutter scene), started 3 pixels outside the true outline:
+    elastocap's active contour (resampled, 150 iterations at most) vs
+    skimage.segmentation.active_contour on the same attraction image (``w_line=1``,
+    ``w_edge=0``: both climb it), same start, same iteration cap. Also reports each one's IoU
+    with the true mask."""
+    import cv2
+    from skimage.segmentation import active_contour as skimage_contour
+
+    from elastocap.silhouettes.gradient import filtered_gradient
+    from elastocap.silhouettes.model_based import SNAKE_DEFAULTS
+    from elastocap.silhouettes.snake import active_contour, mask_contours, polygon_mask
+    from elastocap.synth.clutter import ClutterScene
+
+    scene = ClutterScene(2, frames=300)
+    frame = scene.frame(20)
+    name = scene.rig.names[0]
+    truth = frame.masks[name]
+    attraction, _ = filtered_gradient(frame.images[name], frame.disparity_masks[name])
+    start = mask_contours(cv2.dilate(truth.astype(np.uint8), np.ones((7, 7), np.uint8)))[0]
+    start = start[:: max(1, len(start) // 300)]
+    ours = lambda: active_contour(attraction, start, **SNAKE_DEFAULTS)  # noqa: E731
+    peer = lambda: skimage_contour(attraction, start[:, ::-1], alpha=0.01, beta=0.02, w_line=1.0, w_edge=0.0, gamma=0.1, max_num_iter=150)  # noqa: E731
+    row = _compare("snake_480x360_view", len(start), ours, "skimage.segmentation.active_contour", peer, repeats)
+
+    def iou(mask: np.ndarray) -> float:
+        return float((mask & truth).sum() / (mask | truth).sum())
+
+    result = ours()
+    row["ours_iou"] = round(iou(polygon_mask([result.points], truth.shape)), 4) if result.points is not None else 0.0
+    row["peer_iou"] = round(iou(polygon_mask([peer()[:, ::-1]], truth.shape)), 4)
+    return [row]
+
+
+CASES["snake"] = snake_cases
 
 
 def main() -> None:

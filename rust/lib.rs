@@ -12,11 +12,13 @@ pub mod elastic;
 pub mod error;
 pub mod fit;
 pub mod grid_sample;
+pub mod linalg;
 pub mod lm;
 pub mod lsm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;
+pub mod snake;
 pub mod solve;
 pub mod spatial_hash;
 

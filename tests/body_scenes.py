@@ -8,6 +8,7 @@ import numpy as np
 
 import elastocap
 from elastocap import Camera
+from elastocap.synth import ring_rig
 from elastocap.body import BodyModel, BodyState
 
 
@@ -37,7 +38,7 @@ def perturbed(model: BodyModel, state: BodyState, rng: np.random.Generator, *, d
 def z_up_cameras(n: int, *, width: int = 400, height: int = 300) -> list[Camera]:
     """``ring_rig`` cameras (a y-up world) re-expressed for a z-up world."""
     to_y_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-    rig = elastocap.ring_rig(n, width=width, height=height, radius=3.5, look_at=(0.0, 0.95, 0.0), fov=45.0)
+    rig = ring_rig(n, width=width, height=height, radius=3.5, look_at=(0.0, 0.95, 0.0), fov=45.0)
     return [c.replace(R=c.R @ to_y_up) for c in rig.cameras]
 
 

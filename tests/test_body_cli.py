@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from elastocap.cli import main
+from elastocap.pipeline.cli import main
 
 
 def test_body_command_writes_shape_motion_meshes_and_picture(tmp_path) -> None:

@@ -68,7 +68,7 @@ def test_save_and_load_round_trip(tmp_path) -> None:
         (lambda d: d["parts"][0]["balls"][0].update(radii=[0.1, -0.1, 0.1]), "radii"),
         (lambda d: d["parts"][0].update(rest=[[1, 0, 0], [0, 1, 0], [0, 0, 2]]), "rest"),
         (lambda d: d["parts"][2].update(name="pelvis"), "unique"),
-        (lambda d: d["parts"][0]["balls"][0].update(centre=[0, "a", 0]), "centre"),
+        (lambda d: d["parts"][0]["balls"][0].update(center=[0, "a", 0]), "center"),
         (lambda d: d["parts"][1]["joints"][0].update(limits=[10, -10]), "limits"),
     ],
 )

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 import scipy.ndimage as ndimage
 
-import elastocap.body.stage as stage
-from elastocap.body.synth import Z_UP_TO_WORLD, BodyFigure
-from elastocap.camera import Rig
-from elastocap.cli import main
-from elastocap.synth import render_silhouette, write_synthetic_capture
+import elastocap.pipeline.body as stage
+from elastocap.body.model import Z_UP_TO_WORLD
+from elastocap.synth.body import BodyFigure
+from elastocap.cameras.rig import Rig
+from elastocap.pipeline.cli import main
+from elastocap.render import render_silhouette
+from elastocap.synth.capture import write_synthetic_capture
 from tolerances import (
     BODY_SYNTH_HEADING_DEG,
     BODY_SYNTH_LEG_ANGLE_DEG,

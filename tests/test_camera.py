@@ -17,8 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import elastocap
-from elastocap.camera import Camera, Rig
-from elastocap.silhouette import threshold_dark_background
+from elastocap.cameras import Camera, Rig
+from elastocap.silhouettes.background import threshold_dark_background
 from tolerances import PROJECTION_ATOL_PX, RAY_RTOL, UNDISTORT_ATOL
 from data_paths import TEMPLE
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import elastocap
-from elastocap.camera import Camera, Rig
-from elastocap.capture import Capture
+from elastocap.cameras import Camera, Rig
+from elastocap.capture.folder import Capture
 
 WIDTH, HEIGHT = 32, 24
 NAMES = ["cam0", "cam1"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from elastocap.cli import main
+from elastocap.pipeline.cli import main
 
 
 def test_demo_writes_metrics_that_agree_with_the_references(tmp_path: Path) -> None:

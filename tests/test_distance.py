@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from elastocap._distance import distance_to_mesh
+from elastocap.geometry._distance import distance_to_mesh
 
 HALF = np.array([0.5, 0.3, 0.2])
 

@@ -272,3 +272,13 @@ def test_bad_input_is_a_clear_error() -> None:
         m.solve_static([])
     with pytest.raises(InvalidInputError, match="mask"):
         ElasticModel.from_mask(np.zeros((10, 10)))
+
+
+def test_model_data_is_read_only_and_cached() -> None:
+    # Writing to a derived array raises instead of being silently lost (trimesh's habit).
+    model = ElasticModel.from_mesh(trimesh.creation.box((1.0, 0.5, 0.4)), n_nodes=200)
+    for name in ("nodes", "neighbors", "volumes", "support", "grad", "surface_nodes", "surface_faces"):
+        array = getattr(model, name)
+        assert array is getattr(model, name)  # cached, not rebuilt per access
+        with pytest.raises(ValueError, match="read-only"):
+            array.flat[0] = 0

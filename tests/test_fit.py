@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation
 
 import elastocap
 from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_stage
-from elastocap.fit_stage import load_model
-from elastocap.hull_stage import load_hull
-from elastocap.synth import write_synthetic_capture
+from elastocap.pipeline.fit import load_model
+from elastocap.pipeline.hull import load_hull
+from elastocap.synth.capture import write_synthetic_capture
 from data_paths import HORSE
 from tolerances import (
     FIT_HULL_VOXELS,
@@ -142,7 +142,7 @@ LEG_GAP, LEG_LENGTH, LEG_WIDTH = 0.4, 0.6, 0.1
 def _leg_occupancy(side: int, swing: float) -> np.ndarray:
     """Voxels of one leg, 0.1 x 0.6 x 0.1, hanging from its hip at x = side * 0.25 and swung
     back by `swing` degrees about the x axis."""
-    p = LEGS_GRID.centres() - [side * (LEG_GAP + LEG_WIDTH) / 2, 0.0, 0.0]
+    p = LEGS_GRID.centers() - [side * (LEG_GAP + LEG_WIDTH) / 2, 0.0, 0.0]
     c, s = np.cos(np.radians(swing)), np.sin(np.radians(swing))
     local = np.stack([p[..., 0], c * p[..., 1] + s * p[..., 2], c * p[..., 2] - s * p[..., 1]], axis=-1)
     half = LEG_WIDTH / 2
@@ -151,7 +151,7 @@ def _leg_occupancy(side: int, swing: float) -> np.ndarray:
 
 def _two_legs(swing: float) -> elastocap.Hull:
     """A block (the hips) with two legs 0.4 apart; the left one swung by `swing` degrees."""
-    p = LEGS_GRID.centres()
+    p = LEGS_GRID.centers()
     reach = LEG_GAP / 2 + LEG_WIDTH + 0.05
     hips = np.all((p >= [-reach, 0.0, -0.1]) & (p <= [reach, 0.2, 0.1]), axis=-1)
     return elastocap.Hull(hips | _leg_occupancy(-1, swing) | _leg_occupancy(1, 0.0), LEGS_GRID)
@@ -230,3 +230,24 @@ def test_horse_gallop_first_frames_fit_as_closely_as_the_hulls(monkeypatch: pyte
     assert summary["fit_over_hull"] <= 1.2
     assert summary["volume_ratio_min"] > 1 - FIT_VOLUME_RTOL and summary["volume_ratio_max"] < 1 + FIT_VOLUME_RTOL
     assert summary["fit_drift_pct"] <= 2.0
+
+
+def test_targets_keyed_by_frame_numbers_give_results_keyed_by_them() -> None:
+    # Capture frame numbers with gaps: the same fit as the sequence, under the frame
+    # numbers (never a mix of numbers and list positions).
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=300)
+    moved = []
+    for step in range(3):
+        target = CAPSULE.copy()
+        target.apply_translation([0.03 * step, 0.0, 0.0])
+        moved.append(target)
+    by_position = fit_sequence(model, moved, rest_frame=1)
+    by_number = fit_sequence(model, {10: moved[0], 12: moved[1], 17: moved[2]}, rest_frame=12)
+    assert by_number.frames == [10, 12, 17] and by_number.rest_frame == 12
+    for position, number in zip((0, 1, 2), (10, 12, 17)):
+        assert by_number.fits[number].frame == number
+        np.testing.assert_array_equal(by_number.fits[number].positions, by_position.fits[position].positions)
+    with pytest.raises(InvalidInputError, match="rest_frame = 11 is not a frame"):
+        fit_sequence(model, {10: moved[0], 12: moved[1]}, rest_frame=11)
+    with pytest.raises(InvalidInputError, match="keyed by int frame numbers"):
+        fit_sequence(model, {"a": moved[0]}, rest_frame=0)

@@ -63,7 +63,7 @@ def test_conservative_hull_keeps_every_voxel_the_object_touches(n_cameras):
     mesh, rig = ellipsoid(), ring(n_cameras)
     hull = visual_hull({n: render(mesh, c) for n, c in zip(rig.names, rig.cameras)}, rig, GRID)
     # Voxels whose centre is inside, and voxels holding a point of the surface, are touched.
-    centres = GRID.centres()
+    centres = GRID.centers()
     inside = ((centres / np.array([0.5, 0.35, 0.25])) ** 2).sum(axis=-1) <= 1
     assert hull.occupancy[inside].all()
     on_surface = np.round(GRID.to_index(mesh.sample(5000))).astype(int)
@@ -179,3 +179,14 @@ def test_bad_input_is_a_clear_error():
     assert not empty.occupancy.any()
     with pytest.raises(elastocap.InvalidInputError, match="empty"):
         empty.mesh()
+
+
+def test_the_hull_mesh_is_computed_once_and_handed_out_as_copies():
+    mesh, rig = ellipsoid(), ring(4)
+    hull = visual_hull([render(mesh, c) for c in rig.cameras], rig, GRID)
+    first, second = hull.mesh(), hull.mesh()
+    assert first is not second
+    np.testing.assert_array_equal(first.vertices, second.vertices)
+    first.vertices[:] = 0.0  # the caller's copy; the hull's mesh is unchanged
+    assert np.abs(hull.mesh().vertices).max() > 0
+    assert hull._mesh is hull._mesh

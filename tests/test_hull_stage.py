@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
+import elastocap
+
 from elastocap import InvalidInputError
-from elastocap.hull_stage import load_hull, parse_frames, run_hull_stage
-from elastocap.synth import write_synthetic_capture
+from elastocap.pipeline.hull import load_hull, parse_frames, run_hull_stage
+from elastocap.synth.capture import write_synthetic_capture
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +47,12 @@ def test_hull_contains_the_ground_truth_and_hugs_it(capture, tmp_path):
     assert hull.volume / truth.volume < 1.6
     surface = trimesh.load(tmp_path / "hull" / "000000.ply")
     assert surface.is_watertight
+    # The signed distance the stage saved is the one read back (not computed again), and
+    # it is the occupancy's own to float32 precision.
+    with np.load(tmp_path / "hull" / "000000.npz") as data:
+        np.testing.assert_array_equal(sdf.values, data["sdf"].astype(np.float64))
+    recomputed = elastocap.SDF.from_occupancy(hull.occupancy, hull.grid).values
+    np.testing.assert_allclose(sdf.values, recomputed, rtol=1e-6, atol=1e-7 * hull.grid.spacing)
 
 
 def test_parse_frames():

@@ -49,7 +49,7 @@ def reference_phi(x: np.ndarray, centre: np.ndarray, neighbours: np.ndarray, ddm
     return np.linalg.solve(moments, at_x) @ (basis.T * w)
 
 
-def identity_errors(points: np.ndarray, mls: elastocap.mls.MLSShapeFunctions) -> dict[str, float]:
+def identity_errors(points: np.ndarray, mls: elastocap.elastic.mls.MLSShapeFunctions) -> dict[str, float]:
     dim = points.shape[1]
     x = points[mls.neighbors]  # (N, k, D)
     scaled_grad = mls.grad * mls.support[:, None, None]
@@ -119,7 +119,7 @@ def test_matches_numpy_reference(kind: str, dim: int) -> None:
 
 def test_given_neighbors_and_support_factor() -> None:
     points = cloud("random", 3, 11)
-    indices, distances = elastocap.knn(points, 11)
+    distances, indices = elastocap.knn(points, 11)
     lists = np.hstack([np.arange(len(points))[:, None], indices])
     mls = elastocap.mls_shape_functions(points, neighbors=lists, c=1.3)
     np.testing.assert_allclose(mls.support, 1.3 * distances[:, -1], rtol=1e-12)
@@ -199,7 +199,7 @@ def test_non_finite_points_are_named() -> None:
 
 
 def test_core_binding_validates_its_arguments() -> None:
-    lists = np.hstack([np.arange(50)[:, None], elastocap.knn(POINTS, 5)[0]])
+    lists = np.hstack([np.arange(50)[:, None], elastocap.knn(POINTS, 5).indices])
     support = np.ones(50)
     cases = [
         (POINTS, lists, support[:-1], "support has 49 rows but points has 50"),

@@ -149,7 +149,7 @@ def reference_knn(points, k, queries):
     return d.reshape(len(queries), kk), i.reshape(len(queries), kk)
 
 
-def assert_knn_matches(points, k, queries, indices, distances):
+def assert_knn_matches(points, k, queries, distances, indices):
     q = points if queries is None else queries
     n, m = len(points), len(q)
     assert indices.shape == (m, k) and distances.shape == (m, k)
@@ -193,7 +193,7 @@ def csr_rows(indptr):
     return np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
 
 
-def assert_radius_matches(points, radius, queries, indptr, indices, distances):
+def assert_radius_matches(points, radius, queries, distances, indices, indptr):
     q = points if queries is None else queries
     n, m = len(points), len(q)
     assert indptr.shape == (m + 1,)
@@ -255,8 +255,8 @@ KNN_SELF_CASES = [
 @pytest.mark.parametrize(("kind", "dim", "n", "k"), KNN_SELF_CASES, ids=lambda v: str(v))
 def test_knn_self_queries_match_ckdtree(kind, dim, n, k):
     points = make_cloud(kind, n, dim)
-    indices, distances = elastocap.knn(points, k)
-    assert_knn_matches(points, k, None, indices, distances)
+    distances, indices = elastocap.knn(points, k)
+    assert_knn_matches(points, k, None, distances, indices)
 
 
 KNN_QUERY_CASES = [
@@ -279,8 +279,8 @@ KNN_QUERY_CASES = [
 def test_knn_explicit_queries_match_ckdtree(kind, dim, n, k, query_kind):
     points = make_cloud(kind, n, dim)
     queries = make_queries(points, query_kind, 700)
-    indices, distances = elastocap.knn(points, k, queries)
-    assert_knn_matches(points, k, queries, indices, distances)
+    distances, indices = elastocap.knn(points, k, queries=queries)
+    assert_knn_matches(points, k, queries, distances, indices)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -288,18 +288,18 @@ def test_knn_k_equal_to_all_points(dim):
     """k = N with explicit queries (every point) and k = N - 1 without (every other point)."""
     points = make_cloud("uniform", 300, dim)
     queries = make_queries(points, "mixed", 50)
-    indices, distances = elastocap.knn(points, len(points), queries)
-    assert_knn_matches(points, len(points), queries, indices, distances)
-    indices, distances = elastocap.knn(points, len(points) - 1)
-    assert_knn_matches(points, len(points) - 1, None, indices, distances)
+    distances, indices = elastocap.knn(points, len(points), queries=queries)
+    assert_knn_matches(points, len(points), queries, distances, indices)
+    distances, indices = elastocap.knn(points, len(points) - 1)
+    assert_knn_matches(points, len(points) - 1, None, distances, indices)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_knn_all_points_identical(dim):
     points = np.full((200, dim), -7.25)
-    indices, distances = elastocap.knn(points, 199)
+    distances, indices = elastocap.knn(points, 199)
     assert np.all(distances == 0.0)
-    assert_knn_matches(points, 199, None, indices, distances)
+    assert_knn_matches(points, 199, None, distances, indices)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -307,7 +307,7 @@ def test_knn_ties_in_index_order(dim):
     """SpatialIndex.knn documents 'nearest first (ties in index order)': equidistant
     neighbours within a row come with ascending indices."""
     points = make_cloud("lattice", 1_000 if dim == 3 else 900, dim)
-    indices, distances = elastocap.SpatialIndex(points).knn(8)
+    distances, indices = elastocap.SpatialIndex(points).knn(8)
     tied = distances[:, 1:] == distances[:, :-1]
     assert tied.any()  # the lattice does produce ties
     assert np.all(indices[:, 1:][tied] > indices[:, :-1][tied]), "ties not in index order"
@@ -330,7 +330,7 @@ def small_clouds(draw, min_points=2, max_points=40):
     return draw(arrays(np.float64, (n, dim), elements=elements))
 
 
-def assert_knn_matches_brute_force(points, k, queries, indices, distances):
+def assert_knn_matches_brute_force(points, k, queries, distances, indices):
     q = points if queries is None else queries
     all_d = pairwise_distances(q, points)
     if queries is None:
@@ -367,8 +367,8 @@ def query_knn_cases(draw):
 @example(case=(np.array([[-0.3, 0.0], [0.9, 0.0], [0.9, 0.0]]), 1))
 def test_knn_self_queries_match_brute_force(case):
     points, k = case
-    indices, distances = elastocap.knn(points, k)
-    assert_knn_matches_brute_force(points, k, None, indices, distances)
+    distances, indices = elastocap.knn(points, k)
+    assert_knn_matches_brute_force(points, k, None, distances, indices)
     assert not np.any(indices == np.arange(len(points))[:, None]), "a point is its own neighbour"
 
 
@@ -376,8 +376,8 @@ def test_knn_self_queries_match_brute_force(case):
 @given(case=query_knn_cases())
 def test_knn_explicit_queries_match_brute_force(case):
     points, queries, k = case
-    indices, distances = elastocap.knn(points, k, queries)
-    assert_knn_matches_brute_force(points, k, queries, indices, distances)
+    distances, indices = elastocap.knn(points, k, queries=queries)
+    assert_knn_matches_brute_force(points, k, queries, distances, indices)
 
 
 @pytest.mark.parametrize("k", [1, 2, 5])
@@ -387,7 +387,7 @@ def test_knn_duplicates_on_the_bounding_box_maximum(dim, k):
     the other copies, at distance 0. Minimal case: [[-0.3, 0], [0.9, 0], [0.9, 0]], k = 1."""
     minimal = np.zeros((3, dim))
     minimal[0, 0], minimal[1:, 0] = -0.3, 0.9
-    indices, distances = elastocap.knn(minimal, 1)
+    distances, indices = elastocap.knn(minimal, 1)
     np.testing.assert_array_equal(indices[:, 0], [1, 2, 1])
     np.testing.assert_array_equal(distances[:, 0], [1.2, 0.0, 0.0])
 
@@ -396,8 +396,8 @@ def test_knn_duplicates_on_the_bounding_box_maximum(dim, k):
         points = rng.uniform(-3.0, 2.0, (200, dim))
         top = points[np.argmax(points[:, 0])]
         points = np.vstack([points] + [top] * (k + 1))
-        indices, distances = elastocap.knn(points, k)
-        assert_knn_matches(points, k, None, indices, distances)
+        distances, indices = elastocap.knn(points, k)
+        assert_knn_matches(points, k, None, distances, indices)
 
 
 # ------------------------------------------------------------------------------------------
@@ -429,7 +429,7 @@ def test_radius_self_queries_match_query_ball_point(kind, dim, n, radius):
     points = make_cloud(kind, n, dim)
     result = elastocap.radius_neighbors(points, radius)
     assert_radius_matches(points, radius, None, *result)
-    indptr, indices, _ = result
+    _, indices, indptr = result
     assert not np.any(indices == csr_rows(indptr)), "a point is its own neighbour"
 
 
@@ -438,7 +438,7 @@ def test_radius_self_queries_match_query_ball_point(kind, dim, n, radius):
 def test_radius_explicit_queries_match_query_ball_point(kind, dim, n, radius, query_kind):
     points = make_cloud(kind, n, dim)
     queries = make_queries(points, query_kind, 500)
-    result = elastocap.radius_neighbors(points, radius, queries)
+    result = elastocap.radius_neighbors(points, radius, queries=queries)
     assert_radius_matches(points, radius, queries, *result)
 
 
@@ -450,9 +450,9 @@ def test_radius_queries_just_outside_the_cloud(dim):
     queries = rng.random((500, dim))
     axis = rng.integers(0, dim, len(queries))
     queries[np.arange(len(queries)), axis] = np.where(rng.random(len(queries)) < 0.5, -0.05, 1.05)
-    result = elastocap.radius_neighbors(points, 0.1, queries)
+    result = elastocap.radius_neighbors(points, 0.1, queries=queries)
     assert_radius_matches(points, 0.1, queries, *result)
-    assert np.count_nonzero(np.diff(result[0])) > len(queries) // 2  # most reach the cloud
+    assert np.count_nonzero(np.diff(result.indptr)) > len(queries) // 2  # most reach the cloud
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -464,9 +464,9 @@ def test_radius_larger_than_cloud_reaches_outside_queries(dim):
     queries[0, 0] = 5.0
     queries[1, :] = -3.0
     queries[2, :] = 0.5  # inside, for contrast
-    indptr, indices, distances = elastocap.radius_neighbors(points, 10.0, queries)
+    distances, indices, indptr = elastocap.radius_neighbors(points, 10.0, queries=queries)
     np.testing.assert_array_equal(np.diff(indptr), [500, 500, 500])
-    assert_radius_matches(points, 10.0, queries, indptr, indices, distances)
+    assert_radius_matches(points, 10.0, queries, distances, indices, indptr)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -482,16 +482,16 @@ def test_radius_lattice_points_at_exactly_the_radius_are_included(dim, radius):
     expected_count = int(np.sum((norms <= radius) & (norms > 0)))  # 4/12 in 2-D, 6/32 in 3-D
     interior = np.all((points >= 2) & (points <= side - 3), axis=1)
 
-    indptr, indices, distances = elastocap.radius_neighbors(points, radius)
-    assert_radius_matches(points, radius, None, indptr, indices, distances)
+    distances, indices, indptr = elastocap.radius_neighbors(points, radius)
+    assert_radius_matches(points, radius, None, distances, indices, indptr)
     counts = np.diff(indptr)
     assert np.all(counts[interior] == expected_count)
     rows = csr_rows(indptr)
     assert np.any(distances[interior[rows]] == radius)
 
     # Explicit queries on the lattice points themselves: self (distance 0) is included.
-    indptr_q, indices_q, distances_q = elastocap.radius_neighbors(points, radius, points)
-    assert_radius_matches(points, radius, points, indptr_q, indices_q, distances_q)
+    distances_q, indices_q, indptr_q = elastocap.radius_neighbors(points, radius, queries=points)
+    assert_radius_matches(points, radius, points, distances_q, indices_q, indptr_q)
     assert np.all(np.diff(indptr_q)[interior] == expected_count + 1)
     # Nearest first: each row starts with the query point itself.
     np.testing.assert_array_equal(indices_q[indptr_q[:-1]], np.arange(len(points)))
@@ -514,7 +514,7 @@ def radius_cases(draw):
 def test_radius_matches_brute_force(case):
     points, queries, radius = case
     q = points if queries is None else queries
-    indptr, indices, distances = elastocap.radius_neighbors(points, radius, queries)
+    distances, indices, indptr = elastocap.radius_neighbors(points, radius, queries=queries)
     assert indptr.shape == (len(q) + 1,) and indptr[0] == 0 and indptr[-1] == len(indices) == len(distances)
     all_d = pairwise_distances(q, points)
     if queries is None:
@@ -553,16 +553,16 @@ def test_spatial_index_reuse_gives_the_same_answers_as_fresh_calls(dim):
 
     fresh = {
         ("knn", 5, None): elastocap.knn(points, 5),
-        ("knn", 9, "q"): elastocap.knn(points, 9, queries),
+        ("knn", 9, "q"): elastocap.knn(points, 9, queries=queries),
         ("radius", 0.004, None): elastocap.radius_neighbors(points, 0.004),
-        ("radius", 0.02, "q"): elastocap.radius_neighbors(points, 0.02, queries),
+        ("radius", 0.02, "q"): elastocap.radius_neighbors(points, 0.02, queries=queries),
     }
     # Interleave different queries on the one index, twice, in different orders.
     for order in (list(fresh), list(reversed(fresh))):
         for key in order:
             method, param, q = key
             q = queries if q else None
-            got = index.knn(param, q) if method == "knn" else index.radius_neighbors(param, q)
+            got = index.knn(param, queries=q) if method == "knn" else index.radius_neighbors(param, queries=q)
             for g, f in zip(got, fresh[key], strict=True):
                 np.testing.assert_array_equal(g, f)
     assert_knn_matches(points, 5, None, *fresh[("knn", 5, None)])
@@ -574,10 +574,10 @@ def test_spatial_index_does_not_see_later_mutation(dim):
     original = points.copy()
     queries = make_queries(points, "inside", 200)
     index = elastocap.SpatialIndex(points)
-    before = index.knn(6, queries), index.radius_neighbors(0.05)
+    before = index.knn(6, queries=queries), index.radius_neighbors(0.05)
 
     points[:] = points[::-1] * 100.0 + 7.0  # overwrite the caller's array in place
-    after = index.knn(6, queries), index.radius_neighbors(0.05)
+    after = index.knn(6, queries=queries), index.radius_neighbors(0.05)
 
     for b, a in zip(before, after, strict=True):
         for x, y in zip(b, a, strict=True):
@@ -601,3 +601,18 @@ def test_spatial_index_accepts_non_contiguous_and_list_input():
     widened = as_float32.astype(np.float64)
     got = elastocap.knn(as_float32, 4)
     assert_knn_matches(widened, 4, None, *got)
+
+
+def test_results_are_named_in_scipys_order():
+    points = make_cloud("uniform", 500, 3)
+    found = elastocap.knn(points, 4)
+    assert isinstance(found, elastocap.geometry.neighbors.Neighbors)
+    distances, indices = found  # scipy's cKDTree.query order
+    assert distances is found.distances and indices is found.indices
+    assert distances.dtype == np.float64 and indices.dtype == np.int64
+    assert (np.diff(distances, axis=1) >= 0).all()
+    within = elastocap.radius_neighbors(points, 0.1)
+    assert within._fields == ("distances", "indices", "indptr")
+    assert within.indptr[-1] == len(within.indices) == len(within.distances)
+    with pytest.raises(TypeError):
+        elastocap.knn(points, 4, points[:3])  # queries is keyword-only

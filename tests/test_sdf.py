@@ -62,7 +62,7 @@ def test_empty_and_full_grids():
 
 def sphere_sdf(radius=0.7, n=48):
     grid = Grid.around([-1, -1, -1], [1, 1, 1], n)
-    centres = grid.centres()
+    centres = grid.centers()
     occ = np.linalg.norm(centres, axis=-1) <= radius
     return SDF.from_occupancy(occ, grid), radius
 

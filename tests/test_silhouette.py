@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import elastocap
-from elastocap.silhouette import (
+from elastocap.silhouettes.background import (
     clean_mask,
     refine_silhouette,
     segment_dark_background,

@@ -15,11 +15,13 @@ import pytest
 import trimesh
 
 from elastocap import Camera, Capture, InvalidInputError, Rig
-from elastocap import synth
-from elastocap.cli import main
-from elastocap.synth import PARTS, Figure, render_background, render_image, render_silhouette, ring_rig
+from elastocap.synth import capture as synth
+from elastocap.pipeline.cli import main
+from elastocap.render import render_image, render_silhouette
+from elastocap.synth.capsules import PARTS, CapsuleFigure
+from elastocap.synth.capture import render_background, ring_rig
 
-# Rendered silhouettes vs. silhouettes sphere-traced on Figure.sdf at 160x120: they differ
+# Rendered silhouettes vs. silhouettes sphere-traced on CapsuleFigure.sdf at 160x120: they differ
 # only where a pixel centre's ray grazes the surface within the marching-cubes error
 # (< 1 mm, against ~2.5 cm pixels); measured IoU >= 0.995, so 0.98 leaves room.
 TRACED_IOU_MIN = 0.98
@@ -30,7 +32,7 @@ TRACE_HIT = 1e-4
 # ~0.3%), relative.
 VOLUME_RTOL = 0.02
 MC_SAMPLES = 400_000
-# Marching-cubes vertices lie on the zero level of Figure.sdf to within this fraction of
+# Marching-cubes vertices lie on the zero level of CapsuleFigure.sdf to within this fraction of
 # the voxel (linear interpolation of a field curved on a 3 cm scale: ~0.07 measured).
 ZERO_LEVEL_ATOL_VOXELS = 0.15
 # A rig saved and loaded again projects identically (doubles are written exactly); 1e-9 px
@@ -48,8 +50,8 @@ SMALL = {"frames": 3, "cameras": 3, "spacing": 0.02, "image_size": (160, 120), "
 
 
 @pytest.fixture(scope="module")
-def figure() -> Figure:
-    return Figure(0)
+def figure() -> CapsuleFigure:
+    return CapsuleFigure(0)
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +59,8 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return synth.write_synthetic_capture(tmp_path_factory.mktemp("synth") / "capture", **SMALL)
 
 
-def _sphere_traced(figure: Figure, camera: Camera, frame: int, far: float = 12.0) -> np.ndarray:
-    """Pixels whose centre's ray reaches Figure.sdf's zero level (brute force)."""
+def _sphere_traced(figure: CapsuleFigure, camera: Camera, frame: int, far: float = 12.0) -> np.ndarray:
+    """Pixels whose centre's ray reaches CapsuleFigure.sdf's zero level (brute force)."""
     u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
     origins, directions = camera.rays(np.column_stack([u.ravel(), v.ravel()]).astype(np.float64))
     t = np.zeros(len(directions))
@@ -79,7 +81,7 @@ def _sphere_traced(figure: Figure, camera: Camera, frame: int, far: float = 12.0
 # --- silhouettes -------------------------------------------------------------------------
 
 
-def test_silhouettes_match_the_sphere_traced_figure(figure: Figure) -> None:
+def test_silhouettes_match_the_sphere_traced_figure(figure: CapsuleFigure) -> None:
     clap = _clap_frame(figure)
     rig = ring_rig(8, width=160, height=120)
     for frame in (clap, clap + 9):
@@ -91,7 +93,7 @@ def test_silhouettes_match_the_sphere_traced_figure(figure: Figure) -> None:
             assert iou >= TRACED_IOU_MIN, (frame, camera.name, iou)
 
 
-def test_surface_points_project_onto_the_silhouette(figure: Figure) -> None:
+def test_surface_points_project_onto_the_silhouette(figure: CapsuleFigure) -> None:
     mesh = figure.mesh(_clap_frame(figure))
     points, _ = trimesh.sample.sample_surface(mesh, 20_000, seed=0)
     for camera in ring_rig(8, width=320, height=240).cameras:
@@ -136,7 +138,7 @@ def test_the_nearer_surface_hides_the_farther() -> None:
     far.apply_translation([0, 0.9, 0])
     near.visual.vertex_colors = [255, 0, 0, 255]
     far.visual.vertex_colors = [0, 0, 255, 255]
-    image = render_image(trimesh.util.concatenate([far, near]), camera, light=toward_camera)
+    image = render_image(trimesh.util.concatenate([far, near]), camera, light=toward_camera, background=render_background(camera))
     red = render_silhouette(near, camera)
     blue_only = render_silhouette(far, camera) & ~red
     assert (image[red][:, 0] > image[red][:, 2]).all()
@@ -148,7 +150,7 @@ def test_the_nearer_surface_hides_the_farther() -> None:
 # --- the figure --------------------------------------------------------------------------
 
 
-def test_ground_truth_is_watertight_with_the_figure_volume(figure: Figure) -> None:
+def test_ground_truth_is_watertight_with_the_figure_volume(figure: CapsuleFigure) -> None:
     frame = _clap_frame(figure)
     mesh = figure.mesh(frame, spacing=0.01)
     assert mesh.is_watertight and mesh.is_winding_consistent
@@ -168,13 +170,13 @@ def test_ground_truth_is_watertight_with_the_figure_volume(figure: Figure) -> No
     assert abs(mesh.volume - estimate) <= VOLUME_RTOL * estimate, (mesh.volume, estimate)
 
 
-def test_the_figure_stands_on_the_floor_at_human_height(figure: Figure) -> None:
+def test_the_figure_stands_on_the_floor_at_human_height(figure: CapsuleFigure) -> None:
     lower, upper = figure.mesh(0, spacing=0.02).bounds
     assert -0.01 < lower[1] < 0.05
     assert 1.6 < upper[1] < 1.85
 
 
-def test_limbs_rotate_far_and_touch(figure: Figure) -> None:
+def test_limbs_rotate_far_and_touch(figure: CapsuleFigure) -> None:
     upper_arm, hand = PARTS.index("upper_arm_l"), PARTS.index("hand_l")
     own_arm = {"upper_arm_l", "forearm_l", "hand_l"}
     others = [i for i, name in enumerate(PARTS) if name not in own_arm]
@@ -206,17 +208,17 @@ def test_limbs_rotate_far_and_touch(figure: Figure) -> None:
 
 
 def test_the_figure_is_deterministic_and_rebuilds_from_its_description() -> None:
-    a, b, other = Figure(3), Figure(3), Figure(4)
+    a, b, other = CapsuleFigure(3), CapsuleFigure(3), CapsuleFigure(4)
     points = np.random.default_rng(1).uniform(-1, 2, (1000, 3))
     assert a == b and a != other
     assert np.array_equal(a.sdf(points, 7), b.sdf(points, 7))
     assert not np.array_equal(a.sdf(points, 7), other.sdf(points, 7))
-    rebuilt = Figure.from_dict(json.loads(json.dumps(a.to_dict())))
+    rebuilt = CapsuleFigure.from_dict(json.loads(json.dumps(a.to_dict())))
     assert rebuilt == a and np.array_equal(rebuilt.sdf(points, 11), a.sdf(points, 11))
     assert np.array_equal(a.mesh(5, 0.03).vertices, b.mesh(5, 0.03).vertices)
 
 
-def test_sdf_is_negative_exactly_inside_and_one_lipschitz(figure: Figure) -> None:
+def test_sdf_is_negative_exactly_inside_and_one_lipschitz(figure: CapsuleFigure) -> None:
     rng = np.random.default_rng(2)
     p = rng.uniform([-0.8, -0.1, -0.8], [0.8, 1.9, 0.8], (20_000, 3))
     q = p + rng.normal(scale=0.05, size=p.shape)
@@ -230,7 +232,7 @@ def test_sdf_is_negative_exactly_inside_and_one_lipschitz(figure: Figure) -> Non
 # --- the rig -----------------------------------------------------------------------------
 
 
-def test_every_camera_sees_the_whole_figure_in_every_frame(figure: Figure) -> None:
+def test_every_camera_sees_the_whole_figure_in_every_frame(figure: CapsuleFigure) -> None:
     meshes = [figure.mesh(frame, spacing=0.03) for frame in range(30)]
     for n in (2, 8, 12):
         for camera in ring_rig(n).cameras:
@@ -260,7 +262,7 @@ def test_the_rig_exercises_the_full_camera_model() -> None:
 
 def test_the_capture_folder_round_trips(capture: Path) -> None:
     opened = Capture.open(capture)
-    figure = Figure.from_dict(json.loads((capture / "ground_truth" / "figure.json").read_text()))
+    figure = CapsuleFigure.from_dict(json.loads((capture / "ground_truth" / "figure.json").read_text()))
     rig = ring_rig(SMALL["cameras"], width=160, height=120)
     assert opened.cameras == rig.names and opened.frames == [0, 1, 2]
     assert opened.has_masks and opened.has_images and opened.has_background
@@ -277,7 +279,7 @@ def test_the_capture_folder_round_trips(capture: Path) -> None:
             assert np.array_equal(opened.mask(camera.name, frame), render_silhouette(mesh, camera))
             image = opened.image(camera.name, frame)
             # JPEG keeps the colours near the rendered RGB (not swapped to BGR).
-            rendered = render_image(mesh, camera).astype(float)
+            rendered = render_image(mesh, camera, background=render_background(camera)).astype(float)
             assert np.abs(image.astype(float) - rendered).mean() < 4
     assert not list(capture.rglob("*.tmp"))
 
@@ -285,8 +287,8 @@ def test_the_capture_folder_round_trips(capture: Path) -> None:
 def test_a_second_run_renders_nothing_and_changes_nothing(capture: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     before = {path: (path.read_bytes(), path.stat().st_mtime_ns) for path in capture.rglob("*") if path.is_file()}
     calls = []
-    render = synth._render
-    monkeypatch.setattr(synth, "_render", lambda *a, **k: calls.append(1) or render(*a, **k))
+    render = synth.render_mesh
+    monkeypatch.setattr(synth, "render_mesh", lambda *a, **k: calls.append(1) or render(*a, **k))
     synth.write_synthetic_capture(capture, **SMALL)
     assert calls == []
     after = {path: (path.read_bytes(), path.stat().st_mtime_ns) for path in capture.rglob("*") if path.is_file()}
@@ -374,7 +376,7 @@ def test_synth_into_a_file_exits_2_with_one_line(tmp_path: Path) -> None:
 # --- helpers -----------------------------------------------------------------------------
 
 
-def _clap_frame(figure: Figure) -> int:
+def _clap_frame(figure: CapsuleFigure) -> int:
     """The frame of the first clap (hands together)."""
     return next(frame for frame in range(30) if figure.joint_angles(frame)["clap"] == 1.0)
 

@@ -1,41 +1,50 @@
 """elastocap: markerless capture of the shape and motion of moving people, animals and
 objects from calibrated multi-view video.
 
-The heavy kernels live in the Rust extension :mod:`elastocap._core`; this package holds
-the public API, orchestration, I/O and the command line.
+The package reads as the data flow: ``cameras`` and ``capture`` (input), ``silhouettes``,
+``hull`` (carving, signed distance), ``elastic`` (the element-free model and its fit),
+``body`` (the articulated metaball model), ``render`` (drawing meshes into cameras),
+``pipeline`` (the stages, the command line, the report), with ``geometry`` (neighbours,
+rotations) and ``solvers`` (sparse SPD solves) underneath and ``synth`` (synthetic captures)
+beside. The heavy kernels live in the Rust extension :mod:`elastocap._core`. This top level
+holds what a user calls: stages, models, fits, cameras.
 """
 
+from typing import Any
+
 from elastocap._core import ConvergenceError, ElastocapError, InvalidInputError, __version__
+from elastocap import _moved
 from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_body
-from elastocap.camera import Camera, Rig
+from elastocap.cameras import CalibrationWarning, Camera, Rig
 from elastocap.capture import Capture
-from elastocap.efg import stiffness_matrix
-from elastocap.fit import FrameFit, SequenceFit, fit_sequence
-from elastocap.fit_stage import run_fit_stage
-from elastocap.elastic import ElasticModel, StaticSolution
-from elastocap.grid import Grid
-from elastocap.hull import Hull, visual_hull
-from elastocap.hull_stage import load_hull, run_hull_stage
-from elastocap.mls import mls_shape_functions
-from elastocap.neighbors import SpatialIndex, knn, radius_neighbors
-from elastocap.polar import polar_rotation
-from elastocap.sdf import SDF, signed_distance
-from elastocap.silhouette import clean_mask, subtract_background, threshold_dark_background
-from elastocap.silhouette import refine_silhouette, segment_dark_background
-from elastocap.solvers import SolveStatus, SparseCholesky, conjugate_gradient
-from elastocap.synth import Figure, ring_rig, write_synthetic_capture
+from elastocap.elastic import ElasticModel, FrameFit, SequenceFit, StaticSolution, fit_sequence
+from elastocap.elastic import mls_shape_functions, stiffness_matrix
+from elastocap.geometry import SpatialIndex, knn, polar_rotation, radius_neighbors
+from elastocap.hull import SDF, Grid, Hull, signed_distance, visual_hull
+from elastocap.pipeline import load_hull, run_fit_stage, run_hull_stage
+from elastocap.silhouettes import clean_mask, refine_silhouette, segment_dark_background
+from elastocap.silhouettes import subtract_background, threshold_dark_background
+
+_moved.install()
+
+
+def __getattr__(name: str) -> Any:
+    # Names that moved (synthetic data to elastocap.synth, solver internals to
+    # elastocap.solvers) still resolve, with a DeprecationWarning.
+    return _moved.moved_name(name)
+
 
 __all__ = [
     "BodyFit",
     "BodyModel",
     "BodyObservations",
     "BodyState",
+    "CalibrationWarning",
     "Camera",
     "Capture",
     "ConvergenceError",
     "ElasticModel",
     "ElastocapError",
-    "Figure",
     "FrameFit",
     "Grid",
     "Hull",
@@ -43,22 +52,18 @@ __all__ = [
     "Rig",
     "SDF",
     "SequenceFit",
-    "SolveStatus",
-    "SparseCholesky",
     "SpatialIndex",
     "StaticSolution",
     "__version__",
     "clean_mask",
-    "fit_sequence",
-    "conjugate_gradient",
     "fit_body",
+    "fit_sequence",
     "knn",
     "load_hull",
     "mls_shape_functions",
     "polar_rotation",
     "radius_neighbors",
     "refine_silhouette",
-    "ring_rig",
     "run_fit_stage",
     "run_hull_stage",
     "segment_dark_background",
@@ -67,5 +72,4 @@ __all__ = [
     "subtract_background",
     "threshold_dark_background",
     "visual_hull",
-    "write_synthetic_capture",
 ]

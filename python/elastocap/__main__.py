@@ -2,6 +2,6 @@
 
 import sys
 
-from elastocap.cli import main
+from elastocap.pipeline.cli import main
 
 sys.exit(main())

@@ -24,6 +24,9 @@ __all__ = [
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
+    "camera_project",
+    "active_contour",
+    "lsm_match_patches",
 ]
 
 __version__: str
@@ -231,6 +234,9 @@ class BodySkeleton:
     def field(
         self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
+    def values(
+        self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
+    ) -> NDArray[np.float64]: ...
     def jacobian(
         self,
         shape: NDArray[np.float64],
@@ -268,3 +274,56 @@ class BodySkeleton:
         refresh_every: int,
         outlier_distance: float | None,
     ) -> dict[str, Any]: ...
+
+def camera_project(
+    points: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    width: int,
+    height: int,
+) -> NDArray[np.float64]: ...
+def active_contour(
+    image: NDArray[np.float64],
+    init: NDArray[np.float64],
+    *,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    kappa: float,
+    max_move: float,
+    spacing: float,
+    min_spacing: float,
+    max_spacing: float,
+    max_iterations: int,
+    tolerance: float,
+    window: int,
+    min_area: float,
+) -> tuple[NDArray[np.float64], str, int, int]: ...
+def lsm_match_patches(
+    template: NDArray[np.float32],
+    points: NDArray[np.float64],
+    search_images: list[NDArray[np.float32]],
+    initial: NDArray[np.float64],
+    epipolar: NDArray[np.float64] | None = None,
+    *,
+    size: int = 11,
+    max_iterations: int = 30,
+    tolerance: float = 0.01,
+    max_shift: float = 5.0,
+    max_scale: float = 3.0,
+    min_texture: float = 0.0,
+    line_sigma: float = 0.0,
+    shift_only_iterations: int = 1,
+    interpolation: str = "bicubic",
+    threads: int | None = None,
+) -> tuple[
+    NDArray[np.uint8],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.uint32],
+    NDArray[np.float64],
+]: ...

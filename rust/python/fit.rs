@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::elastic::ElasticCore;
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::fit::{fit_frame, FitOptions, FitWorkspace, FrameMetrics};
 use crate::grid_sample::GridField;
 
@@ -87,8 +87,7 @@ impl FitCore {
                     .map(Workspace::Planar)
             }
             (None, None) => unreachable!("a model is 2-D or 3-D"),
-        }
-        .map_err(|e| to_py(py, e))?;
+        }?;
         Ok(Self {
             model,
             workspace: Mutex::new(workspace),
@@ -128,8 +127,7 @@ impl FitCore {
             [shape[0], shape[1], shape[2]],
             origin,
             spacing,
-        )
-        .map_err(|e| to_py(py, e))?;
+        )?;
         let options = FitOptions {
             stiffness,
             contact,
@@ -151,9 +149,7 @@ impl FitCore {
         let (positions, m) = match (&mut *workspace, core.spatial(), core.planar()) {
             (Workspace::Spatial(w), Some(model), _) => {
                 let start = rows::<3>(&start, "start")?;
-                let (x, m) = py
-                    .detach(|| fit_frame(model, w, &field, start, &options))
-                    .map_err(|e| to_py(py, e))?;
+                let (x, m) = py.detach(|| fit_frame(model, w, &field, start, &options))?;
                 (positions_out(py, x), m)
             }
             (Workspace::Planar(w), _, Some(model)) => {
@@ -163,9 +159,7 @@ impl FitCore {
                     )));
                 }
                 let start = rows::<2>(&start, "start")?;
-                let (x, m) = py
-                    .detach(|| fit_frame(model, w, &field, start, &options))
-                    .map_err(|e| to_py(py, e))?;
+                let (x, m) = py.detach(|| fit_frame(model, w, &field, start, &options))?;
                 (positions_out(py, x), m)
             }
             _ => unreachable!("the workspace matches the model's dimension"),

@@ -6,7 +6,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::lsm::{match_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS};
 
 type Matches<'py> = (
@@ -147,8 +147,7 @@ fn lsm_match_patches<'py>(
             },
             None => Ok(run()),
         })
-        .map_err(pyo3::exceptions::PyRuntimeError::new_err)?
-        .map_err(|e| to_py(py, e))?;
+        .map_err(pyo3::exceptions::PyRuntimeError::new_err)??;
     }
     Ok((
         status,

@@ -25,7 +25,7 @@ def _rot_x(degrees: float) -> list[list[float]]:
 
 def _ball(centre: tuple[float, float, float], skin: tuple[float, float, float]) -> dict[str, Any]:
     """A ball whose skin, alone, has semi-axes ``skin`` (metres)."""
-    return {"centre": list(centre), "radii": [round(s / SKIN_FRACTION, 6) for s in skin]}
+    return {"center": list(centre), "radii": [round(s / SKIN_FRACTION, 6) for s in skin]}
 
 
 def _joint(axis: str, lower: float, upper: float) -> dict[str, Any]:

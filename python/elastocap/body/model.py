@@ -6,7 +6,7 @@ The description is a readable dictionary (saved as JSON)::
      "parts": [{"name": "pelvis", "parent": null, "offset": [x, y, z],
                 "rest": [[3x3 rotation]],           # optional, default identity
                 "joints": [{"axis": [ax, ay, az], "limits": [lower_deg, upper_deg]}, ...],
-                "balls": [{"centre": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
+                "balls": [{"center": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
 
 Parents come before their children. A part's frame is its parent's frame moved to
 ``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, w, l)``),
@@ -22,6 +22,8 @@ The state layout is defined once, in ``rust/body.rs``: ``shape`` holds ``(l, w)`
 
 from __future__ import annotations
 
+import warnings
+
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,17 +34,22 @@ import trimesh
 from numpy.typing import NDArray
 from skimage import measure
 
-from elastocap import _core
+import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description
-from elastocap.camera import Camera
+from elastocap.cameras.camera import Camera
 
-__all__ = ["SKIN_LEVEL", "BodyModel", "BodyState"]
+__all__ = ["SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
 
 #: The skin is the level set ``F = SKIN_LEVEL`` of the field (SPEC 6: T = 0.5).
 SKIN_LEVEL = 0.5
 FORMAT = "elastocap body model 1"
+
+# The body model is z-up (its heading is the free root angle alpha, not the Euler-limited
+# beta); captures are y-up (DESIGN: the synthetic floor is y = 0). This rotation maps body
+# coordinates to a y-up world: ``world = Z_UP_TO_WORLD @ body``.
+Z_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]).T
 # Root translation is unbounded in practice; root angles are free but beta stays away from
 # the Euler singularity at +-90 degrees.
 _ROOT_LIMITS = [(-1e3, 1e3)] * 3 + [(-4 * np.pi, 4 * np.pi), (-1.45, 1.45), (-4 * np.pi, 4 * np.pi)]
@@ -121,7 +128,7 @@ class BodyModel:
         balls = [(i, b) for i, p in enumerate(parts) for b in p["balls"]]
         self._balls = (
             np.array([i for i, _ in balls], dtype=np.int64),
-            np.array([b["centre"] for _, b in balls], dtype=float).reshape(-1, 3),
+            np.array([b["center"] for _, b in balls], dtype=float).reshape(-1, 3),
             np.array([b["radii"] for _, b in balls], dtype=float).reshape(-1, 3),
         )
         self._core = _core.BodySkeleton(
@@ -133,6 +140,12 @@ class BodyModel:
             *self._balls,
         )
         self.part_names: list[str] = [p["name"] for p in parts]
+        #: Parent part of each part (-1 for the root), ``(P,) int64``.
+        self.parent = parent
+        self.parent.setflags(write=False)
+        #: Part of each metaball, ``(M,) int64``.
+        self.ball_part = self._balls[0].copy()
+        self.ball_part.setflags(write=False)
         self.n_motion: int = self._core.n_motion
         self.n_shape: int = self._core.n_shape
         limits = _ROOT_LIMITS + [np.radians(j["limits"]).tolist() for p in parts for j in p["joints"]]
@@ -243,7 +256,12 @@ class BodyModel:
     # -- pictures -------------------------------------------------------------------------
 
     def ball_centres(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """World centres ``(M, 3)`` and largest scaled radius ``(M,)`` of the metaballs."""
+        """Deprecated spelling of :meth:`ball_centers`."""
+        warnings.warn("BodyModel.ball_centres() is now ball_centers()", DeprecationWarning, stacklevel=2)
+        return self.ball_centers(state)
+
+    def ball_centers(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """World centers ``(M, 3)`` and largest scaled radius ``(M,)`` of the metaballs."""
         shape, _ = self.check_state(state)
         rotations, origins = self.pose(state)
         part, centre, radii = self._balls
@@ -255,7 +273,7 @@ class BodyModel:
         """A box (lower, upper corners, metres) that holds the skin: every ball's centre
         plus its largest radius (a lone ball's skin reaches 0.59 of it; overlaps a little
         more)."""
-        centres, reach = self.ball_centres(state)
+        centres, reach = self.ball_centers(state)
         return (centres - reach[:, None]).min(axis=0), (centres + reach[:, None]).max(axis=0)
 
     def skin_mesh(self, state: BodyState, *, spacing: float = 0.01) -> trimesh.Trimesh:
@@ -272,7 +290,7 @@ class BodyModel:
         counts = np.ceil((upper - lower) / h).astype(int) + 1
         axes = [lower[a] + h * np.arange(counts[a]) for a in range(3)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        values = self._core.field(*self.check_state(state), np.ascontiguousarray(grid))[0]
+        values = self._core.values(*self.check_state(state), np.ascontiguousarray(grid))
         volume = values.reshape(counts) - SKIN_LEVEL
         vertices, faces, _, _ = measure.marching_cubes(volume, level=0.0, spacing=(h, h, h))
         # skimage winds faces for a field increasing outwards; F decreases outwards.
@@ -365,11 +383,13 @@ def _normalise(description: Any) -> dict[str, Any]:
         for k, ball in enumerate(part.get("balls", [])):
             if not isinstance(ball, dict):
                 raise _bad(f"part {name!r}: balls[{k}] must be an object")
-            centre = _vector(ball.get("centre"), f"part {name!r} balls[{k}].centre", 3)
+            # "centre" is the spelling of descriptions written before 0.2.
+            key = "center" if "center" in ball else "centre"
+            centre = _vector(ball.get(key), f"part {name!r} balls[{k}].{key}", 3)
             radii = _vector(ball.get("radii"), f"part {name!r} balls[{k}].radii", 3)
             if min(radii) <= 0:
                 raise _bad(f"part {name!r} balls[{k}]: radii must be positive")
-            balls.append({"centre": centre, "radii": radii})
+            balls.append({"center": centre, "radii": radii})
         out.append(
             {
                 "name": name,

@@ -1,0 +1,271 @@
+"""Fitting an elastic model through a sequence of target shapes (SPEC 5; the paper's
+section 4): forward and backward from the rest frame, each frame starting from its
+neighbour's fit, one fixed surface topology throughout.
+
+The per-frame iteration runs in Rust (``rust/fit.rs``): rotations, the anisotropic
+surface-distance term with confidence weights and invalidated associations, the
+self-intersection term, and a PCG solve per iteration (block Jacobi plus a coarse
+correction on the rigid motions of node aggregates). 3-D models fit to signed distance
+fields (hulls, meshes); 2-D models (:meth:`ElasticModel.from_mask`) fit to binary masks in
+the same way, with their contour edges as the surface.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import trimesh
+from numpy.typing import NDArray
+
+import elastocap._core as _core
+from elastocap._core import InvalidInputError
+from elastocap.hull.voxelize import solid_voxels
+from elastocap.elastic.model import ElasticModel
+from elastocap.hull.grid import Grid
+from elastocap.hull.carve import Hull
+from elastocap.hull.sdf import SDF
+
+__all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
+
+
+@dataclass(frozen=True)
+class FrameFit:
+    """The fit of one frame.
+
+    Attributes
+    ----------
+    frame : int
+        Index of the target in the sequence.
+    positions : (N, 3) float64
+        Node positions, world units.
+    metrics : dict
+        SPEC 5's figures: ``distance_term`` (D), ``mean_distance`` / ``max_distance``
+        (|signed distance| of the surface nodes to the target, world units),
+        ``elastic_energy``, ``volume_ratio`` (surface volume over the rest surface's),
+        ``penetrating`` (surface nodes inside another part), ``invalidated``,
+        ``iterations``, ``solver_iterations``, ``solver_converged``, ``solver_seconds``
+        (assembly and linear solves), ``seconds``.
+    """
+
+    frame: int
+    positions: NDArray[np.float64]
+    metrics: dict[str, Any]
+
+
+@dataclass
+class SequenceFit:
+    """Fits of a sequence: ``fits[frame]`` for every fitted frame, one surface topology."""
+
+    model: ElasticModel
+    rest_frame: int
+    fits: dict[int, FrameFit] = field(default_factory=dict)
+
+    def surface(self, frame: int) -> trimesh.Trimesh:
+        """The fitted surface of ``frame`` (rest topology, world units)."""
+        return self.model.surface_at(self.fits[frame].positions)
+
+    @property
+    def frames(self) -> list[int]:
+        """The fitted frames, ascending."""
+        return sorted(self.fits)
+
+
+def target_field(target: Any) -> SDF:
+    """The signed distance field of a target: an :class:`SDF`, a :class:`Hull`, or a closed
+    trimesh (voxelised at 1/100 of its largest extent). Non-finite values (an empty or full
+    grid) are an error."""
+    if isinstance(target, SDF):
+        sdf = target
+    elif isinstance(target, Hull):
+        if not target.occupancy.any():
+            raise InvalidInputError("the hull is empty: every voxel was carved")
+        sdf = target.sdf()
+    elif isinstance(target, trimesh.Trimesh):
+        if not target.is_watertight:
+            raise InvalidInputError("a target mesh must be watertight")
+        lo, hi = target.bounds
+        h = float(np.max(hi - lo)) / 100
+        grid = Grid(lo - 5 * h, h, tuple(int(v) for v in np.ceil((hi - lo) / h).astype(int) + 11))
+        sdf = SDF.from_occupancy(solid_voxels(target, grid), grid)
+    else:
+        raise InvalidInputError(f"a target must be an SDF, a Hull or a trimesh.Trimesh, got {type(target).__name__}")
+    if not np.all(np.isfinite(sdf.values)):
+        raise InvalidInputError("the target's signed distance is not finite (an empty or completely full grid)")
+    return sdf
+
+
+def _mask_field(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
+    """A 2-D target: the signed distance (pixels) of a binary mask ``(H, W)`` as a grid one
+    voxel thick over the model's pixel coordinates, pixel ``(row, column)`` at ``(column,
+    row)``."""
+    from elastocap.hull.sdf import signed_distance
+
+    if isinstance(target, (SDF, Hull, trimesh.Trimesh)):
+        raise InvalidInputError(f"a 2-D model fits to masks (H, W), not to a 3-D {type(target).__name__}")
+    mask = np.asarray(target)
+    if mask.ndim != 2:
+        raise InvalidInputError(f"a 2-D target must be a mask of shape (H, W), got shape {mask.shape}")
+    inside = mask.astype(bool)
+    if not inside.any() or inside.all():
+        raise InvalidInputError("a target mask is empty or full: it has no contour to fit to")
+    values = signed_distance(np.ascontiguousarray(inside.T)[:, :, None])
+    return values, (0.0, 0.0, 0.0), 1.0
+
+
+def _field_arrays(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
+    """``(values, origin, spacing)`` of a 3-D :class:`SDF` or of :func:`_mask_field`'s tuple."""
+    if isinstance(target, SDF):
+        o = target.grid.origin
+        return np.ascontiguousarray(target.values, dtype=np.float64), (float(o[0]), float(o[1]), float(o[2])), float(target.grid.spacing)
+    values, origin, spacing = target
+    return np.ascontiguousarray(values, dtype=np.float64), origin, spacing
+
+
+def _frame_numbers(targets: Sequence[Any] | Mapping[int, Any]) -> list[int]:
+    """The frame numbers of ``targets``: a mapping's keys (ascending), or a sequence's
+    positions."""
+    if isinstance(targets, Mapping):
+        keys = list(targets.keys())
+        if not all(isinstance(key, (int, np.integer)) and not isinstance(key, bool) for key in keys):
+            raise InvalidInputError("targets given as a mapping must be keyed by int frame numbers")
+        return sorted(int(key) for key in keys)
+    if isinstance(targets, (str, bytes)) or not isinstance(targets, Sequence):
+        raise InvalidInputError(f"targets must be a sequence or a mapping of frame -> target, got {type(targets).__name__}")
+    return list(range(len(targets)))
+
+
+def fit_sequence(
+    model: ElasticModel,
+    targets: Sequence[Any] | Mapping[int, Any],
+    *,
+    rest_frame: int = 0,
+    stiffness: float = 1.0,
+    contact: float = 1.0,
+    max_iterations: int = 10,
+    invalidate: bool = True,
+    self_intersection: bool = True,
+    hold_contacts: bool = False,
+    predict: bool = True,
+    done: Mapping[int, NDArray[np.float64]] | None = None,
+    callback: Callable[[FrameFit], None] | None = None,
+) -> SequenceFit:
+    """Fit ``model`` (built from the rest frame's shape) to every target of a sequence.
+
+    Parameters
+    ----------
+    model : ElasticModel
+        A model with a surface: 3-D (:meth:`ElasticModel.from_mesh`) or 2-D
+        (:meth:`ElasticModel.from_mask`).
+    targets : sequence, or mapping of int frame number -> target
+        One target per frame. 3-D: :class:`SDF`, :class:`Hull` or closed trimesh, world
+        units. 2-D: binary masks ``(H, W)`` in the model's pixel coordinates ``(x, y) =
+        (column, row)``. A mapping is keyed by the capture's frame numbers (frames in
+        ascending order are neighbours, gaps allowed); a sequence's frame numbers are its
+        positions. Results, ``rest_frame`` and ``done`` use these frame numbers.
+    rest_frame : int
+        The frame the model was built from; fitting starts there (from the rest positions)
+        and runs forward to the last frame and backward to the first.
+    stiffness : float
+        alpha / beta of SPEC 5 in units of the shear modulus times the mean node spacing:
+        1 balances a node's elastic diagonal with a fully confident surface term; larger is
+        stiffer (smoother, less faithful to noisy hulls).
+    contact : float
+        gamma / beta, the weight of the self-intersection term (SPEC 5: 1).
+    max_iterations : int
+        Iterations per frame (SPEC 5: 10); a frame also stops when the last decrease of D
+        is below 1% of its total decrease.
+    invalidate, self_intersection : bool
+        Turn the invalidation of colliding associations and the self-intersection term on
+        or off.
+    hold_contacts : bool
+        Keep a node pushed out of another part in contact for the rest of its frame while
+        it stays near that part. Limbs pressed together (an arm on the chest) then end
+        with far fewer penetrating nodes (two blocks squeezed by 25%: 57 -> 20 of 606
+        surface nodes), but limbs that swing past each other are held back (horse gallop
+        at 2,500 nodes: mean drift 2.1% -> 2.7%), so it is off by default.
+    predict : bool
+        Start each frame from its neighbour's fit moved on by the neighbour's own motion
+        (constant velocity: ``2 x[f -/+ 1] - x[f -/+ 2]``) where both are fitted, instead
+        of from the neighbour's fit. Measured on the horse gallop (fast leg swings, up to
+        0.59 m per frame; benches/README.md): mean drift 2.85% -> 2.16% of the bounding-box
+        diagonal over one gallop cycle.
+    done : mapping of int to (N, 3) array, optional
+        Frames already fitted (e.g. read back after an interrupted run): they are not
+        refitted, and their neighbours start from them.
+    callback : callable, optional
+        Called with each new :class:`FrameFit` as soon as it is done (write it, show it).
+
+    Returns
+    -------
+    SequenceFit
+
+    Raises
+    ------
+    InvalidInputError
+        A 2-D model or one without a surface, ``rest_frame`` out of range, a bad target
+        (empty hull, non-watertight mesh), bad options.
+    ConvergenceError
+        A frame's system matrix is found not positive definite (it cannot be with a
+        positive stiffness; reported, not hidden). A linear solve that stops at its
+        iteration cap is not an error: the frame's ``solver_converged`` metric is False.
+    """
+    if len(model.surface_faces) == 0:
+        raise InvalidInputError(
+            "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
+        )
+    frames = _frame_numbers(targets)
+    if not frames:
+        raise InvalidInputError("targets is empty")
+    if rest_frame not in frames:
+        raise InvalidInputError(
+            f"rest_frame = {rest_frame} is not a frame of the targets (frames {frames[0]}..{frames[-1]})"
+        )
+    fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
+    rest_volume = model.enclosed_measure(model.nodes)
+    field_of = target_field if model.dim == 3 else _mask_field
+    result = SequenceFit(model, rest_frame)
+    previous = dict(done or {})
+    # (frame, the neighbour it starts from, the neighbour's neighbour): outward from the rest
+    # frame, in the order of the frame numbers.
+    rest = frames.index(rest_frame)
+    forward, backward = frames[rest:], frames[rest::-1]
+    order: list[tuple[int, int | None, int | None]] = [(rest_frame, None, None)]
+    for run in (forward, backward):
+        order += [(run[i], run[i - 1], run[i - 2] if i >= 2 else None) for i in range(1, len(run))]
+    for frame, neighbour, second in order:
+        if frame in previous:
+            result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
+            continue
+        if neighbour is None:
+            start = model.nodes
+        else:
+            start = result.fits[neighbour].positions
+            if predict and second is not None and second in result.fits:
+                # The elastic solve sees only the start, so a leg that swings 0.5 m per
+                # frame is met half-way instead of pulled back onto the nearest limb.
+                start = 2 * start - result.fits[second].positions
+        values, origin, spacing = _field_arrays(field_of(targets[frame]))
+        clock = time.perf_counter()
+        positions, metrics = fitter.fit_frame(
+            values,
+            origin,
+            spacing,
+            np.ascontiguousarray(start),
+            stiffness=stiffness,
+            contact=contact,
+            max_iterations=max_iterations,
+            invalidate=invalidate,
+            self_intersection=self_intersection,
+            hold_contacts=hold_contacts,
+        )
+        metrics["seconds"] = time.perf_counter() - clock
+        metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
+        fit = FrameFit(frame, positions, dict(metrics))
+        result.fits[frame] = fit
+        if callback is not None:
+            callback(fit)
+    return result

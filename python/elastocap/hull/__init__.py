@@ -1,0 +1,7 @@
+"""Visual hulls: voxel grids, hierarchical carving, signed distance fields."""
+
+from elastocap.hull.grid import Grid, space_seen_by
+from elastocap.hull.carve import Hull, visual_hull
+from elastocap.hull.sdf import SDF, signed_distance
+
+__all__ = ["Grid", "Hull", "SDF", "signed_distance", "space_seen_by", "visual_hull"]

@@ -1,0 +1,169 @@
+"""The fit stage of a capture, behind ``elastocap fit``: hulls (run if missing) -> an elastic
+model of the rest frame's hull -> every frame fitted -> files.
+
+Writes ``OUT/model/rest.npz`` (nodes, volumes, neighbours, surface nodes and faces, rest
+frame, options), ``OUT/fit/<frame:06d>.ply`` (the fitted surface: the same vertices and
+faces every frame) and ``.npz`` (node positions and the frame's metrics), and
+``OUT/metrics.json``. Every write is atomic and each frame is written as soon as it is
+fitted, so an interrupted run resumes without refitting finished frames (they are read
+back and their neighbours start from them).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from elastocap._core import InvalidInputError
+from elastocap._io import save_bytes, save_mesh, save_npz
+from elastocap.capture.folder import Capture
+from elastocap.elastic.model import ElasticModel
+from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.pipeline.hull import load_hull, run_hull_stage
+
+__all__ = ["load_model", "run_fit_stage"]
+
+
+def _model_path(out: Path) -> Path:
+    return out / "model" / "rest.npz"
+
+
+def _fit_files(out: Path, frame: int) -> tuple[Path, Path]:
+    return out / "fit" / f"{frame:06d}.ply", out / "fit" / f"{frame:06d}.npz"
+
+
+def load_model(out: str | Path) -> tuple[ElasticModel, int]:
+    """The model written by :func:`run_fit_stage` and its rest frame (capture frame number)."""
+    with np.load(_model_path(Path(out))) as data:
+        model = ElasticModel(
+            data["nodes"],
+            data["volumes"],
+            k=int(data["k"]),
+            youngs=float(data["youngs"]),
+            poisson=float(data["poisson"]),
+            rotation=str(data["rotation"]),
+            # Models written before the penalty existed had none.
+            stabilization=float(data["stabilization"]) if "stabilization" in data else 0.0,
+            surface_nodes=data["surface_nodes"],
+            surface_faces=data["surface_faces"],
+        )
+        return model, int(data["rest_frame"])
+
+
+def run_fit_stage(
+    capture: Capture | str | Path,
+    out: str | Path,
+    *,
+    rest_frame: int | None = None,
+    n_nodes: int = 2500,
+    k: int = 20,
+    rotation: str = "warped",
+    stiffness: float = 1.0,
+    resolution: int = 128,
+    progress: bool = True,
+) -> SequenceFit:
+    """Fit every frame of a capture; returns the fit (finished frames read back).
+
+    Parameters
+    ----------
+    capture : Capture or path
+        The capture folder (with masks).
+    out : path
+        Output folder; ``hull/`` is filled first when frames are missing there.
+    rest_frame : int, optional
+        Capture frame number the model is built from (default: the first frame). Ignored
+        when ``out/model/rest.npz`` exists (a resumed run keeps its model).
+    n_nodes, k, rotation
+        As in :meth:`ElasticModel.from_mesh`.
+    stiffness : float
+        As in :func:`~elastocap.elastic.fit.fit_sequence`.
+    resolution : int
+        Voxels along the longest side of each hull.
+    progress : bool
+        Show progress bars.
+    """
+    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
+    out = Path(out)
+    frames = list(cap.frames)
+    run_hull_stage(cap, out, resolution=resolution, progress=progress)
+    if _model_path(out).exists():
+        model, rest = load_model(out)
+    else:
+        rest = frames[0] if rest_frame is None else int(rest_frame)
+        if rest not in frames:
+            raise InvalidInputError(f"rest frame {rest} is not in the capture (it has {frames[0]}..{frames[-1]})")
+        model = ElasticModel.from_mesh(load_hull(out, rest).mesh(), n_nodes=n_nodes, k=k, rotation=rotation)
+        save_npz(
+            _model_path(out),
+            nodes=model.nodes,
+            volumes=model.volumes,
+            neighbors=model.neighbors,
+            surface_nodes=model.surface_nodes,
+            surface_faces=model.surface_faces,
+            rest_frame=np.int64(rest),
+            k=np.int64(model.k),
+            youngs=np.float64(model.youngs),
+            poisson=np.float64(model.poisson),
+            rotation=np.str_(model.rotation),
+            stabilization=np.float64(model.stabilization),
+        )
+    done: dict[int, np.ndarray] = {}
+    for frame in frames:
+        ply, npz = _fit_files(out, frame)
+        if ply.exists() and npz.exists():
+            with np.load(npz, allow_pickle=False) as data:
+                done[frame] = data["positions"]
+    bar = tqdm(total=len(frames), initial=len(done), desc="fit", unit="frame", disable=not progress)
+
+    def write(fit: FrameFit) -> None:
+        ply, npz = _fit_files(out, fit.frame)
+        save_npz(npz, positions=fit.positions, **{key: np.asarray(value) for key, value in fit.metrics.items()})
+        save_mesh(ply, model.surface_at(fit.positions))
+        bar.update(1)
+
+    targets = _LazyHulls(out, frames)
+    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, done=done, callback=write)
+    bar.close()
+    _write_metrics(out, result)
+    return result
+
+
+class _LazyHulls(Mapping[int, Any]):
+    """The capture's hulls by frame number, loaded when the fit reaches them."""
+
+    def __init__(self, out: Path, frames: list[int]) -> None:
+        self._out, self._frames = out, frames
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._frames)
+
+    def __getitem__(self, frame: int) -> Any:
+        if frame not in self._frames:
+            raise KeyError(frame)
+        return load_hull(self._out, frame)
+
+
+def _write_metrics(out: Path, result: SequenceFit) -> None:
+    per_frame = []
+    for frame in result.frames:
+        _, npz = _fit_files(out, frame)
+        with np.load(npz, allow_pickle=False) as data:
+            figures = {key: data[key].item() for key in data.files if key != "positions"}
+        per_frame.append({"frame": frame, **figures})
+    summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame}
+    for key in ("mean_distance", "max_distance", "volume_ratio", "seconds", "iterations", "penetrating"):
+        values = [f[key] for f in per_frame if key in f]
+        if values:
+            summary[f"{key}_mean"] = float(np.mean(values))
+            summary[f"{key}_max"] = float(np.max(values))
+            summary[f"{key}_min"] = float(np.min(values))
+    text = json.dumps({"summary": summary, "frames": per_frame}, indent=2)
+    save_bytes(out / "metrics.json", text.encode())
