@@ -9,6 +9,7 @@ from elastocap.stereo.calibration_rig import RigCalibration, calibrate_rig, cali
 from elastocap.stereo.disparity import DisparityMap, DisparityWarning, compute_disparity, disparity_range
 from elastocap.stereo.disparity_stage import PairDisparity, disparity_mask, disparity_to_points, pair_disparity, write_disparity
 from elastocap.stereo.rectify import RectifiedPair, rectify_pair
+from elastocap.stereo.intersection import Intersection, intersect, match_observations
 from elastocap.stereo.matching import PARAMETERS, Matches, MatchStatus, match_patches, noise_level
 
 __all__ = [
@@ -37,6 +38,9 @@ __all__ = [
     "random_board_poses",
     "rectify_pair",
     "write_disparity",
+    "Intersection",
+    "intersect",
+    "match_observations",
     "PARAMETERS",
     "MatchStatus",
     "Matches",
