@@ -142,7 +142,7 @@ def intersect(
     scale = max(float(np.max(np.linalg.norm(np.array([cam.center for cam in cams]), axis=1))), 1.0)
 
     blocks = cov.reshape(n, c, 2, c, 2)[:, np.arange(c), :, np.arange(c), :]  # (C, N, 2, 2)
-    observed = np.isfinite(obs).all(axis=2) & np.isfinite(blocks).all(axis=(2, 3)).T
+    observed: NDArray[np.bool_] = np.asarray(np.isfinite(obs).all(axis=2) & np.isfinite(blocks).all(axis=(2, 3)).T)
     used = observed.copy()
     normalised = np.full((n, c), np.nan)
     while True:
@@ -343,7 +343,7 @@ def _solve3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float6
 
 def _regular(a: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Which of the batched 3x3 matrices are finite and non-singular."""
-    ok = np.isfinite(a).all(axis=(1, 2))
+    ok: NDArray[np.bool_] = np.asarray(np.isfinite(a).all(axis=(1, 2)))
     ok[ok] = np.abs(np.linalg.det(a[ok])) > 0
     return ok
 
