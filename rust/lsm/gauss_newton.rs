@@ -47,21 +47,24 @@ impl State {
     }
 
     /// Applies a step `[d_u, d_v, D11, D12, D21, D22, gain, offset]`; returns the length
-    /// of the centre's move, search pixels.
-    fn apply(&mut self, step: &[f64; U]) -> f64 {
+    /// of the centre's move, search pixels, and the largest change of an entry of the
+    /// linear part `A` (search pixels per template pixel).
+    fn apply(&mut self, step: &[f64; U]) -> (f64, f64) {
         let [a11, a12, a21, a22] = self.a;
         let [du, dv, d11, d12, d21, d22, dgain, doffset] = *step;
         let shift = [a11 * du + a12 * dv, a21 * du + a22 * dv];
         self.b = [self.b[0] + shift[0], self.b[1] + shift[1]];
-        self.a = [
+        let a = [
             a11 * (1.0 + d11) + a12 * d21,
             a11 * d12 + a12 * (1.0 + d22),
             a21 * (1.0 + d11) + a22 * d21,
             a21 * d12 + a22 * (1.0 + d22),
         ];
+        let linear = (0..4).map(|i| (a[i] - self.a[i]).abs()).fold(0.0, f64::max);
+        self.a = a;
         self.gain += dgain;
         self.offset += doffset;
-        shift[0].hypot(shift[1])
+        (shift[0].hypot(shift[1]), linear)
     }
 }
 
@@ -340,7 +343,7 @@ pub(crate) fn match_image(
         let Some(step) = solve(&normal, &gradient, free, constraint) else {
             return Outcome::failed(Status::LowTexture, state, iterations);
         };
-        let shift = state.apply(&step);
+        let (shift, linear) = state.apply(&step);
         iterations = it as u32 + 1;
         let moved = (state.b[0] - start_b[0]).hypot(state.b[1] - start_b[1]);
         if !(moved <= options.max_shift)
@@ -350,7 +353,10 @@ pub(crate) fn match_image(
         {
             return Outcome::failed(Status::Diverged, state, iterations);
         }
-        if shift < options.tolerance {
+        // The centre's update alone (SPEC 7) can be small by chance while the shape is
+        // still far off (a first full step after the shift-only ones): the linear part
+        // must have settled too, to the same tolerance per template pixel.
+        if shift < options.tolerance && !(linear >= options.tolerance) {
             if shift_only {
                 shift_only = false;
             } else {

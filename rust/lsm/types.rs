@@ -5,7 +5,7 @@
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
 pub enum Status {
-    /// The shift update fell below the tolerance.
+    /// The shift update (and the change of the linear part) fell below the tolerance.
     Converged = 0,
     /// The estimate ran away: moved further than `max_shift` from its start, the affine
     /// map degenerated (scale outside `[1 / max_scale, max_scale]`, or a reflection), the
@@ -50,7 +50,8 @@ pub struct MatchOptions {
     /// Gauss-Newton iteration cap per search image.
     pub max_iterations: usize,
     /// Stop when the update of the matched centre is shorter than this, search-image
-    /// pixels (SPEC 7: 0.01).
+    /// pixels (SPEC 7: 0.01), and no entry of the affine map's linear part changes by more
+    /// than this (search pixels per template pixel).
     pub tolerance: f64,
     /// Diverged when the matched centre moves further than this from its start, pixels.
     pub max_shift: f64,

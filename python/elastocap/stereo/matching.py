@@ -156,7 +156,9 @@ def match_patches(
     max_iterations : int, optional, keyword-only
         Gauss-Newton iterations per search image. Default 30.
     tolerance : float, optional, keyword-only
-        Convergence: the update of the matched centre is shorter than this, pixels.
+        Convergence: the update of the matched centre is shorter than this, pixels (SPEC 7),
+        and no entry of the affine map's linear part changes by more than this (pixels per
+        pixel; a small centre update alone can come by chance while the shape is still off).
         Default 0.01.
     max_shift : float, optional, keyword-only
         Diverged when the centre moves further than this from its start, pixels. Default
