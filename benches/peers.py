@@ -704,6 +704,20 @@ def lsm_cases(repeats: int) -> list[dict[str, Any]]:
             template, points, search, initial=starts[:, None], threads=1, min_texture=4.0, interpolation=interpolation
         )
         row = _compare(f"lsm_11x11_one_thread_{interpolation}", len(points), ours, "cv2.findTransformECC(MOTION_AFFINE), one thread", ecc, repeats)
+        # CPU seconds too (this process, all threads): the machine is shared and loaded.
+        cpu_ours, cpu_peer = [], []
+        for _ in range(repeats):
+            start_cpu = time.process_time()
+            ours()
+            cpu_ours.append(time.process_time() - start_cpu)
+            start_cpu = time.process_time()
+            ecc()
+            cpu_peer.append(time.process_time() - start_cpu)
+        row.update(
+            ours_cpu_s=round(statistics.median(cpu_ours), 6),
+            peer_cpu_s=round(statistics.median(cpu_peer), 6),
+            cpu_ratio=round(statistics.median(cpu_peer) / statistics.median(cpu_ours), 2),
+        )
         m = ours()
         converged = m.status[:, 0] == 0
         error = np.linalg.norm(m.positions[:, 0] - truth, axis=1)

@@ -14,7 +14,8 @@ use super::types::{ImageView, Interpolation};
 pub(crate) struct TemplatePatch {
     /// Side of the patch.
     pub size: usize,
-    /// Offsets of each patch pixel from the centre, columns and rows.
+    /// Offsets of each patch pixel from the centre, columns and rows (zero-padded to a
+    /// multiple of eight).
     pub dx: Vec<f32>,
     /// See `dx`.
     pub dy: Vec<f32>,
@@ -158,8 +159,18 @@ impl TemplatePatch {
         let n = size * size;
         let h = (size / 2) as f32;
         self.size = size;
-        self.dx = (0..n).map(|i| (i % size) as f32 - h).collect();
-        self.dy = (0..n).map(|i| (i / size) as f32 - h).collect();
+        // Padded with zero offsets to whole groups of eight, so that the resampling
+        // computes positions eight lanes at a time without a remainder loop.
+        let padded = n.div_ceil(8) * 8;
+        let offset = |i: usize, along: fn(usize, usize) -> usize| {
+            if i < n {
+                along(i, size) as f32 - h
+            } else {
+                0.0
+            }
+        };
+        self.dx = (0..padded).map(|i| offset(i, |i, s| i % s)).collect();
+        self.dy = (0..padded).map(|i| offset(i, |i, s| i / s)).collect();
         self.value = vec![0.0; n];
         self.geo = vec![0.0; 6 * n];
         self.border = vec![0.0; (size + 2) * (size + 2)];
@@ -316,8 +327,40 @@ pub(crate) fn sample_search(
     ) {
         return false;
     }
+    #[cfg(target_arch = "x86_64")]
+    if wide() {
+        // SAFETY: `wide` checked that the CPU has AVX2 and FMA.
+        unsafe { resample_wide(image, a, b, patch, out, interpolation) };
+        return true;
+    }
     resample(image, a, b, patch, out, interpolation);
     true
+}
+
+/// Whether the CPU runs [`resample_wide`] (AVX2 and FMA, detected once; cached by std).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn wide() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// [`resample`] compiled for AVX2 and FMA: the eight-lane position and weight arithmetic
+/// vectorises in one register, and `floor` and the clamps become single instructions
+/// (the portable build targets SSE2). About half the time of an iteration.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA ([`wide`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn resample_wide(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    patch: &TemplatePatch,
+    out: &mut [f32],
+    interpolation: Interpolation,
+) {
+    resample(image, a, b, patch, out, interpolation);
 }
 
 /// A separable interpolation kernel of `TAPS` taps per axis, the first at `floor - FIRST`.
@@ -368,6 +411,7 @@ fn resample(
     }
 }
 
+#[inline(always)]
 fn resample_with<const TAPS: usize, K: Kernel<TAPS>>(
     image: &ImageView<'_>,
     a: [f64; 4],
@@ -394,8 +438,10 @@ fn resample_with<const TAPS: usize, K: Kernel<TAPS>>(
     let mut start = 0;
     while start < n {
         let m = LANES.min(n - start);
-        let (dx, dy) = (&patch.dx[start..start + m], &patch.dy[start..start + m]);
-        for l in 0..m {
+        // All eight lanes (the offsets are padded): a fixed trip count vectorises.
+        let dx: &[f32; LANES] = patch.dx[start..start + LANES].try_into().expect("padded");
+        let dy: &[f32; LANES] = patch.dy[start..start + LANES].try_into().expect("padded");
+        for l in 0..LANES {
             let u = frac[0] + a11 * dx[l] + a12 * dy[l];
             let v = frac[1] + a21 * dx[l] + a22 * dy[l];
             // Integral parts relative to the base are small: floor by a biased cast.
