@@ -394,9 +394,13 @@ class Capture:
         FileNotFoundError
             ``folder`` lacks a camera's folder.
         """
-        masks = _list_frames(Path(folder), self.cameras)
-        shared = set.intersection(*(set(table) for table in masks.values()))
-        return Capture(self.root, self.rig, self._images, masks, self._videos, sorted(shared & set(self._frames)))
+        # Masks elastocap wrote are numbered by capture frame already: no offsets.
+        masks = list_source([Path(folder)], self.cameras, {}, f"silhouettes in {folder}")
+        frames = {frame: present for frame, present in self._present.items()
+                  if all(frame in masks[name] for name in present)}
+        capture = Capture(self.root, self.rig, self.config, self._colour, masks, frames, dict(self.skipped))
+        capture.trimmed = dict(self.trimmed)
+        return capture
 
     # -- helpers --------------------------------------------------------------------------
 
