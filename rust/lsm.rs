@@ -11,13 +11,16 @@
 //! terms the shared template induces, for forward intersection). A bad patch never makes
 //! the batch fail: it gets its status.
 //!
-//! Submodules: [`sample`](self) (template patch and gradients, bilinear resampling),
-//! `gauss_newton` (one search image), `multi` (all search images of a point, joint
+//! Submodules: `sample` (template patch and gradients), `resample` (bilinear and bicubic
+//! resampling), `normal` (normal equations from patch sums), `gauss_newton` (one search
+//! image), `multi` (all search images of a point, joint
 //! covariance), `dense` (8x8 Cholesky), `types` (options, status, outputs).
 
 mod dense;
 mod gauss_newton;
 mod multi;
+mod normal;
+mod resample;
 mod sample;
 #[cfg(test)]
 mod tests;

@@ -10,7 +10,9 @@
 //! residual is exact, so a fit that matches is still a fixed point.
 
 use super::dense::{Cholesky, MAX};
-use super::sample::{dot, sample_search, sum, TemplatePatch};
+use super::normal::Sums;
+use super::resample::sample_search;
+use super::sample::{dot, TemplatePatch};
 use super::types::{ImageView, MatchOptions, Status};
 
 /// Unknowns per search image: `[d_u, d_v, D11, D12, D21, D22, gain, offset]`.
@@ -98,70 +100,6 @@ impl Line {
         c[0] = a11 * la + a21 * lb;
         c[1] = a12 * la + a22 * lb;
         (c, -self.signed_distance(state.b))
-    }
-}
-
-/// The per-iteration sums over the resampled search patch `S`: `sum g S` (6 geometric
-/// columns), `sum S`, `sum S^2`, `sum S T`.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct Sums {
-    pub geo_search: [f64; 6],
-    pub search: f64,
-    pub search_square: f64,
-    pub search_value: f64,
-}
-
-impl Sums {
-    pub fn new(patch: &TemplatePatch, samples: &[f32]) -> Self {
-        let n = patch.len();
-        let mut geo_search = [0.0; 6];
-        for (k, g) in geo_search.iter_mut().enumerate() {
-            *g = dot(&patch.geo[k * n..(k + 1) * n], samples);
-        }
-        Self {
-            geo_search,
-            search: sum(samples),
-            search_square: dot(samples, samples),
-            search_value: dot(samples, &patch.value),
-        }
-    }
-
-    /// The normal matrix `G^T G`, rows of `G` = `[g (6), S, 1]`.
-    fn normal(&self, patch: &TemplatePatch) -> [[f64; U]; U] {
-        let mut m = [[0.0; U]; U];
-        for k in 0..6 {
-            m[k][..6].copy_from_slice(&patch.geo_normal[k * 6..k * 6 + 6]);
-            m[k][6] = self.geo_search[k];
-            m[k][7] = patch.geo_sum[k];
-            m[6][k] = self.geo_search[k];
-            m[7][k] = patch.geo_sum[k];
-        }
-        m[6][6] = self.search_square;
-        m[6][7] = self.search;
-        m[7][6] = self.search;
-        m[7][7] = patch.len() as f64;
-        m
-    }
-
-    /// `G^T e` with the residual `e = T - offset - gain S`.
-    fn gradient(&self, patch: &TemplatePatch, state: &State) -> [f64; U] {
-        let (g, o) = (state.gain, state.offset);
-        let mut r = [0.0; U];
-        for k in 0..6 {
-            r[k] = patch.geo_value[k] - o * patch.geo_sum[k] - g * self.geo_search[k];
-        }
-        r[6] = self.search_value - o * self.search - g * self.search_square;
-        r[7] = patch.value_sum - o * patch.len() as f64 - g * self.search;
-        r
-    }
-
-    /// `e^T e` from the sums (for weights only: it cancels digits).
-    fn residual_square(&self, patch: &TemplatePatch, state: &State) -> f64 {
-        let (g, o, n) = (state.gain, state.offset, patch.len() as f64);
-        patch.value_square - 2.0 * o * patch.value_sum - 2.0 * g * self.search_value
-            + n * o * o
-            + 2.0 * o * g * self.search
-            + g * g * self.search_square
     }
 }
 

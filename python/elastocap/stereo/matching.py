@@ -134,7 +134,8 @@ def match_patches(
         The template image (grey levels).
     points : (N, 2) array_like of float
         Patch centres ``(u, v)`` in the template image, pixels (column, row; origin at
-        the centre of the top-left pixel). Sub-pixel positions are resampled bilinearly.
+        the centre of the top-left pixel). Sub-pixel positions are resampled as the search
+        images are (``interpolation``).
     search_images : (H_s, W_s) array_like, or a sequence of S of them
         The images to search (grey levels, any of the template's dtypes; their sizes may
         differ from the template's and from each other).
@@ -171,6 +172,12 @@ def match_patches(
         weakest direction; below it a point is :attr:`MatchStatus.LOW_TEXTURE`. Default:
         twice the template image's noise level (Immerkær's estimator, a robust figure of
         the image's white-noise standard deviation).
+    interpolation : {"bicubic", "bilinear"}, optional, keyword-only
+        Resampling of the search images (and of sub-pixel template points). ``"bilinear"``
+        is SPEC 7's; it damps and shifts the phase of texture near the Nyquist frequency,
+        which biases positions by ~0.02 px on sharp texture (benches/README.md), so the
+        default is ``"bicubic"`` (Keys' cubic convolution, a = -1/2; the patch must keep
+        one more pixel inside the image).
     threads : int, optional, keyword-only
         Worker threads (default: all cores, or ``RAYON_NUM_THREADS``).
 
@@ -195,7 +202,7 @@ def match_patches(
     ``papers/003_*.txt`` section 2): per search image the unknowns are the affine map
     ``(A, b)`` (6) and gain ``r1`` and offset ``r0`` (2), minimising
     ``sum_x (T(x) - r0 - r1 S(A x + b))^2`` over the template patch by Gauss-Newton with
-    bilinear resampling of ``S``. The update is composed on the template side, whose
+    bilinear (or bicubic) resampling of ``S``. The update is composed on the template side, whose
     gradients stand in for the resampled search patch's (they agree where the patches
     match), so the geometric part of the normal equations is computed once per point.
     The first iteration solves for shift, gain and offset only. The epipolar line is
