@@ -54,7 +54,7 @@ def _temple_images() -> tuple[np.ndarray, ...]:
     paths = sorted(TEMPLE.glob("templeSR*.png"))[::4]
     if not paths:
         pytest.skip(f"temple images not found in {TEMPLE}")
-    return tuple(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE).astype(np.float64) for p in paths)
+    return tuple(np.asarray(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), dtype=np.float64) for p in paths)
 
 
 def temple(rng: np.random.Generator) -> Texture:
