@@ -38,8 +38,9 @@ LEG_SWINGS = (-0.3, 0.3, 0.9)
 #: A result explaining this share of the observations is not restarted further.
 WELL_EXPLAINED = 0.98
 
-#: fit(state, shape, iterations, rays) -> (fitted state, final cost); shape None fits it.
-Fit = Callable[[BodyState, Any, int, "int | None"], tuple[BodyState, float]]
+#: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
+#: None uses all silhouette rays.
+Fit = Callable[[BodyState, Any, int, int | None], BodyState]
 #: score(state) -> (mean clipped distance of the observations from the skin, explained share)
 Score = Callable[[BodyState], tuple[float, float]]
 
@@ -81,7 +82,7 @@ def search_pose(
     for h in np.linspace(-np.pi, np.pi, headings, endpoint=False):
         for arms, legs in COARSE_STARTS:
             init = set_angles(start(h), {"l_upperarm.0": arms[0], "r_upperarm.0": arms[1], "l_thigh.0": legs[0], "r_thigh.0": legs[1]})
-            found = fit(init, shape, 25, 1000)[0]
+            found = fit(init, shape, 25, 1000)
             coarse.append((score(found)[0], found))
     coarse.sort(key=lambda c: c[0])
     carried: list[BodyState] = []
@@ -94,15 +95,15 @@ def search_pose(
     middle = []
     for found in carried:
         for init in (found, start(found.motion[3] + np.pi, found.motion)):
-            state = fit(init, shape, 30, 1200)[0]
+            state = fit(init, shape, 30, 1200)
             middle.append((score(state), state))
     middle.sort(key=lambda m: m[0][0])
-    state = fit(middle[0][1], None if fit_shape else shape, 60, None)[0]
+    state = fit(middle[0][1], None if fit_shape else shape, 60, None)
     best = (score(state), state)
 
     def attempt(trial: BodyState) -> None:
         nonlocal best
-        refined = fit(trial, None if fit_shape else shape, 30, 1200)[0]
+        refined = fit(trial, None if fit_shape else shape, 30, 1200)
         s = score(refined)
         if s[0] < best[0][0]:
             best = (s, refined)
@@ -114,13 +115,13 @@ def search_pose(
                 for bend in (0.0, 0.5):
                     if best[0][1] >= WELL_EXPLAINED:
                         return best[1]
-                    angles = {f"{side}_{root}.{k}": (angle if k == 0 else 0.0) for k in range(3)}
+                    angles: dict[str, float] = {f"{side}_{root}.{k}": (angle if k == 0 else 0.0) for k in range(3)}
                     name = f"{side}_{distal}.0"
                     if name in names:
                         i = names.index(name)
                         lo, hi = model.lower[i], model.upper[i]
                         # part-way into the joint's range, whichever its sign
-                        angles[name] = (1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi)
+                        angles[name] = float((1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi))
                     attempt(set_angles(best[1], angles))
     # Both legs: one leg on the other's data is not undone by moving one leg at a time.
     if best[0][1] < WELL_EXPLAINED:

@@ -272,9 +272,8 @@ class BodyTracker:
         if centre is None:
             raise InvalidInputError("the frame's observations do not locate the body")
 
-        def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> tuple[BodyState, float]:
-            result = self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays)
-            return result.states[0], result.final_cost
+        def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> BodyState:
+            return self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays).states[0]
 
         def score(state: BodyState) -> tuple[float, float]:
             d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
