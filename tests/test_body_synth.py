@@ -108,17 +108,23 @@ def test_body_stage_resumes_per_frame(body_capture: tuple[Path, Path], tmp_path:
     (out / "body" / "fit.json").unlink()
     (frames / "000001.json").unlink()
     stamp = (frames / "000000.json").stat().st_mtime_ns
-    calls: list[int] = []
-    real = stage.fit_body
+    calls: list[str] = []
+    tracker = stage.BodyTracker
 
-    def counting(*args: Any, **kwargs: Any) -> Any:
-        calls.append(len(args[1]))
-        return real(*args, **kwargs)
+    def counting(name: str) -> Any:
+        real = getattr(tracker, name)
 
-    monkeypatch.setattr(stage, "fit_body", counting)
+        def method(self: Any, *args: Any, **kwargs: Any) -> Any:
+            calls.append(name)
+            return real(self, *args, **kwargs)
+
+        return method
+
+    for name in ("update", "resume", "search"):
+        monkeypatch.setattr(tracker, name, counting(name))
     stage.run_body_stage(capture, out, max_rays_per_mask=600, progress=False)
-    # Frame 1's own fit and the joint fit; frame 0 (eight headings and a refinement) is not redone.
-    assert calls == [1, 2]
+    # Frame 0 resumed from its saved state (no pose search), frame 1 tracked from it.
+    assert calls == ["resume", "update"]
     assert (frames / "000000.json").stat().st_mtime_ns == stamp
     assert (frames / "000001.json").exists() and (out / "body" / "fit.json").exists()
     assert not list((out / "body").rglob(".*")), "temporary files left behind"

@@ -22,19 +22,10 @@ from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_samples
 from elastocap.body.model import SKIN_LEVEL, BodyModel, BodyState
+from elastocap.body.search import search_pose
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "observation_distances", "track_body"]
-
-#: Shoulder starts of the global search (left, right first shoulder angle, radians): both
-#: hanging, both reaching forward, one forward and one back (a walk's swing).
-ARM_STARTS = ((0.0, 0.0), (-1.0, -1.0), (-0.8, 0.8), (0.8, -0.8))
-
-#: Limb restarts of the search (first joint angle of the upper arm / thigh, radians).
-ARM_SWINGS = (-1.0, -0.4, 0.4, 1.0)
-LEG_SWINGS = (-0.3, 0.3, 0.9)
-#: A search result explaining this share of the observations is not refined further.
-WELL_EXPLAINED = 0.98
 
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
@@ -275,77 +266,23 @@ class BodyTracker:
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:
-        """The global pose search on one frame: the root at the centre of the data, upright,
-        at ``headings`` headings, each fitted briefly on a subset of the observations; the
-        two best by cost, and each turned round by half a turn (silhouettes and stereo look
-        alike from the front and the back), are fitted fully, and the one whose
-        observations lie closest to its skin is kept."""
+        """The global pose search on one frame (:func:`~elastocap.body.search.search_pose`):
+        the root at the centre of the data, ``headings`` headings."""
         centre = frame.centre()
         if centre is None:
             raise InvalidInputError("the frame's observations do not locate the body")
 
-        def start(heading: float, motion: NDArray[np.float64] | None = None) -> BodyState:
-            state = self.model.rest_state(position=centre).replace(shape=shape)
-            if motion is not None:
-                state = state.replace(motion=motion.copy())
-            state.motion[3] = heading
-            return state
+        def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> BodyState:
+            return self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays).states[0]
 
-        coarse = [
-            self._fit([frame], [self._arms(start(h), arms)], shape=shape, iterations=15, rays=400)
-            for h in np.linspace(-np.pi, np.pi, self.headings, endpoint=False)
-            for arms in ARM_STARTS
-        ]
-        best: tuple[BodyState, FrameQuality, float] | None = None
-        for fit in sorted(coarse, key=lambda f: f.final_cost)[:2]:
-            found = fit.states[0]
-            for init in (found, start(found.motion[3] + np.pi, found.motion)):
-                refined = self._fit([frame], [init], shape=None if fit_shape else shape, iterations=60)
-                state = refined.states[0]
-                d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
-                score = float(np.mean(np.minimum(d, 0.05))) if len(d) else 0.0
-                if best is None or score < best[2]:
-                    best = (state, self.quality(state, frame), score)
-        assert best is not None
-        # A limb can settle in a wrong valley (an arm twisted or swung the other way, a leg
-        # on the other leg's data) while the rest fits: while observations are left
-        # unexplained, each limb is restarted alone from a few swings, straight and bent,
-        # and a restart is kept when the observations end up closer to the skin.
-        state, quality, score = best
-        names = self.model.motion_names
-        for side in ("l", "r"):
-            for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
-                if quality.explained >= WELL_EXPLAINED:
-                    break
-                for angle in swings:
-                    for bend in (0.0, 0.5):
-                        motion = state.motion.copy()
-                        for k in range(3):
-                            name = f"{side}_{root}.{k}"
-                            if name in names:
-                                motion[names.index(name)] = angle if k == 0 else 0.0
-                        name = f"{side}_{distal}.0"
-                        if name in names:
-                            i = names.index(name)
-                            lo, hi = self.model.lower[i], self.model.upper[i]
-                            # part-way into the joint's range, whichever its sign
-                            motion[i] = (1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi)
-                        refined = self._fit([frame], [state.replace(motion=motion)], shape=None if fit_shape else shape, iterations=30, rays=1200)
-                        trial = refined.states[0]
-                        d = observation_distances(self.model, trial, frame.points, frame.origins, frame.directions, frame.side)
-                        trial_score = float(np.mean(np.minimum(d, 0.05))) if len(d) else 0.0
-                        if trial_score < score:
-                            state, quality, score = trial, self.quality(trial, frame), trial_score
-        return state, quality
+        def score(state: BodyState) -> tuple[float, float]:
+            d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
+            if len(d) == 0:
+                return 0.0, 1.0
+            return float(np.mean(np.minimum(d, 0.05))), float(np.mean(d <= EXPLAINED_DISTANCE))
 
-    def _arms(self, state: BodyState, arms: tuple[float, float]) -> BodyState:
-        """``state`` with the first shoulder angle of each arm set (radians): the fit
-        does not swing an arm from hanging to reaching forward on its own."""
-        motion = state.motion.copy()
-        for name, angle in zip(("l_upperarm.0", "r_upperarm.0"), arms):
-            if name in self.model.motion_names:
-                motion[self.model.motion_names.index(name)] = angle
-        return state.replace(motion=motion)
+        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings)
+        return state, self.quality(state, frame)
 
     def _predict(self) -> BodyState:
         last = self._states[-1]

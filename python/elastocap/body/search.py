@@ -1,0 +1,153 @@
+"""The global pose search of the body tracker (issue 16): :func:`search_pose`.
+
+Silhouettes and points do not say which data belong to which limb, so a local fit started
+upright at the wrong heading, or with the legs together while the subject strides, settles
+in a wrong valley: a leg on the other leg's data, the heading a quarter turn off. The search
+fits many starts briefly and keeps refining the ones that explain the observations best.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap.body.model import BodyModel, BodyState
+
+__all__ = ["ARM_STARTS", "LEG_STARTS", "search_pose"]
+
+#: Shoulder starts of the global search (left, right first shoulder angle, radians): both
+#: hanging, both reaching forward, one forward and one back (a walk's swing).
+ARM_STARTS = ((0.0, 0.0), (-1.0, -1.0), (-0.8, 0.8), (0.8, -0.8))
+#: Hip starts (left, right first hip angle, radians): together, and a stride either way.
+#: Started together, a leg of a striding subject often settles on the other leg's data.
+LEG_STARTS = ((0.0, 0.0), (0.35, -0.35), (-0.35, 0.35))
+#: The starts at each heading: each arm start with the legs together, each stride with the
+#: arms hanging.
+COARSE_STARTS = tuple((arms, LEG_STARTS[0]) for arms in ARM_STARTS) + tuple((ARM_STARTS[0], legs) for legs in LEG_STARTS[1:])
+#: Coarse results carried on to the middle stage (each also turned by half a turn).
+CARRIED = 4
+#: Coarse results whose headings differ by less than this (radians) are one valley.
+DISTINCT_HEADING = np.radians(30)
+
+#: Limb restarts (first joint angle of the upper arm / thigh, radians).
+ARM_SWINGS = (-1.0, -0.4, 0.4, 1.0)
+LEG_SWINGS = (-0.3, 0.3, 0.9)
+#: A result explaining this share of the observations is not restarted further.
+WELL_EXPLAINED = 0.98
+
+#: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
+#: None uses all silhouette rays.
+Fit = Callable[[BodyState, Any, int, int | None], BodyState]
+#: score(state) -> (mean clipped distance of the observations from the skin, explained share)
+Score = Callable[[BodyState], tuple[float, float]]
+
+
+def search_pose(
+    model: BodyModel, centre: NDArray[np.float64], shape: NDArray[np.float64], fit: Fit, score: Score, *, fit_shape: bool, headings: int
+) -> BodyState:
+    """The state that best explains one frame, from a global search.
+
+    1. Coarse: the root at ``centre``, upright, at ``headings`` headings times
+       :data:`COARSE_STARTS`, each fitted 25 iterations on a subset of the observations
+       with ``shape`` held, ranked by ``score`` (the observations' clipped distance from
+       the skin; the fit's cost is no ranking: it counts only the observations the fit
+       kept, and a fit in a wrong valley drops many).
+    2. Middle: the :data:`CARRIED` best of distinct headings, and each turned by half a
+       turn (front and back look alike), fitted 30 iterations on more observations; the
+       best by ``score`` is fitted fully.
+    3. Restarts, while observations stay unexplained: each limb alone from a few swings,
+       straight and bent; the legs swapped and restarted together from each stride.
+       A restart is kept when it explains the observations better.
+    """
+    names = model.motion_names
+
+    def start(heading: float, motion: NDArray[np.float64] | None = None) -> BodyState:
+        state = model.rest_state(position=centre).replace(shape=shape)
+        if motion is not None:
+            state = state.replace(motion=motion.copy())
+        state.motion[3] = heading
+        return state
+
+    def set_angles(state: BodyState, angles: dict[str, float]) -> BodyState:
+        motion = state.motion.copy()
+        for name, angle in angles.items():
+            if name in names:
+                motion[names.index(name)] = angle
+        return state.replace(motion=motion)
+
+    coarse = []
+    for h in np.linspace(-np.pi, np.pi, headings, endpoint=False):
+        for arms, legs in COARSE_STARTS:
+            init = set_angles(start(h), {"l_upperarm.0": arms[0], "r_upperarm.0": arms[1], "l_thigh.0": legs[0], "r_thigh.0": legs[1]})
+            found = fit(init, shape, 25, 1000)
+            coarse.append((score(found)[0], found))
+    coarse.sort(key=lambda c: c[0])
+    carried: list[BodyState] = []
+    for _, found in coarse:
+        # distinct headings: the best few of one valley would crowd out the others
+        if all(abs(_turn(found.motion[3] - c.motion[3])) > DISTINCT_HEADING for c in carried):
+            carried.append(found)
+        if len(carried) == CARRIED:
+            break
+    middle = []
+    for found in carried:
+        for init in (found, start(found.motion[3] + np.pi, found.motion)):
+            state = fit(init, shape, 30, 1200)
+            middle.append((score(state), state))
+    middle.sort(key=lambda m: m[0][0])
+    state = fit(middle[0][1], None if fit_shape else shape, 60, None)
+    best = (score(state), state)
+
+    def attempt(trial: BodyState) -> None:
+        nonlocal best
+        refined = fit(trial, None if fit_shape else shape, 30, 1200)
+        s = score(refined)
+        if s[0] < best[0][0]:
+            best = (s, refined)
+
+    # Each limb alone: an arm twisted or swung the other way, a leg bent the wrong way.
+    for side in ("l", "r"):
+        for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
+            for angle in swings:
+                for bend in (0.0, 0.5):
+                    if best[0][1] >= WELL_EXPLAINED:
+                        return best[1]
+                    angles: dict[str, float] = {f"{side}_{root}.{k}": (angle if k == 0 else 0.0) for k in range(3)}
+                    name = f"{side}_{distal}.0"
+                    if name in names:
+                        i = names.index(name)
+                        lo, hi = model.lower[i], model.upper[i]
+                        # part-way into the joint's range, whichever its sign
+                        angles[name] = float((1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi))
+                    attempt(set_angles(best[1], angles))
+    # Both legs: one leg on the other's data is not undone by moving one leg at a time.
+    if best[0][1] < WELL_EXPLAINED:
+        attempt(_legs_swapped(best[1], names))
+    for legs in LEG_STARTS:
+        for bends in ((0.0, 0.6), (0.6, 0.0), (0.3, 0.3)):
+            if best[0][1] >= WELL_EXPLAINED:
+                return best[1]
+            angles = {}
+            for side, hip, bend in zip("lr", legs, bends):
+                angles.update({f"{side}_thigh.0": hip, f"{side}_thigh.1": 0.0, f"{side}_thigh.2": 0.0, f"{side}_shin.0": -bend, f"{side}_foot.0": 0.0})
+            attempt(set_angles(best[1], angles))
+    return best[1]
+
+
+def _turn(angle: float) -> float:
+    """``angle`` wrapped into [-pi, pi)."""
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _legs_swapped(state: BodyState, names: list[str]) -> BodyState:
+    """``state`` with the legs' angles exchanged (mirrored: the hips' y and z axes flip)."""
+    motion = state.motion.copy()
+    for joint, sign in (("thigh.0", 1), ("thigh.1", -1), ("thigh.2", -1), ("shin.0", 1), ("foot.0", 1)):
+        left, right = f"l_{joint}", f"r_{joint}"
+        if left in names and right in names:
+            i, j = names.index(left), names.index(right)
+            motion[i], motion[j] = sign * state.motion[j], sign * state.motion[i]
+    return state.replace(motion=motion)
