@@ -150,6 +150,8 @@ class Capture:
         except FileNotFoundError as error:
             raise FileNotFoundError(f"capture {root} has no calibration: {error}") from None
         names = rig.names
+        for name in names:
+            _check_camera_name(name, root)
         unknown = sorted(set(settings.offsets) - set(names))
         if unknown:
             raise InvalidInputError(f"{CONFIG_NAME}: offsets name camera(s) {unknown} that the rig lacks")
@@ -394,9 +396,13 @@ class Capture:
         FileNotFoundError
             ``folder`` lacks a camera's folder.
         """
-        masks = _list_frames(Path(folder), self.cameras)
-        shared = set.intersection(*(set(table) for table in masks.values()))
-        return Capture(self.root, self.rig, self._images, masks, self._videos, sorted(shared & set(self._frames)))
+        # Masks elastocap wrote are numbered on the capture's time line: no offsets.
+        masks = list_source([Path(folder)], self.cameras, {}, "silhouettes")
+        frames = {f: cameras for f, cameras in self._present.items() if all(f in masks[n] for n in cameras)}
+        capture = Capture(self.root, self.rig, self.config, self._colour, masks, frames, dict(self.skipped))
+        capture.trimmed = self.trimmed
+        capture._videos = self._videos
+        return capture
 
     # -- helpers --------------------------------------------------------------------------
 
@@ -433,6 +439,17 @@ class Capture:
                 f"{label} is {width}x{height} but the calibration of camera {camera!r} says "
                 f"{expected.width}x{expected.height}"
             )
+
+
+def _check_camera_name(name: str, root: Path) -> None:
+    """Refuse a camera name that is not a plain file name: camera names become folder and
+    file names (``masks/<camera>/``, in the capture and in the output folder), so one
+    with a path in it could make elastocap read or write outside them."""
+    if name in (".", "..") or any(c in name for c in "/\\\0") or Path(name).is_absolute():
+        raise InvalidInputError(
+            f"capture {root}: camera name {name!r} is not a plain file name (no /, \\, NUL, '.' or '..'): "
+            "camera names become folder names"
+        )
 
 
 def _frame_number(frame: Any) -> int:

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_bytes, save_image, save_mesh
+from elastocap._io import load_npz, save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
 from elastocap.body.track import BodyTracker
@@ -33,22 +33,22 @@ def _stereo_points(out: Path, frame: int) -> tuple[NDArray[np.float64], NDArray[
     found = []
     path = out / "points" / f"{frame:06d}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as data:
-            points = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3)
-            sigma = np.asarray(data["sigma"], dtype=np.float64).reshape(-1) if "sigma" in data.files else np.full(len(points), 0.005)
-            found.append((points, sigma))
+        data = load_npz(path, required=("points",))
+        points = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3)
+        sigma = np.asarray(data["sigma"], dtype=np.float64).reshape(-1) if "sigma" in data else np.full(len(points), 0.005)
+        found.append((points, sigma))
     path = out / "tracks" / f"{frame:06d}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as data:
-            positions = np.asarray(data["positions"], dtype=np.float64).reshape(-1, 3)
-            ok = np.isfinite(positions).all(axis=1)
-            if "covariances" in data.files:
-                cov = np.asarray(data["covariances"], dtype=np.float64).reshape(-1, 3, 3)
-                sigma = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2) / 3, 1e-8))
-            else:
-                sigma = np.full(len(positions), 0.005)
-            ok &= np.isfinite(sigma)
-            found.append((positions[ok], sigma[ok]))
+        data = load_npz(path, required=("positions",))
+        positions = np.asarray(data["positions"], dtype=np.float64).reshape(-1, 3)
+        ok = np.isfinite(positions).all(axis=1)
+        if "covariances" in data:
+            cov = np.asarray(data["covariances"], dtype=np.float64).reshape(-1, 3, 3)
+            sigma = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2) / 3, 1e-8))
+        else:
+            sigma = np.full(len(positions), 0.005)
+        ok &= np.isfinite(sigma)
+        found.append((positions[ok], sigma[ok]))
     if not found:
         return None
     return np.concatenate([p for p, _ in found]), np.concatenate([s for _, s in found])

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_mesh, save_npz
+from elastocap._io import load_npz, save_mesh, save_npz
 from elastocap.cameras.rig import Rig
 from elastocap.capture.folder import Capture
 from elastocap.hull.grid import Grid, space_seen_by
@@ -28,16 +28,10 @@ __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_
 def with_masks(cap: Capture, out: str | Path) -> Capture:
     """``cap`` itself when it has ``masks/``, else the same capture with the masks that
     ``elastocap silhouettes`` wrote into ``out/masks`` (same layout), when there are any."""
-    from elastocap.capture.folder import _list_frames
-
     folder = Path(out) / "masks"
     if cap.has_masks or not folder.is_dir() or not all((folder / n).is_dir() for n in cap.rig.names):
         return cap
-    masks = _list_frames(folder, cap.rig.names)
-    common = set(cap.frames) if cap.frames else None
-    for name in cap.rig.names:
-        common = set(masks[name]) if common is None else common & set(masks[name])
-    return Capture(cap.root, cap.rig, cap._images, masks, cap._videos, sorted(common or ()))
+    return cap.with_masks(folder)
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
@@ -88,11 +82,15 @@ def load_hull(out: Path, frame: int) -> Hull:
     """The hull of ``frame`` written by :func:`run_hull_stage` into ``out``, with the signed
     distance the stage saved (float32, so the fit samples what was written, not a field
     computed again)."""
-    with np.load(_frame_files(Path(out), frame)[1], allow_pickle=False) as data:
-        grid = Grid(data["origin"], float(data["spacing"]), tuple(data["shape"]))
+    file = _frame_files(Path(out), frame)[1]
+    data = load_npz(file, required=("origin", "spacing", "shape", "occupancy"))
+    try:
+        grid = Grid(data["origin"], float(data["spacing"]), tuple(int(n) for n in data["shape"]))
         count = int(np.prod(grid.shape))
         occupancy = np.unpackbits(data["occupancy"], count=count).astype(bool).reshape(grid.shape)
-        sdf = SDF(data["sdf"], grid) if "sdf" in data.files else None
+        sdf = SDF(data["sdf"], grid) if "sdf" in data else None
+    except (ValueError, TypeError) as error:  # InvalidInputError is a ValueError too
+        raise InvalidInputError(f"{file}: not a hull written by elastocap ({error})") from None
     return Hull(occupancy, grid, sdf=sdf)
 
 

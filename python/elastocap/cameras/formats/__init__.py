@@ -55,6 +55,13 @@ FORMATS: dict[str, tuple[Callable[..., list[CameraRecord]], Callable[..., None],
 
 _YAML_SUFFIXES = (".yml", ".yaml", ".xml")
 
+# Largest calibration file read (a COLMAP images.txt with its 2-D points is the largest a
+# rig has): files from elsewhere are read whole, so their size is bounded first.
+MAX_CALIBRATION_BYTES = 256 << 20
+# The files a folder format reads.
+_FOLDER_FILES = ("intri.yml", "extri.yml", "cameras.txt", "images.txt", "cameras.bin", "images.bin",
+                 *opencv_stereo.SAMPLE_FILES)
+
 
 def _folder_format(folder: Path) -> tuple[str, Path]:
     """The calibration in a folder, by the first of these found: EasyMocap, rig.json,
@@ -142,9 +149,20 @@ def _check_format(fmt: Any) -> None:
 def read(path: Path, size: tuple[int, int] | None, fmt: str | None = None) -> list[CameraRecord]:
     """The cameras of the calibration at ``path`` (see :meth:`elastocap.Rig.load`)."""
     found, target = detect(path, fmt)
+    _check_sizes(target)
     if found == "json" and target.is_file() and _looks_like_nerf(target):
         found = "nerf"
     return FORMATS[found][0](target, size)
+
+
+def _check_sizes(target: Path) -> None:
+    files = [target] if target.is_file() else [target / name for name in _FOLDER_FILES if (target / name).is_file()]
+    for file in files:
+        size = file.stat().st_size
+        if size > MAX_CALIBRATION_BYTES:
+            raise InvalidInputError(
+                f"{file}: {size} bytes is too large for a calibration file (at most {MAX_CALIBRATION_BYTES})"
+            )
 
 
 def _looks_like_nerf(file: Path) -> bool:
