@@ -18,6 +18,7 @@ from elastocap.body.fit import BodyObservations
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
 from elastocap.body.track import BodyTracker
 from elastocap.capture.folder import Capture
+from elastocap.hull.grid import check_baseline
 from elastocap.pipeline.hull import with_masks
 from elastocap.pipeline.pictures import contact_sheet
 from elastocap.render import render_silhouette
@@ -80,12 +81,17 @@ def run_body_stage(
     out = Path(out)
     cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"{cap} has no frames to fit (its masks/ or images/ folders hold no frame files)")
+    check_baseline(cap.rig)
     has_points = (out / "points").is_dir() or (out / "tracks").is_dir()
     if not cap.has_masks and not has_points:
         raise InvalidInputError(f"{cap} has no masks/ folder, nor OUT/masks, OUT/points or OUT/tracks: the body stage needs silhouettes or points")
     result_file = out / "body" / "fit.json"
     if result_file.exists():
         return result_file
+    # Before any fitting: an output folder that cannot be made stops the stage at once.
+    result_file.parent.mkdir(parents=True, exist_ok=True)
     model = BodyModel.default_human()
     names = cap.rig.names
     cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ Z_UP_TO_WORLD) for n in names}

@@ -124,7 +124,11 @@ def run_hull_stage(
     cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
     if not cap.has_masks:
         raise InvalidInputError(f"{cap} has no masks/ folder (nor OUT/masks from `elastocap silhouettes`): the hull stage needs silhouettes")
+    if not cap.frames:
+        raise InvalidInputError(f"{cap} has no frames to carve (its masks/ folders hold no frame files)")
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"frames: none asked for (the capture has frames {cap.frames[0]}..{cap.frames[-1]})")
     unknown = sorted(set(wanted) - set(cap.frames))
     if unknown:
         raise InvalidInputError(f"frames {unknown[:5]} are not in the capture (it has {cap.frames[0]}..{cap.frames[-1]})")
@@ -164,9 +168,13 @@ def parse_frames(text: str | None, available: list[int]) -> list[int] | None:
     try:
         if ":" in text:
             start, _, stop = text.partition(":")
-            lo = int(start) if start else available[0]
-            hi = int(stop) if stop else available[-1] + 1
-            return [f for f in available if lo <= f < hi]
+            lo = int(start) if start else available[0] if available else 0
+            hi = int(stop) if stop else available[-1] + 1 if available else 0
+            chosen = [f for f in available if lo <= f < hi]
+            if not chosen:
+                have = f"{available[0]}..{available[-1]}" if available else "none"
+                raise InvalidInputError(f"--frames {text} selects no frame of the capture (it has frames {have})")
+            return chosen
         return [int(text)]
     except ValueError:
         raise InvalidInputError(f"--frames must look like 'a:b' or 'a', got {text!r}") from None

@@ -303,6 +303,8 @@ def run_silhouettes_stage(
     cap = capture if isinstance(capture, Capture) else Capture.open(capture)
     out = Path(out)
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"{cap} has no frames to extract silhouettes from (no images/ or videos/ frames)")
     names = cap.rig.names
     tracker = SilhouetteTracker(cap.rig, **options)
 
