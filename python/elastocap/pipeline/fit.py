@@ -118,16 +118,19 @@ def run_fit_stage(
             stabilization=np.float64(model.stabilization),
         )
     done: dict[int, np.ndarray] = {}
+    done_metrics: dict[int, dict[str, Any]] = {}
     for frame in frames:
         ply, npz = _fit_files(out, frame)
         if ply.exists() and npz.exists():
-            positions = load_npz(npz, required=("positions",))["positions"]
+            data = load_npz(npz, required=("positions",))
+            positions = data["positions"]
             if positions.shape != model.nodes.shape or not np.isfinite(positions).all():
                 raise InvalidInputError(
                     f"{npz}: positions {positions.shape} are not the {model.nodes.shape} finite node positions of "
                     f"the model in {_model_path(out)}: remove it (or the output folder) to refit"
                 )
             done[frame] = positions
+            done_metrics[frame] = {key: value.item() for key, value in data.items() if key != "positions" and value.size == 1}
     bar = tqdm(total=len(frames), initial=len(done), desc="fit", unit="frame", disable=not progress)
 
     def write(fit: FrameFit) -> None:
@@ -139,6 +142,10 @@ def run_fit_stage(
     targets = _LazyHulls(out, frames)
     result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, done=done, callback=write)
     bar.close()
+    # Frames fitted before an interruption come back with their positions only: their
+    # figures are in their files, so a resumed run reports what an uninterrupted one does.
+    for frame, metrics in done_metrics.items():
+        result.fits[frame].metrics.update(metrics)
     _write_metrics(out, result)
     return result
 
