@@ -13,7 +13,10 @@ from elastocap._core import InvalidInputError
 
 def as_float_array(name: str, value: Any) -> NDArray[np.float64]:
     """``value`` as a C-contiguous float64 array; real numbers only (no bool, complex, object)."""
-    array = np.asarray(value)
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):  # ragged nested lists
+        raise InvalidInputError(f"{name} must be an array of numbers with one length per axis, got {value!r}"[:400]) from None
     if array.dtype.kind not in "fiu":
         raise InvalidInputError(f"{name} must hold real numbers, got dtype {array.dtype}")
     return np.ascontiguousarray(array, dtype=np.float64)
