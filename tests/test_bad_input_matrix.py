@@ -713,3 +713,147 @@ def _print_matrix():
     if os.environ.get("ELASTOCAP_PRINT_MATRIX"):
         for row, line in _MATRIX.items():
             print(f"{row}\t{line}", file=sys.__stderr__)
+
+
+# -- the Python entry points: every array argument x every way it can be wrong ------------------
+# Generated: for each entry point, its valid arguments, and for each array argument the
+# variants wrong shape, wrong dtype, NaN, inf, empty (those that apply to its kind). Each
+# must raise ElastocapError (InvalidInputError) whose message names the argument.
+
+
+def _valid_rig() -> elastocap.Rig:
+    cameras = []
+    for i, angle in enumerate((0.0, 2.1, 4.2)):
+        c, s = np.cos(angle), np.sin(angle)
+        R = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+        K = np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]])
+        cameras.append(elastocap.Camera(f"cam{i}", K, np.zeros(5), R, np.array([0.0, 0.0, 3.0]), *SIZE))
+    return elastocap.Rig(cameras)
+
+
+def _disc_mask() -> np.ndarray:
+    v, u = np.mgrid[: SIZE[1], : SIZE[0]]
+    return (u - 32) ** 2 + (v - 24) ** 2 < 100
+
+
+def _image(seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 255, (SIZE[1], SIZE[0], 3), dtype=np.uint8)
+
+
+# entry -> (call(**kwargs), valid kwargs, {argument: (kind, name the message must hold)})
+# kinds: "float" arrays (NaN / inf apply), "mask" / "image" arrays (integer-like).
+ENTRIES: dict[str, tuple[Callable[..., object], Callable[[], dict[str, object]], dict[str, tuple[str, str]]]] = {
+    "Camera": (
+        lambda **a: elastocap.Camera(**a),
+        lambda: {"name": "cam", "K": np.array([[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]]),
+                 "dist": np.zeros(5), "R": np.eye(3), "t": np.array([0.0, 0.0, 3.0]), "width": 64, "height": 48},
+        {"K": ("float", "K"), "dist": ("dist", "dist"), "R": ("float", "R"), "t": ("float", "t")},
+    ),
+    "Grid": (
+        lambda **a: elastocap.Grid(**a),
+        lambda: {"origin": np.zeros(3), "spacing": 0.1, "shape": (4, 4, 4)},
+        {"origin": ("float", "origin"), "spacing": ("scalar", "spacing"), "shape": ("shape", "shape")},
+    ),
+    "signed_distance": (
+        lambda **a: elastocap.signed_distance(**a),
+        lambda: {"occupancy": np.pad(np.ones((3, 3, 3), bool), 2), "spacing": 0.1},
+        {"occupancy": ("mask", "occupancy"), "spacing": ("scalar", "spacing")},
+    ),
+    "visual_hull": (
+        lambda **a: elastocap.visual_hull({f"cam{i}": m for i, m in enumerate(a.pop("masks"))}, **a),
+        lambda: {"masks": [_disc_mask()] * 3, "rig": _valid_rig(), "grid": elastocap.Grid(np.full(3, -0.5), 0.05, (20, 20, 20))},
+        {"masks": ("mask-list", "mask of camera 'cam")},
+    ),
+    "subtract_background": (
+        lambda **a: elastocap.subtract_background(**a),
+        lambda: {"image": _image(0), "background": _image(1)},
+        {"image": ("image", "image"), "background": ("image", "background")},
+    ),
+    "threshold_dark_background": (
+        lambda **a: elastocap.threshold_dark_background(**a),
+        lambda: {"image": _image(0)},
+        {"image": ("image", "image")},
+    ),
+    "clean_mask": (
+        lambda **a: elastocap.clean_mask(**a),
+        lambda: {"mask": _disc_mask()},
+        {"mask": ("mask", "mask")},
+    ),
+    "polar_rotation": (
+        lambda **a: elastocap.polar_rotation(**a),
+        lambda: {"matrices": np.tile(np.eye(3), (4, 1, 1))},
+        {"matrices": ("float", "matrices")},
+    ),
+    "ElasticModel": (
+        lambda **a: elastocap.ElasticModel(**a),
+        lambda: {"nodes": np.random.default_rng(0).random((60, 3)), "volumes": np.full(60, 1.0 / 60)},
+        {"nodes": ("float", "nodes"), "volumes": ("float", "volumes")},
+    ),
+}
+
+
+def _variants(kind: str, good: object) -> dict[str, object]:
+    """The wrong versions of a valid argument of ``kind``."""
+    if kind == "scalar":
+        return {"NaN": float("nan"), "inf": float("inf"), "zero": 0.0, "negative": -1.0, "wrong type": "0.1"}
+    if kind == "shape":
+        return {"wrong shape": (4, 4), "empty": (0, 4, 4), "negative": (4, -1, 4), "wrong dtype": (4.5, 4, 4)}
+    if kind == "dist":  # fewer coefficients than 5 (or none) are allowed: zeros
+        return {"wrong shape": np.zeros((3, 3)), "too long": np.zeros(15), "wrong dtype": np.zeros(5, complex),
+                "NaN": np.array([np.nan, 0, 0, 0, 0]), "inf": np.array([0, np.inf, 0, 0, 0])}
+    if kind == "mask-list":
+        mask = np.asarray(good)[0]
+        return {
+            "wrong shape": [mask[:, :-1]] * 3,
+            "wrong dtype": [mask.astype(complex)] * 3,
+            "NaN": [np.where(mask, np.nan, 0.0)] * 3,
+            "empty": [np.zeros((0, 0), bool)] * 3,
+            "mismatched sizes": [mask, mask[:-2], mask],
+        }
+    array = np.asarray(good)
+    variants: dict[str, object] = {
+        "wrong shape": array.reshape(-1)[:-1] if array.size > 1 else np.zeros((2, 2)),
+        "wrong dtype": array.astype(complex) if kind == "float" else array.astype(str),
+        "empty": array[:0],
+    }
+    if kind == "float":
+        for name, value in (("NaN", np.nan), ("inf", np.inf)):
+            bad = array.astype(np.float64).copy()
+            bad.flat[0] = value
+            variants[name] = bad
+    else:
+        bad = array.astype(np.float64)
+        bad.flat[0] = np.nan
+        variants["NaN"] = bad
+    return variants
+
+
+def _api_rows() -> dict[str, tuple[str, str, str]]:
+    rows = {}
+    for entry, (_, valid, arguments) in ENTRIES.items():
+        for argument, (kind, _) in arguments.items():
+            for variant in _variants(kind, valid()[argument]):
+                rows[f"{entry}({argument}): {variant}"] = (entry, argument, variant)
+    return rows
+
+
+API_ROWS = _api_rows()
+
+
+def test_the_valid_arguments_are_accepted() -> None:
+    """Else every API row would pass for the wrong reason."""
+    for entry, (call, valid, _) in ENTRIES.items():
+        call(**valid())
+
+
+@pytest.mark.parametrize("row", list(API_ROWS))
+def test_python_entry_point_row(row: str) -> None:
+    entry, argument, variant = API_ROWS[row]
+    call, valid, arguments = ENTRIES[entry]
+    kwargs = valid()
+    kind, named = arguments[argument]
+    kwargs[argument] = _variants(kind, kwargs[argument])[variant]
+    with pytest.raises(ElastocapError) as raised:
+        call(**kwargs)
+    assert named in str(raised.value), f"{row}: the message does not name {named!r}: {raised.value}"
+    _MATRIX[row] = f"{type(raised.value).__name__}: {raised.value}"[:300]

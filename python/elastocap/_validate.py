@@ -47,7 +47,9 @@ def as_count(name: str, value: Any, minimum: int = 1) -> int:
 
 
 def as_positive(name: str, value: Any) -> float:
-    """``value`` as a positive finite float."""
+    """``value`` as a positive finite float (a number, not a string that reads as one)."""
+    if isinstance(value, (str, bytes)):
+        raise InvalidInputError(f"{name} must be a number, got {value!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
-from elastocap._validate import as_positive
+from elastocap._validate import as_float_array, as_positive
 
 __all__ = ["Grid", "check_baseline", "space_seen_by"]
 
@@ -38,10 +38,13 @@ class Grid:
     shape: tuple[int, int, int]
 
     def __init__(self, origin: Any, spacing: float, shape: Any) -> None:
-        o = np.array(origin, dtype=np.float64).reshape(-1)
+        o = as_float_array("origin", origin).reshape(-1).copy()
         if o.shape != (3,) or not np.all(np.isfinite(o)):
             raise InvalidInputError(f"origin must be 3 finite numbers, got {origin!r}")
-        s = tuple(int(v) for v in np.asarray(shape).reshape(-1))
+        values = np.asarray(shape).reshape(-1)
+        if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or not np.all(values == np.round(values)):
+            raise InvalidInputError(f"shape must be 3 positive integers, got {shape!r}")
+        s = tuple(int(v) for v in values)
         if len(s) != 3 or min(s) < 1:
             raise InvalidInputError(f"shape must be 3 positive integers, got {shape!r}")
         o.flags.writeable = False
