@@ -857,3 +857,26 @@ def test_python_entry_point_row(row: str) -> None:
         call(**kwargs)
     assert named in str(raised.value), f"{row}: the message does not name {named!r}: {raised.value}"
     _MATRIX[row] = f"{type(raised.value).__name__}: {raised.value}"[:300]
+
+
+@pytest.mark.parametrize("row", ["hull: NaN in the calibration", "export: object array (pickle) in a fit frame",
+                                 "rig convert: COLMAP images.bin truncated"])
+def test_the_console_entry_point_exits_2_with_one_line(row: str, base: Path, tmp_path: Path,
+                                                       request: pytest.FixtureRequest) -> None:
+    """A few rows end to end through ``python -m elastocap``: exit status 2, one line on
+    stderr, no traceback."""
+    kind, spec = CLI_ROWS[row]
+    if kind == "capture":
+        argv, expected = _capture_row(*spec, tmp_path, base)  # type: ignore[misc]
+    elif kind == "fitted":
+        argv, expected = spec(tmp_path, request.getfixturevalue("fitted"))  # type: ignore[operator]
+    else:
+        argv, expected = spec(tmp_path, base)  # type: ignore[operator]
+    run = subprocess.run([sys.executable, "-m", "elastocap", *argv], capture_output=True, text=True,
+                         timeout=ROW_TIMEOUT, check=False)
+    assert run.returncode == 2, run.stderr
+    lines = [line for line in run.stderr.splitlines() if line.strip() and "Warning" not in line and not line.startswith("  ")]
+    assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
+    import re
+
+    assert re.search(expected, lines[0]), lines[0]

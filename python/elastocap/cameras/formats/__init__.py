@@ -23,6 +23,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
+import cv2
+
 from elastocap._core import InvalidInputError
 from elastocap.cameras.formats import (
     anipose,
@@ -152,7 +154,13 @@ def read(path: Path, size: tuple[int, int] | None, fmt: str | None = None) -> li
     _check_sizes(target)
     if found == "json" and target.is_file() and _looks_like_nerf(target):
         found = "nerf"
-    return FORMATS[found][0](target, size)
+    try:
+        return FORMATS[found][0](target, size)
+    except (cv2.error, UnicodeDecodeError) as error:
+        # OpenCV's FileStorage (EasyMocap, OpenCV stereo) fails this way on malformed nodes:
+        # an assertion, or a string that is not UTF-8.
+        text = (str(error).strip().splitlines() or ["parse error"])[-1]
+        raise InvalidInputError(f"{target}: not a readable {found} calibration ({type(error).__name__}: {text})") from None
 
 
 def _check_sizes(target: Path) -> None:
