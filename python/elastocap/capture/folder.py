@@ -396,12 +396,12 @@ class Capture:
         FileNotFoundError
             ``folder`` lacks a camera's folder.
         """
-        # Masks elastocap wrote are numbered on the capture's time line: no offsets.
-        masks = list_source([Path(folder)], self.cameras, {}, "silhouettes")
-        frames = {f: cameras for f, cameras in self._present.items() if all(f in masks[n] for n in cameras)}
+        # Masks elastocap wrote are numbered by capture frame already: no offsets.
+        masks = list_source([Path(folder)], self.cameras, {}, f"silhouettes in {folder}")
+        frames = {frame: present for frame, present in self._present.items()
+                  if all(frame in masks[name] for name in present)}
         capture = Capture(self.root, self.rig, self.config, self._colour, masks, frames, dict(self.skipped))
-        capture.trimmed = self.trimmed
-        capture._videos = self._videos
+        capture.trimmed = dict(self.trimmed)
         return capture
 
     # -- helpers --------------------------------------------------------------------------

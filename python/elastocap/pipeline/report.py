@@ -135,7 +135,7 @@ def add_body_section(page: Path, metrics: dict[str, Any]) -> Path:
         text = text[: text.index(_BODY_START)] + text[text.index(_BODY_END) + len(_BODY_END) :]
     rows = "".join(
         f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(metrics[k]))}</td></tr>"
-        for k in ("joint_angle_rms_deg", "leg_joint_angle_rms_deg", "status", "seconds_this_run")
+        for k in ("joint_angle_rms_deg", "leg_joint_angle_rms_deg", "explained", "seconds_this_run")
         if k in metrics
     )
     section = (
