@@ -16,8 +16,8 @@ elastocap``) to check the exit status and the absence of a traceback end to end.
 from __future__ import annotations
 
 import json
-import math
 import os
+import re
 import select
 import shutil
 import subprocess
@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 import elastocap
-from elastocap import ElastocapError, InvalidInputError
+from elastocap import ElastocapError
 from elastocap.synth.capture import write_synthetic_capture
 
 # Seconds a row may take before it counts as a hang: every row fails fast (its input is bad
@@ -678,8 +678,6 @@ def _check_answer(row: str, answer: dict, expected: str, argv: list[str]) -> str
     assert "Traceback" not in stderr and "panicked" not in stderr, f"{row}: {stderr}"
     errors = [line for line in stderr.splitlines() if ": error: " in line]
     assert len(errors) == 1, f"{row}: expected one error line, got {stderr!r}"
-    import re
-
     assert re.search(expected, errors[0]), f"{row}: the error does not name {expected!r}: {errors[0]}"
     return errors[0]
 
@@ -706,16 +704,17 @@ def test_command_line_row(row: str, server: _Server, base: Path, tmp_path: Path,
     _MATRIX[row] = line
 
 
-# What each row printed, for the closing note: ``pytest ... -s`` prints the matrix.
+# What each row ended with, for the closing note: ELASTOCAP_MATRIX_OUT=file.tsv writes the
+# matrix (row, error) there.
 _MATRIX: dict[str, str] = {}
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _print_matrix():
+def _write_matrix():
     yield
-    if os.environ.get("ELASTOCAP_PRINT_MATRIX"):
-        for row, line in _MATRIX.items():
-            print(f"{row}\t{line}", file=sys.__stderr__)
+    target = os.environ.get("ELASTOCAP_MATRIX_OUT")
+    if target:
+        Path(target).write_text("".join(f"{row}\t{line}\n" for row, line in _MATRIX.items()))
 
 
 # -- the Python entry points: every array argument x every way it can be wrong ------------------
@@ -880,6 +879,4 @@ def test_the_console_entry_point_exits_2_with_one_line(row: str, base: Path, tmp
     assert run.returncode == 2, run.stderr
     lines = [line for line in run.stderr.splitlines() if line.strip() and "Warning" not in line and not line.startswith("  ")]
     assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
-    import re
-
     assert re.search(expected, lines[0]), lines[0]
