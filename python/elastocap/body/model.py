@@ -199,6 +199,10 @@ class BodyModel:
             # A description whose fields have the wrong types or shapes.
             raise InvalidInputError(f"body model {path}: malformed description ({type(error).__name__}: {error})") from None
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The skeleton in the core does not pickle: rebuild it from the description.
+        return (BodyModel, (self.to_dict(),))
+
     def save(self, path: str | Path) -> None:
         """Writes the description as indented JSON."""
         Path(path).write_text(json.dumps(self._description, indent=1))
