@@ -421,7 +421,7 @@ OPTION_ROWS: dict[str, Callable[[Path, Path], tuple[list[str], str]]] = {}
 _FIRST = {"hull": "", "fit": "", "body": "", "capture": "", "silhouettes": "|OUT.*disparity|disparity mask"}
 for _command in ("hull", "body", "silhouettes"):
     OPTION_ROWS[f"{_command}: frames out of range"] = (
-        lambda c: lambda folder, base: ([c, str(base), "--out", str(folder / "out"), "--frames", "50:60", "--quiet"], r"frames|50")
+        lambda c: lambda folder, base: ([c, str(base), "--out", str(folder / "out"), "--frames", "50:60", "--quiet"], r"--frames 50:60 selects no frame")
     )(_command)
     OPTION_ROWS[f"{_command}: frames not a range"] = (
         lambda c: lambda folder, base: ([c, str(base), "--out", str(folder / "out"), "--frames", "one:two", "--quiet"], r"--frames.*'one:two'")

@@ -172,13 +172,14 @@ def parse_frames(text: str | None, available: list[int]) -> list[int] | None:
             start, _, stop = text.partition(":")
             lo = int(start) if start else available[0] if available else 0
             hi = int(stop) if stop else available[-1] + 1 if available else 0
-            chosen = [f for f in available if lo <= f < hi]
-            if not chosen:
-                have = f"{available[0]}..{available[-1]}" if available else "none"
-                raise InvalidInputError(f"--frames {text} selects no frame of the capture (it has frames {have})")
-            return chosen
-        return [int(text)]
+        else:
+            return [int(text)]
     except ValueError:
         raise InvalidInputError(f"--frames must look like 'a:b' or 'a', got {text!r}") from None
+    chosen = [f for f in available if lo <= f < hi]
+    if not chosen:
+        have = f"{available[0]}..{available[-1]}" if available else "none"
+        raise InvalidInputError(f"--frames {text} selects no frame of the capture (it has frames {have})")
+    return chosen
 
 
