@@ -13,7 +13,10 @@ from elastocap._core import InvalidInputError
 
 def as_float_array(name: str, value: Any) -> NDArray[np.float64]:
     """``value`` as a C-contiguous float64 array; real numbers only (no bool, complex, object)."""
-    array = np.asarray(value)
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):  # ragged nested lists
+        raise InvalidInputError(f"{name} must be an array of numbers with one length per axis, got {value!r}"[:400]) from None
     if array.dtype.kind not in "fiu":
         raise InvalidInputError(f"{name} must hold real numbers, got dtype {array.dtype}")
     return np.ascontiguousarray(array, dtype=np.float64)
@@ -44,7 +47,9 @@ def as_count(name: str, value: Any, minimum: int = 1) -> int:
 
 
 def as_positive(name: str, value: Any) -> float:
-    """``value`` as a positive finite float."""
+    """``value`` as a positive finite float (a number, not a string that reads as one)."""
+    if isinstance(value, (str, bytes)):
+        raise InvalidInputError(f"{name} must be a number, got {value!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):

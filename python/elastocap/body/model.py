@@ -191,7 +191,13 @@ class BodyModel:
             description = json.loads(text)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
             raise InvalidInputError(f"cannot read body model {path}: {error}") from None
-        return cls(description)
+        try:
+            return cls(description)
+        except InvalidInputError as error:
+            raise InvalidInputError(f"body model {path}: {error}") from None
+        except (ValueError, TypeError, KeyError, AttributeError, IndexError) as error:
+            # A description whose fields have the wrong types or shapes.
+            raise InvalidInputError(f"body model {path}: malformed description ({type(error).__name__}: {error})") from None
 
     def __reduce__(self) -> tuple[Any, ...]:
         # The skeleton in the core does not pickle: rebuild it from the description.

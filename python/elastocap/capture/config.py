@@ -35,6 +35,8 @@ __all__ = ["MISSING_POLICIES", "CaptureConfig", "CaptureWarning", "missing_polic
 MISSING_POLICIES = ("error", "skip", "present")
 CONFIG_NAME = "capture.toml"
 _KEYS = {"units", "up", "scale", "missing", "offsets"}
+# Largest capture.toml read (they hold a few lines).
+MAX_CONFIG_BYTES = 1 << 20
 
 
 class CaptureWarning(UserWarning):
@@ -57,6 +59,8 @@ def read_config(file: Path) -> CaptureConfig:
     """``file`` parsed and checked; the defaults when it does not exist."""
     if not file.exists():
         return CaptureConfig()
+    if file.stat().st_size > MAX_CONFIG_BYTES:
+        raise InvalidInputError(f"{file}: {file.stat().st_size} bytes is too large for a capture configuration")
     try:
         data = tomllib.loads(file.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:

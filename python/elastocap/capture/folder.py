@@ -150,6 +150,8 @@ class Capture:
         except FileNotFoundError as error:
             raise FileNotFoundError(f"capture {root} has no calibration: {error}") from None
         names = rig.names
+        for name in names:
+            _check_camera_name(name, root)
         unknown = sorted(set(settings.offsets) - set(names))
         if unknown:
             raise InvalidInputError(f"{CONFIG_NAME}: offsets name camera(s) {unknown} that the rig lacks")
@@ -437,6 +439,17 @@ class Capture:
                 f"{label} is {width}x{height} but the calibration of camera {camera!r} says "
                 f"{expected.width}x{expected.height}"
             )
+
+
+def _check_camera_name(name: str, root: Path) -> None:
+    """Refuse a camera name that is not a plain file name: camera names become folder and
+    file names (``masks/<camera>/``, in the capture and in the output folder), so one
+    with a path in it could make elastocap read or write outside them."""
+    if name in (".", "..") or any(c in name for c in "/\\\0") or Path(name).is_absolute():
+        raise InvalidInputError(
+            f"capture {root}: camera name {name!r} is not a plain file name (no /, \\, NUL, '.' or '..'): "
+            "camera names become folder names"
+        )
 
 
 def _frame_number(frame: Any) -> int:

@@ -168,6 +168,11 @@ def visual_hull(
         raise InvalidInputError(f"grid must be a Grid, got {type(grid)}")
     ordered = _masks_in_rig_order(masks, rig)
     cameras = rig.cameras
+    if as_count("tolerance", tolerance, minimum=0) >= len(cameras):
+        raise InvalidInputError(
+            f"tolerance must be below the number of cameras ({len(cameras)}): with {tolerance} cameras allowed "
+            "to disagree, nothing is carved"
+        )
     corners = grid.bounds[np.indices((2, 2, 2)).reshape(3, -1).T, [0, 1, 2]]
     for name, camera in zip(rig.names, cameras):
         if np.all(camera.to_camera(corners)[:, 2] <= 0):

@@ -11,9 +11,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
-from elastocap._validate import as_positive
+from elastocap._validate import as_float_array, as_positive
 
-__all__ = ["Grid", "space_seen_by"]
+__all__ = ["Grid", "check_baseline", "space_seen_by"]
 
 
 @dataclass(frozen=True)
@@ -38,10 +38,13 @@ class Grid:
     shape: tuple[int, int, int]
 
     def __init__(self, origin: Any, spacing: float, shape: Any) -> None:
-        o = np.array(origin, dtype=np.float64).reshape(-1)
+        o = as_float_array("origin", origin).reshape(-1).copy()
         if o.shape != (3,) or not np.all(np.isfinite(o)):
             raise InvalidInputError(f"origin must be 3 finite numbers, got {origin!r}")
-        s = tuple(int(v) for v in np.asarray(shape).reshape(-1))
+        values = np.asarray(shape).reshape(-1)
+        if values.dtype.kind not in "iuf" or not np.all(np.isfinite(values)) or not np.all(values == np.round(values)):
+            raise InvalidInputError(f"shape must be 3 positive integers, got {shape!r}")
+        s = tuple(int(v) for v in values)
         if len(s) != 3 or min(s) < 1:
             raise InvalidInputError(f"shape must be 3 positive integers, got {shape!r}")
         o.flags.writeable = False
@@ -100,10 +103,23 @@ class Grid:
         return (np.asarray(points, dtype=np.float64) - self.origin) / self.spacing
 
 
+def check_baseline(rig: Any) -> None:
+    """Refuse a rig of several cameras that all sit at one centre: views from one point
+    carry no depth, so neither carving nor the body fit can place anything."""
+    centres = np.array([c.center for c in rig.cameras])
+    middle = centres.mean(axis=0)
+    if len(centres) > 1 and np.linalg.norm(centres - middle, axis=1).max() <= 1e-9 * (1 + np.abs(middle).max()):
+        raise InvalidInputError(
+            f"all {len(centres)} cameras are at one centre {middle.tolist()}: views from one point carry no "
+            "depth; check the calibration's translations"
+        )
+
+
 def space_seen_by(rig: Any, *, samples: int = 48) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(lower (3,), upper (3,))``: the box around the space every camera of ``rig`` sees
     (see :meth:`Grid.seen_by`)."""
     cameras = list(rig.cameras)
+    check_baseline(rig)
     centres = np.array([c.center for c in cameras])
     middle = centres.mean(axis=0)
     reach = max(float(np.linalg.norm(centres - middle, axis=1).max()), 1e-9) * 1.5

@@ -24,6 +24,8 @@ def _occupancy(occupancy: Any) -> NDArray[np.bool_]:
     array = np.asarray(occupancy)
     if array.ndim != 3:
         raise InvalidInputError(f"occupancy must be a 3-D array (nx, ny, nz), got shape {array.shape}")
+    if array.size == 0:
+        raise InvalidInputError(f"occupancy is empty: shape {array.shape}")
     if array.dtype != np.bool_:
         if array.dtype.kind not in "biu":
             raise InvalidInputError(f"occupancy must be boolean (or 0/1 integers), got dtype {array.dtype}")
@@ -56,6 +58,8 @@ def signed_distance(occupancy: Any, spacing: float | Any = 1.0) -> NDArray[np.fl
     ``sampling=spacing`` (to rounding), computed in linear time in parallel.
     """
     occ = _occupancy(occupancy)
+    if isinstance(spacing, (str, bytes)):
+        raise InvalidInputError(f"spacing must be a number or 3 numbers, got {spacing!r}")
     s = np.broadcast_to(np.asarray(spacing, dtype=np.float64), (3,))
     if not np.all(np.isfinite(s) & (s > 0)):
         raise InvalidInputError(f"spacing must be positive and finite, got {spacing!r}")

@@ -13,11 +13,12 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_bytes, save_image, save_mesh
+from elastocap._io import load_npz, save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
 from elastocap.body.track import BodyTracker
 from elastocap.capture.folder import Capture
+from elastocap.hull.grid import check_baseline
 from elastocap.pipeline.hull import with_masks
 from elastocap.pipeline.pictures import contact_sheet
 from elastocap.render import render_silhouette
@@ -33,22 +34,22 @@ def _stereo_points(out: Path, frame: int) -> tuple[NDArray[np.float64], NDArray[
     found = []
     path = out / "points" / f"{frame:06d}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as data:
-            points = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3)
-            sigma = np.asarray(data["sigma"], dtype=np.float64).reshape(-1) if "sigma" in data.files else np.full(len(points), 0.005)
-            found.append((points, sigma))
+        data = load_npz(path, required=("points",))
+        points = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3)
+        sigma = np.asarray(data["sigma"], dtype=np.float64).reshape(-1) if "sigma" in data else np.full(len(points), 0.005)
+        found.append((points, sigma))
     path = out / "tracks" / f"{frame:06d}.npz"
     if path.exists():
-        with np.load(path, allow_pickle=False) as data:
-            positions = np.asarray(data["positions"], dtype=np.float64).reshape(-1, 3)
-            ok = np.isfinite(positions).all(axis=1)
-            if "covariances" in data.files:
-                cov = np.asarray(data["covariances"], dtype=np.float64).reshape(-1, 3, 3)
-                sigma = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2) / 3, 1e-8))
-            else:
-                sigma = np.full(len(positions), 0.005)
-            ok &= np.isfinite(sigma)
-            found.append((positions[ok], sigma[ok]))
+        data = load_npz(path, required=("positions",))
+        positions = np.asarray(data["positions"], dtype=np.float64).reshape(-1, 3)
+        ok = np.isfinite(positions).all(axis=1)
+        if "covariances" in data:
+            cov = np.asarray(data["covariances"], dtype=np.float64).reshape(-1, 3, 3)
+            sigma = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2) / 3, 1e-8))
+        else:
+            sigma = np.full(len(positions), 0.005)
+        ok &= np.isfinite(sigma)
+        found.append((positions[ok], sigma[ok]))
     if not found:
         return None
     return np.concatenate([p for p, _ in found]), np.concatenate([s for _, s in found])
@@ -80,12 +81,17 @@ def run_body_stage(
     out = Path(out)
     cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"{cap} has no frames to fit (its masks/ or images/ folders hold no frame files)")
+    check_baseline(cap.rig)
     has_points = (out / "points").is_dir() or (out / "tracks").is_dir()
     if not cap.has_masks and not has_points:
         raise InvalidInputError(f"{cap} has no masks/ folder, nor OUT/masks, OUT/points or OUT/tracks: the body stage needs silhouettes or points")
     result_file = out / "body" / "fit.json"
     if result_file.exists():
         return result_file
+    # Before any fitting: an output folder that cannot be made stops the stage at once.
+    result_file.parent.mkdir(parents=True, exist_ok=True)
     model = BodyModel.default_human()
     names = cap.rig.names
     cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ Z_UP_TO_WORLD) for n in names}

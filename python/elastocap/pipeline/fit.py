@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_bytes, save_mesh, save_npz
+from elastocap._io import load_npz, save_bytes, save_mesh, save_npz
 from elastocap.capture.folder import Capture
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
@@ -39,7 +39,10 @@ def _fit_files(out: Path, frame: int) -> tuple[Path, Path]:
 
 def load_model(out: str | Path) -> tuple[ElasticModel, int]:
     """The model written by :func:`run_fit_stage` and its rest frame (capture frame number)."""
-    with np.load(_model_path(Path(out))) as data:
+    file = _model_path(Path(out))
+    data = load_npz(file, required=("nodes", "volumes", "k", "youngs", "poisson", "rotation", "surface_nodes",
+                                    "surface_faces", "rest_frame"))
+    try:
         model = ElasticModel(
             data["nodes"],
             data["volumes"],
@@ -53,6 +56,8 @@ def load_model(out: str | Path) -> tuple[ElasticModel, int]:
             surface_faces=data["surface_faces"],
         )
         return model, int(data["rest_frame"])
+    except (ValueError, TypeError) as error:  # InvalidInputError is a ValueError too
+        raise InvalidInputError(f"{file}: not an elastic model written by elastocap ({error})") from None
 
 
 def run_fit_stage(
@@ -113,11 +118,19 @@ def run_fit_stage(
             stabilization=np.float64(model.stabilization),
         )
     done: dict[int, np.ndarray] = {}
+    done_metrics: dict[int, dict[str, Any]] = {}
     for frame in frames:
         ply, npz = _fit_files(out, frame)
         if ply.exists() and npz.exists():
-            with np.load(npz, allow_pickle=False) as data:
-                done[frame] = data["positions"]
+            data = load_npz(npz, required=("positions",))
+            positions = data["positions"]
+            if positions.shape != model.nodes.shape or not np.isfinite(positions).all():
+                raise InvalidInputError(
+                    f"{npz}: positions {positions.shape} are not the {model.nodes.shape} finite node positions of "
+                    f"the model in {_model_path(out)}: remove it (or the output folder) to refit"
+                )
+            done[frame] = positions
+            done_metrics[frame] = {key: value.item() for key, value in data.items() if key != "positions" and value.size == 1}
     bar = tqdm(total=len(frames), initial=len(done), desc="fit", unit="frame", disable=not progress)
 
     def write(fit: FrameFit) -> None:
@@ -129,6 +142,10 @@ def run_fit_stage(
     targets = _LazyHulls(out, frames)
     result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, done=done, callback=write)
     bar.close()
+    # Frames fitted before an interruption come back with their positions only: their
+    # figures are in their files, so a resumed run reports what an uninterrupted one does.
+    for frame, metrics in done_metrics.items():
+        result.fits[frame].metrics.update(metrics)
     _write_metrics(out, result)
     return result
 
@@ -155,8 +172,8 @@ def _write_metrics(out: Path, result: SequenceFit) -> None:
     per_frame = []
     for frame in result.frames:
         _, npz = _fit_files(out, frame)
-        with np.load(npz, allow_pickle=False) as data:
-            figures = {key: data[key].item() for key in data.files if key != "positions"}
+        data = load_npz(npz)
+        figures = {key: value.item() for key, value in data.items() if key != "positions" and value.size == 1}
         per_frame.append({"frame": frame, **figures})
     summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame}
     for key in ("mean_distance", "max_distance", "volume_ratio", "seconds", "iterations", "penetrating"):

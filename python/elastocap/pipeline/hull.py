@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
-from elastocap._io import save_mesh, save_npz
+from elastocap._io import load_npz, save_mesh, save_npz
 from elastocap.cameras.rig import Rig
 from elastocap.capture.folder import Capture
 from elastocap.hull.grid import Grid, space_seen_by
@@ -84,11 +84,15 @@ def load_hull(out: Path, frame: int) -> Hull:
     """The hull of ``frame`` written by :func:`run_hull_stage` into ``out``, with the signed
     distance the stage saved (float32, so the fit samples what was written, not a field
     computed again)."""
-    with np.load(_frame_files(Path(out), frame)[1], allow_pickle=False) as data:
-        grid = Grid(data["origin"], float(data["spacing"]), tuple(data["shape"]))
+    file = _frame_files(Path(out), frame)[1]
+    data = load_npz(file, required=("origin", "spacing", "shape", "occupancy"))
+    try:
+        grid = Grid(data["origin"], float(data["spacing"]), tuple(int(n) for n in data["shape"]))
         count = int(np.prod(grid.shape))
         occupancy = np.unpackbits(data["occupancy"], count=count).astype(bool).reshape(grid.shape)
-        sdf = SDF(data["sdf"], grid) if "sdf" in data.files else None
+        sdf = SDF(data["sdf"], grid) if "sdf" in data else None
+    except (ValueError, TypeError) as error:  # InvalidInputError is a ValueError too
+        raise InvalidInputError(f"{file}: not a hull written by elastocap ({error})") from None
     return Hull(occupancy, grid, sdf=sdf)
 
 
@@ -122,7 +126,11 @@ def run_hull_stage(
     cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
     if not cap.has_masks:
         raise InvalidInputError(f"{cap} has no masks/ folder (nor OUT/masks from `elastocap silhouettes`): the hull stage needs silhouettes")
+    if not cap.frames:
+        raise InvalidInputError(f"{cap} has no frames to carve (its masks/ folders hold no frame files)")
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"frames: none asked for (the capture has frames {cap.frames[0]}..{cap.frames[-1]})")
     unknown = sorted(set(wanted) - set(cap.frames))
     if unknown:
         raise InvalidInputError(f"frames {unknown[:5]} are not in the capture (it has {cap.frames[0]}..{cap.frames[-1]})")
@@ -162,11 +170,16 @@ def parse_frames(text: str | None, available: list[int]) -> list[int] | None:
     try:
         if ":" in text:
             start, _, stop = text.partition(":")
-            lo = int(start) if start else available[0]
-            hi = int(stop) if stop else available[-1] + 1
-            return [f for f in available if lo <= f < hi]
-        return [int(text)]
+            lo = int(start) if start else available[0] if available else 0
+            hi = int(stop) if stop else available[-1] + 1 if available else 0
+        else:
+            return [int(text)]
     except ValueError:
         raise InvalidInputError(f"--frames must look like 'a:b' or 'a', got {text!r}") from None
+    chosen = [f for f in available if lo <= f < hi]
+    if not chosen:
+        have = f"{available[0]}..{available[-1]}" if available else "none"
+        raise InvalidInputError(f"--frames {text} selects no frame of the capture (it has frames {have})")
+    return chosen
 
 

@@ -298,11 +298,13 @@ def run_silhouettes_stage(
     """
     from tqdm import tqdm
 
-    from elastocap._io import save_image
+    from elastocap._io import load_npz, save_image
 
     cap = capture if isinstance(capture, Capture) else Capture.open(capture)
     out = Path(out)
     wanted = list(cap.frames if frames is None else frames)
+    if not wanted:
+        raise InvalidInputError(f"{cap} has no frames to extract silhouettes from (no images/ or videos/ frames)")
     names = cap.rig.names
     tracker = SilhouetteTracker(cap.rig, **options)
 
@@ -318,8 +320,7 @@ def run_silhouettes_stage(
         points_file = out / "points" / f"{frame:06d}.npz"
         points = None
         if points_file.exists():
-            with np.load(points_file, allow_pickle=False) as data:
-                points = np.asarray(data["points"], dtype=np.float64)
+            points = np.asarray(load_npz(points_file, required=("points",))["points"], dtype=np.float64)
         masks = tracker.step({n: cap.image(n, frame) for n in names}, disparity_masks=disparity, points=points)
         for n in names:
             save_image(mask_path(n, frame), masks[n].astype(np.uint8) * 255)

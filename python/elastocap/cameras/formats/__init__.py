@@ -23,6 +23,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
+import cv2
+
 from elastocap._core import InvalidInputError
 from elastocap.cameras.formats import (
     anipose,
@@ -54,6 +56,13 @@ FORMATS: dict[str, tuple[Callable[..., list[CameraRecord]], Callable[..., None],
 }
 
 _YAML_SUFFIXES = (".yml", ".yaml", ".xml")
+
+# Largest calibration file read (a COLMAP images.txt with its 2-D points is the largest a
+# rig has): files from elsewhere are read whole, so their size is bounded first.
+MAX_CALIBRATION_BYTES = 256 << 20
+# The files a folder format reads.
+_FOLDER_FILES = ("intri.yml", "extri.yml", "cameras.txt", "images.txt", "cameras.bin", "images.bin",
+                 *opencv_stereo.SAMPLE_FILES)
 
 
 def _folder_format(folder: Path) -> tuple[str, Path]:
@@ -142,9 +151,26 @@ def _check_format(fmt: Any) -> None:
 def read(path: Path, size: tuple[int, int] | None, fmt: str | None = None) -> list[CameraRecord]:
     """The cameras of the calibration at ``path`` (see :meth:`elastocap.Rig.load`)."""
     found, target = detect(path, fmt)
+    _check_sizes(target)
     if found == "json" and target.is_file() and _looks_like_nerf(target):
         found = "nerf"
-    return FORMATS[found][0](target, size)
+    try:
+        return FORMATS[found][0](target, size)
+    except (cv2.error, UnicodeDecodeError) as error:
+        # OpenCV's FileStorage (EasyMocap, OpenCV stereo) fails this way on malformed nodes:
+        # an assertion, or a string that is not UTF-8.
+        text = (str(error).strip().splitlines() or ["parse error"])[-1]
+        raise InvalidInputError(f"{target}: not a readable {found} calibration ({type(error).__name__}: {text})") from None
+
+
+def _check_sizes(target: Path) -> None:
+    files = [target] if target.is_file() else [target / name for name in _FOLDER_FILES if (target / name).is_file()]
+    for file in files:
+        size = file.stat().st_size
+        if size > MAX_CALIBRATION_BYTES:
+            raise InvalidInputError(
+                f"{file}: {size} bytes is too large for a calibration file (at most {MAX_CALIBRATION_BYTES})"
+            )
 
 
 def _looks_like_nerf(file: Path) -> bool:

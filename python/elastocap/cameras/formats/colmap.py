@@ -208,7 +208,11 @@ def _shifted_number(value: float) -> str:
 def _content_lines(file: Path) -> list[tuple[int, str]]:
     if not file.exists():
         raise FileNotFoundError(f"COLMAP model file missing: {file}")
-    return [(i, line.strip()) for i, line in enumerate(file.read_text().splitlines(), start=1)]
+    try:
+        text = file.read_text()
+    except UnicodeDecodeError as error:
+        raise InvalidInputError(f"{file}: not a text file ({error})") from None
+    return [(i, line.strip()) for i, line in enumerate(text.splitlines(), start=1)]
 
 
 def read(folder: Path, size: tuple[int, int] | None) -> list[CameraRecord]:

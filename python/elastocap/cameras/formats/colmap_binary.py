@@ -9,6 +9,7 @@ off by one unit in the last place (about 1e-13 px). The text model is exact alwa
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, Sequence
@@ -100,11 +101,14 @@ def read(folder: Path, size: tuple[int, int] | None) -> list[CameraRecord]:
             image_id, camera_id = fields[0], fields[8]
             name = reader.name()
             (points,) = reader.unpack("Q")
-            if points > 1 << 40:
-                raise InvalidInputError(f"{images_file}: image {image_id} claims {points} 2-D points")
-            skipped = handle.read(24 * points)
-            if len(skipped) != 24 * points:
-                raise InvalidInputError(f"{images_file}: truncated (ends inside image {image_id}'s points)")
+            # Checked against what is left of the file before skipping: a corrupt count
+            # must not make a read allocate it.
+            if 24 * points > os.fstat(handle.fileno()).st_size - handle.tell():
+                raise InvalidInputError(
+                    f"{images_file}: truncated or corrupt (image {image_id} claims {points} 2-D points, "
+                    "more than the file holds)"
+                )
+            handle.seek(24 * points, os.SEEK_CUR)
             q, t = np.array(fields[1:5]), np.array(fields[5:8])
             poses.append((image_id, q, t, camera_id, name, f"{images_file}: image {image_id}"))
     return records(poses, intrinsics, size, folder)

@@ -109,7 +109,10 @@ def settle_size(
 
 def size_from_capture(folder: Path, name: str) -> tuple[int, int] | None:
     """(width, height) of camera ``name``'s first image, mask, background or video in a
-    capture folder, or None when there is none."""
+    capture folder, or None when there is none (or the name is not a plain file name,
+    which would look outside the folder; :class:`elastocap.Capture` refuses those)."""
+    if name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+        return None
     for sub in ("images", "masks", "mask"):
         directory = folder / sub / name
         if directory.is_dir():

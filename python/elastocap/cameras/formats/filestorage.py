@@ -62,18 +62,33 @@ def read_matrix(
             raise InvalidInputError(f"{file}: {key} is missing")
         return None
     if node.isMap():
-        try:
-            matrix = node.mat()
-        except cv2.error:
-            matrix = None
-        if matrix is None:
-            raise InvalidInputError(f"{file}: {key} is not a readable matrix (malformed numbers?)")
-        return np.asarray(matrix, dtype=np.float64)
+        return _opencv_matrix(node, key, file)
     if node.isSeq():
         values = [node.at(i) for i in range(node.size())]
         if all(v.isReal() or v.isInt() for v in values):
             return np.array([v.real() for v in values], dtype=np.float64)
     raise InvalidInputError(f"{file}: {key} is not a matrix (expected !!opencv-matrix)")
+
+
+def _opencv_matrix(node: cv2.FileNode, key: str, file: Path) -> NDArray[np.float64]:
+    """An ``!!opencv-matrix`` assembled from its fields, not by ``FileNode.mat()``: OpenCV
+    aborts the process (a double free) on some malformed ones, e.g. without ``cols``."""
+    rows, cols, dt, data = (node.getNode(field) for field in ("rows", "cols", "dt", "data"))
+    if not (rows.isInt() and cols.isInt() and dt.isString() and data.isSeq()):
+        raise InvalidInputError(f"{file}: {key} is not a readable matrix (an !!opencv-matrix needs rows, cols, dt and data)")
+    shape = (int(rows.real()), int(cols.real()))
+    if dt.string() not in _SINGLE_CHANNEL_TYPES:
+        raise InvalidInputError(f"{file}: {key}: element type dt = {dt.string()!r} is not a single-channel number type")
+    values = [data.at(i) for i in range(data.size())]
+    if min(shape) < 0 or len(values) != shape[0] * shape[1]:
+        raise InvalidInputError(f"{file}: {key}: {len(values)} values for a {shape[0]}x{shape[1]} matrix")
+    if not all(value.isReal() or value.isInt() for value in values):
+        raise InvalidInputError(f"{file}: {key} is not a readable matrix (malformed numbers?)")
+    return np.array([value.real() for value in values], dtype=np.float64).reshape(shape)
+
+
+# OpenCV's element types of one channel: unsigned / signed char, short, int, float, double.
+_SINGLE_CHANNEL_TYPES = ("u", "c", "w", "s", "i", "f", "d")
 
 
 def read_scalar(storage: cv2.FileStorage, key: str, file: Path) -> int | None:

@@ -31,7 +31,10 @@ NAME = "middlebury"
 def read(file: Path, size: tuple[int, int] | None) -> list[CameraRecord]:
     """A Middlebury multi-view ``*_par.txt``: a count, then ``name.png k11 .. k33 r11 .. r33
     t1 t2 t3`` per camera; the size from the image beside the file."""
-    lines = [line for line in file.read_text().splitlines() if line.strip()]
+    try:
+        lines = [line for line in file.read_text().splitlines() if line.strip()]
+    except UnicodeDecodeError as error:
+        raise InvalidInputError(f"{file}: not a text file ({error})") from None
     if not lines:
         raise InvalidInputError(f"{file}: empty, expected a camera count and one line per camera")
     try:

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import load_npz
 
 __all__ = ["MeshSequence", "frame_step", "load_fitted_sequence", "vertex_normals"]
 
@@ -70,10 +71,13 @@ def load_fitted_sequence(out: str | Path) -> MeshSequence:
     model_file = out / "model" / "rest.npz"
     if not model_file.exists():
         raise FileNotFoundError(f"no elastic model in {out} ({model_file} is missing): run the fit stage first")
-    with np.load(model_file, allow_pickle=False) as data:
+    data = load_npz(model_file, required=("surface_nodes", "surface_faces", "nodes"))
+    try:
         surface_nodes = np.asarray(data["surface_nodes"], dtype=np.int64)
         surface_faces = np.asarray(data["surface_faces"], dtype=np.int64)
-        rest = np.asarray(data["nodes"], dtype=np.float64)[surface_nodes]
+        rest = np.asarray(data["nodes"], dtype=np.float64).reshape(-1, 3)[surface_nodes]
+    except (ValueError, TypeError, IndexError) as error:
+        raise InvalidInputError(f"{model_file}: not an elastic model written by elastocap ({error})") from None
     local = np.full(int(surface_nodes.max()) + 1, -1, dtype=np.int64)
     local[surface_nodes] = np.arange(len(surface_nodes))
     faces = np.ascontiguousarray(local[surface_faces])
@@ -85,8 +89,11 @@ def load_fitted_sequence(out: str | Path) -> MeshSequence:
         raise FileNotFoundError(f"no fitted frame in {out / 'fit'}: run the fit stage first")
 
     def read(frame: int) -> NDArray[np.float64]:
-        with np.load(out / "fit" / f"{frame:06d}.npz", allow_pickle=False) as data:
-            return np.asarray(data["positions"], dtype=np.float64)[surface_nodes]
+        file = out / "fit" / f"{frame:06d}.npz"
+        positions = load_npz(file, required=("positions",))["positions"]
+        if positions.ndim != 2 or positions.shape[1] != 3 or len(positions) <= surface_nodes.max():
+            raise InvalidInputError(f"{file}: positions {positions.shape} do not belong to the model in {model_file}")
+        return np.asarray(positions, dtype=np.float64)[surface_nodes]
 
     return MeshSequence(frames=frames, faces=faces, rest=rest, read=read)
 

@@ -96,6 +96,10 @@ class ExportSettings:
     space: ExportSpace
 
 
+# Largest options file read (they hold a few lines).
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def read_config(path: str | Path) -> dict[str, Any]:
     """The TOML file at ``path`` as a dictionary.
 
@@ -105,10 +109,12 @@ def read_config(path: str | Path) -> dict[str, Any]:
         The file is not valid TOML (the message names the file and the line).
     """
     path = Path(path)
+    if path.is_file() and path.stat().st_size > MAX_CONFIG_BYTES:
+        raise InvalidInputError(f"{path}: {path.stat().st_size} bytes is too large for an options file")
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)
-    except tomllib.TOMLDecodeError as error:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise InvalidInputError(f"{path}: not a valid TOML file: {error}") from None
 
 
