@@ -10,42 +10,28 @@
 //! about as strong as a fully confident data term, whatever the units and material;
 //! $\gamma = $ `contact` (SPEC 5: $\gamma = \beta$).
 
-pub mod contact;
-pub mod surface;
+//!
+//! The steps, one file each: `associate` (surface, normals, associations, invalidation),
+//! [`contact`] (self-intersection), `stop` (SPEC 5 step 5), `assemble` (the system of the
+//! terms), `solve` (PCG, assembled or matrix-free); `workspace` keeps what lasts across
+//! frames, [`surface`] holds the surface geometry and the data term.
 
-use crate::efg::Block;
-use crate::elastic::{ElasticModel, Rotation};
+mod assemble;
+mod associate;
+pub mod contact;
+mod solve;
+mod stop;
+pub mod surface;
+mod workspace;
+
+use crate::elastic::ElasticModel;
 use crate::error::{Error, Result};
 use crate::grid_sample::Field;
-use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg, TwoLevel, STRENGTH};
-
-/// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
-struct FitOperator<'a, const D: usize> {
-    model: &'a ElasticModel<D>,
-    rotations: &'a [Block<D>],
-    alpha: f64,
-    extra: &'a [Block<D>],
-    stresses: Vec<Block<D>>,
-    slots: Vec<[f64; D]>,
-}
-
-impl<const D: usize> LinearOperator<D> for FitOperator<'_, D> {
-    fn len(&self) -> usize {
-        self.model.len()
-    }
-
-    fn apply(&mut self, x: &[[f64; D]], y: &mut [[f64; D]]) {
-        self.model
-            .apply_into(self.rotations, x, &mut self.stresses, &mut self.slots, y);
-        for ((yi, xi), e) in y.iter_mut().zip(x).zip(self.extra) {
-            for r in 0..D {
-                yi[r] = self.alpha * yi[r] + (0..D).map(|c| e[r][c] * xi[c]).sum::<f64>();
-            }
-        }
-    }
-}
-use contact::{find_contacts, hold_contacts, Contact};
-use surface::{associate, enclosed_measure, invalidate_collisions, vertex_normals, Association};
+use assemble::assemble;
+use associate::associate_surface;
+use contact::{contact_terms, find_contacts, Contact};
+use stop::StopRule;
+pub use workspace::FitWorkspace;
 
 /// The knobs of the per-frame iteration.
 #[derive(Debug, Clone, Copy)]
@@ -127,142 +113,29 @@ pub struct FrameMetrics {
     pub solver_seconds: f64,
 }
 
-/// What the iteration keeps across frames: the surface, the stiffness on its fixed pattern,
-/// the system matrix and the solver's work vectors.
-#[derive(Debug)]
-pub struct FitWorkspace<const D: usize> {
-    surface: Vec<u32>,
-    faces: Vec<[u32; D]>,
-    rest_surface: Vec<[f64; D]>,
-    support: Vec<f64>,
-    stiffness: BlockCsr<D>,
-    system: BlockCsr<D>,
-    pcg: Pcg<D>,
-    /// The two-level preconditioner, aggregated on the rest stiffness and kept (the
-    /// pattern does not change); its rigid modes follow the positions.
-    coarse: TwoLevel<D>,
-    spacing: f64,
-}
-
-impl<const D: usize> FitWorkspace<D> {
-    /// For `model` with surface nodes `surface` (model node indices) and its faces `faces`
-    /// (triangles in 3-D, contour edges in 2-D; model node indices, each a surface node).
-    /// Faces are reoriented outward if the surface encloses a negative measure.
+impl FitOptions {
+    /// Fails unless the weights and tolerances are finite and non-negative (the stiffness
+    /// positive).
     ///
     /// # Errors
-    /// [`Error::Empty`] without surface nodes or faces; [`Error::NodeIndex`] for an index
-    /// that is not a model node or a face corner that is not a surface node.
-    pub fn new(model: &ElasticModel<D>, surface: &[u32], faces: &[[u32; D]]) -> Result<Self> {
-        let n = model.len();
-        if surface.is_empty() || faces.is_empty() {
-            return Err(Error::Empty {
-                argument: if surface.is_empty() {
-                    "surface_nodes"
-                } else {
-                    "faces"
-                },
-                needed: 1,
-            });
-        }
-        let mut local = vec![u32::MAX; n];
-        for (at, &i) in surface.iter().enumerate() {
-            if i as usize >= n {
-                return Err(Error::NodeIndex {
-                    argument: "surface_nodes",
-                    position: at,
-                    index: i as usize,
-                    n,
+    /// [`Error::InvalidOption`] naming the first bad option.
+    pub fn check(&self) -> Result<()> {
+        for (argument, value) in [
+            ("stiffness", self.stiffness),
+            ("contact", self.contact),
+            ("stop_fraction", self.stop_fraction),
+            ("solver_tolerance", self.solver_tolerance),
+        ] {
+            if !(value.is_finite() && value >= 0.0) || (argument == "stiffness" && value <= 0.0) {
+                return Err(Error::InvalidOption {
+                    argument,
+                    value,
+                    expected: "a finite number, positive for stiffness and non-negative otherwise",
                 });
             }
-            local[i as usize] = at as u32;
         }
-        let faces = faces
-            .iter()
-            .enumerate()
-            .map(|(position, f)| {
-                let mut out = [0u32; D];
-                for (o, &i) in out.iter_mut().zip(f) {
-                    match local.get(i as usize) {
-                        Some(&l) if l != u32::MAX => *o = l,
-                        _ => {
-                            return Err(Error::NodeIndex {
-                                argument: "faces",
-                                position,
-                                index: i as usize,
-                                n,
-                            })
-                        }
-                    }
-                }
-                Ok(out)
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let rest_surface: Vec<[f64; D]> =
-            surface.iter().map(|&i| model.rest()[i as usize]).collect();
-        // Normals must point out of the body (the targets' distances are positive outside).
-        let mut faces = faces;
-        if enclosed_measure(&rest_surface, &faces) < 0.0 {
-            faces.iter_mut().for_each(|f| f.swap(0, 1));
-        }
-        let pattern = model.pattern();
-        let rows: Vec<&[u32]> = pattern
-            .indptr
-            .windows(2)
-            .map(|w| &pattern.indices[w[0]..w[1]])
-            .collect();
-        let mut stiffness = BlockCsr::<D>::from_pattern(&rows)?;
-        let eye = vec![identity(); n];
-        model.system_blocks(&eye, stiffness.blocks_mut())?;
-        let system = stiffness.zeros_like();
-        // Aggregated on the rest stiffness, so that a frame's result does not depend on
-        // which frame was fitted first (resumed runs match).
-        let coarse = TwoLevel::new(&stiffness, model.rest(), STRENGTH)?;
-        let mean_volume = model.volumes().iter().sum::<f64>() / n as f64;
-        Ok(Self {
-            rest_surface,
-            support: surface
-                .iter()
-                .map(|&i| model.support()[i as usize])
-                .collect(),
-            surface: surface.to_vec(),
-            faces,
-            stiffness,
-            system,
-            pcg: Pcg::new(),
-            coarse,
-            spacing: mean_volume.powf(1.0 / D as f64),
-        })
+        Ok(())
     }
-
-    /// Surface positions out of all positions.
-    fn surface_positions(&self, x: &[[f64; D]]) -> Vec<[f64; D]> {
-        self.surface.iter().map(|&i| x[i as usize]).collect()
-    }
-}
-
-/// $D$ of the associations at surface positions `xs`.
-fn distance_term<const D: usize>(xs: &[[f64; D]], found: &[Association<D>]) -> f64 {
-    xs.iter()
-        .zip(found)
-        .map(|(x, a)| {
-            let r: [f64; D] = std::array::from_fn(|i| x[i] - a.target[i]);
-            (0..D)
-                .map(|i| r[i] * (0..D).map(|j| a.weight[i][j] * r[j]).sum::<f64>())
-                .sum::<f64>()
-        })
-        .sum()
-}
-
-fn add_block<const D: usize>(target: &mut Block<D>, block: &Block<D>, scale: f64) {
-    for r in 0..D {
-        for c in 0..D {
-            target[r][c] += scale * block[r][c];
-        }
-    }
-}
-
-fn identity<const D: usize>() -> Block<D> {
-    std::array::from_fn(|r| std::array::from_fn(|c| if r == c { 1.0 } else { 0.0 }))
 }
 
 /// Fits one frame: from `start` (the neighbouring frame's fit) towards the zero level of
@@ -280,186 +153,81 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
     options: &FitOptions,
 ) -> Result<(Vec<[f64; D]>, FrameMetrics)> {
     model.check_positions(start)?;
-    for (argument, value) in [
-        ("stiffness", options.stiffness),
-        ("contact", options.contact),
-        ("stop_fraction", options.stop_fraction),
-        ("solver_tolerance", options.solver_tolerance),
-    ] {
-        if !(value.is_finite() && value >= 0.0) || (argument == "stiffness" && value <= 0.0) {
-            return Err(Error::InvalidOption {
-                argument,
-                value,
-                expected: "a finite number, positive for stiffness and non-negative otherwise",
-            });
-        }
-    }
+    options.check()?;
     let (_, mu) = model.lame();
     let alpha = options.stiffness / (mu * workspace.spacing);
-    let n = model.len();
     let mut x = start.to_vec();
     let mut metrics = FrameMetrics {
         solver_converged: true,
         ..FrameMetrics::default()
     };
-    let (mut first, mut previous) = (None::<f64>, None::<f64>);
-    let mut previous_contacts = 0;
+    let mut stop = StopRule::new(options.stop_fraction);
     let mut held: Vec<Contact<D>> = Vec::new();
     for iteration in 0..options.max_iterations {
         let rotations = model.rotations(&x)?;
-        let xs = workspace.surface_positions(&x);
-        let normals = vertex_normals(&xs, &workspace.faces);
-        let mut found = associate(target, &xs, &normals, &workspace.support);
-        metrics.invalidated = if options.invalidate {
-            invalidate_collisions(&mut found, &workspace.rest_surface, &workspace.support)
-        } else {
-            0
-        };
-        let mut contacts = if options.self_intersection {
-            find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support)
-        } else {
-            Vec::new()
-        };
-        let penetrating = contacts.len();
-        hold_contacts(&mut contacts, &held, &xs, &normals, &workspace.support);
-        // SPEC 5 step 5: stop when the last decrease is a small part of the total so far,
-        // unless penetrations are still being resolved (pushing nodes out of another part
-        // moves them off their targets, so D alone would stop those iterations early).
-        let d = distance_term(&xs, &found);
-        if let (Some(d0), Some(last)) = (first, previous) {
-            // Contacts present and not stalled (they appeared, or their count still falls).
-            let stalled = previous_contacts > 0 && penetrating >= previous_contacts;
-            let resolving = penetrating > 0 && !stalled;
-            if !resolving && d0 - d > 0.0 && last - d < options.stop_fraction * (d0 - d) {
-                break;
-            }
+        let surface = associate_surface(workspace, target, &x, options.invalidate);
+        metrics.invalidated = surface.invalidated;
+        let (contacts, penetrating) =
+            contact_terms(workspace, &surface, options.self_intersection, &held);
+        if stop.should_stop(surface.distance_term(), penetrating) {
+            break;
         }
-        first.get_or_insert(d);
-        previous = Some(d);
-        previous_contacts = penetrating;
         if options.hold_contacts {
             held.clone_from(&contacts);
         }
         metrics.iterations = iteration + 1;
-
-        // Data and contact terms: 3x3 blocks on surface nodes (E = W + gamma I).
-        let mut extra = vec![[[0.0; D]; D]; n];
-        for (&node, a) in workspace.surface.iter().zip(&found) {
-            add_block(&mut extra[node as usize], &a.weight, 1.0);
-        }
-        for c in &contacts {
-            add_block(
-                &mut extra[workspace.surface[c.node] as usize],
-                &c.weight,
-                options.contact,
-            );
-        }
-        let mut rhs: Vec<f64> = model
-            .rhs(&rotations)?
-            .into_iter()
-            .flatten()
-            .map(|v| alpha * v)
-            .collect();
-        let mut pull = |node: u32, weight: &Block<D>, t: &[f64; D], scale: f64| {
-            for r in 0..D {
-                rhs[node as usize * D + r] +=
-                    scale * (0..D).map(|c| weight[r][c] * t[c]).sum::<f64>();
-            }
-        };
-        for (&node, a) in workspace.surface.iter().zip(&found) {
-            pull(node, &a.weight, &a.target, 1.0);
-        }
-        for c in &contacts {
-            pull(
-                workspace.surface[c.node],
-                &c.weight,
-                &c.target,
-                options.contact,
-            );
-        }
-        let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
-        let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
+        let system = assemble(
+            model,
+            workspace,
+            &rotations,
+            &surface,
+            &contacts,
+            alpha,
+            options.contact,
+        )?;
         let clock = std::time::Instant::now();
-        let status = if options.matrix_free {
-            let mut diagonal = model.diagonal_blocks(&rotations)?;
-            for (d, e) in diagonal.iter_mut().zip(&extra) {
-                for r in 0..3 {
-                    for c in 0..3 {
-                        d[r][c] = alpha * d[r][c] + e[r][c];
-                    }
-                }
-            }
-            let mut preconditioner = BlockJacobi::from_diagonal(&diagonal)?;
-            let mut operator = FitOperator {
-                model,
-                rotations: &rotations,
-                alpha,
-                extra: &extra,
-                stresses: Vec::new(),
-                slots: Vec::new(),
-            };
-            workspace.pcg.solve_operator(
-                &mut operator,
-                &mut preconditioner,
-                &rhs,
-                &mut flat,
-                tolerance,
-                cap,
-            )?
-        } else {
-            // System: alpha S + E, assembled on the stiffness pattern.
-            if model.rotation() == Rotation::Warped {
-                model.system_blocks(&rotations, workspace.stiffness.blocks_mut())?;
-            }
-            workspace
-                .stiffness
-                .scale_into(alpha, &mut workspace.system)?;
-            let all: Vec<u32> = (0..n as u32).collect();
-            workspace.system.add_diagonal_blocks(1.0, &all, &extra)?;
-            if options.coarse {
-                // The coarse matrix once per frame (its modes change little between
-                // iterations; measured in benches/README.md), block Jacobi every time.
-                let coarse = &mut workspace.coarse;
-                if iteration == 0 {
-                    coarse.set_positions(&x)?;
-                    coarse.update(&workspace.system)?;
-                } else {
-                    coarse.update_smoother(&workspace.system)?;
-                }
-                workspace
-                    .pcg
-                    .solve(&workspace.system, coarse, &rhs, &mut flat, tolerance, cap)?
-            } else {
-                let mut preconditioner = BlockJacobi::new(&workspace.system)?;
-                workspace.pcg.solve(
-                    &workspace.system,
-                    &mut preconditioner,
-                    &rhs,
-                    &mut flat,
-                    tolerance,
-                    cap,
-                )?
-            }
-        };
+        let status = solve::solve(
+            model,
+            workspace,
+            &rotations,
+            &system,
+            alpha,
+            iteration == 0,
+            options,
+            &mut x,
+        )?;
         metrics.solver_iterations += status.iterations;
         metrics.solver_converged &= status.converged;
         metrics.solver_seconds += clock.elapsed().as_secs_f64();
-        x = flat.as_chunks::<D>().0.to_vec();
-        debug_assert_eq!(x.len(), n);
     }
-    // Figures at the returned positions.
-    let xs = workspace.surface_positions(&x);
-    let normals = vertex_normals(&xs, &workspace.faces);
-    let found = associate(target, &xs, &normals, &workspace.support);
-    metrics.distance_term = distance_term(&xs, &found);
-    let distances: Vec<f64> = found.iter().map(|a| a.distance.abs()).collect();
+    measure(model, workspace, target, &x, &mut metrics)?;
+    Ok((x, metrics))
+}
+
+/// SPEC 5's figures of a frame at its returned positions `x`, into `metrics`.
+fn measure<const D: usize, F: Field<D>>(
+    model: &ElasticModel<D>,
+    workspace: &FitWorkspace<D>,
+    target: &F,
+    x: &[[f64; D]],
+    metrics: &mut FrameMetrics,
+) -> Result<()> {
+    let surface = associate_surface(workspace, target, x, false);
+    metrics.distance_term = surface.distance_term();
+    let distances: Vec<f64> = surface.found.iter().map(|a| a.distance.abs()).collect();
     metrics.mean_distance = distances.iter().sum::<f64>() / distances.len() as f64;
     metrics.max_distance = distances.iter().copied().fold(0.0, f64::max);
-    metrics.elastic_energy = model.energy(&x, &model.rotations(&x)?)?;
+    metrics.elastic_energy = model.energy(x, &model.rotations(x)?)?;
     // Counted whether or not the term acted, so runs with it off can be compared.
-    metrics.penetrating =
-        find_contacts(&xs, &normals, &workspace.rest_surface, &workspace.support).len();
-    Ok((x, metrics))
+    let (positions, normals) = (&surface.positions, &surface.normals);
+    metrics.penetrating = find_contacts(
+        positions,
+        normals,
+        &workspace.rest_surface,
+        &workspace.support,
+    )
+    .len();
+    Ok(())
 }
 
 #[cfg(test)]

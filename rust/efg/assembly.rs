@@ -16,8 +16,10 @@
 
 use rayon::prelude::*;
 
-/// A $D \times D$ block, row-major.
-pub type Block<const D: usize> = [[f64; D]; D];
+use crate::linalg::{dot, mat_vec};
+
+/// A $D \times D$ block, row-major (a [`crate::linalg::Matrix`]).
+pub type Block<const D: usize> = crate::linalg::Matrix<D>;
 
 /// Where each node occurs in the neighbour lists, grouped by node: the transpose of the
 /// `(n, k)` lists, which turns every scatter over neighbourhoods into a parallel gather.
@@ -172,7 +174,7 @@ impl BlockPattern {
             let g = grad[p * k + a];
             match rotations {
                 None => g,
-                Some(r) => mul_vec(&r[p], &g),
+                Some(r) => mat_vec(&r[p], &g),
             }
         };
         let mut rows = Vec::with_capacity(self.len());
@@ -192,7 +194,7 @@ impl BlockPattern {
                 let slots = &self.slots[(first + o) * k..(first + o + 1) * k];
                 for (b, &slot) in slots.iter().enumerate() {
                     let gj = gradient(p, b);
-                    let dot: f64 = (0..D).map(|c| gi[c] * gj[c]).sum();
+                    let dot = dot(&gi, &gj);
                     let block = &mut row[slot as usize];
                     for r in 0..D {
                         for c in 0..D {
@@ -262,9 +264,4 @@ impl BlockPattern {
         }
         (indptr, indices, data)
     }
-}
-
-/// `r g`.
-pub fn mul_vec<const D: usize>(r: &Block<D>, g: &[f64; D]) -> [f64; D] {
-    std::array::from_fn(|a| (0..D).map(|b| r[a][b] * g[b]).sum())
 }

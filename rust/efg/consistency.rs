@@ -33,6 +33,7 @@
 use rayon::prelude::*;
 
 use super::assembly::Block;
+use crate::linalg::{dot, mat_vec};
 
 /// The penalty's per-neighbourhood data: offsets, weights and their moments.
 #[derive(Debug, Clone)]
@@ -119,10 +120,10 @@ impl<const D: usize> Consistency<D> {
         let (ga, gb) = (&grad[a], &grad[b]);
         let (wa, wb) = (self.weights[p * k + a], self.weights[p * k + b]);
         let (da, db) = (&self.offsets[p * k + a], &self.offsets[p * k + b]);
-        let dot = |u: &[f64; D], v: &[f64; D]| -> f64 { (0..D).map(|c| u[c] * v[c]).sum() };
         let mut l = -wa * dot(gb, da) - wb * dot(ga, db);
+        let second_gb = mat_vec(second, gb);
         for r in 0..D {
-            l += ga[r] * (0..D).map(|c| second[r][c] * gb[c]).sum::<f64>();
+            l += ga[r] * second_gb[r];
         }
         if a == b {
             l += wa;
@@ -155,7 +156,8 @@ impl<const D: usize> Consistency<D> {
     fn residual(&self, p: usize, a: usize, hood: &[u32], f: &Block<D>, x: &[[f64; D]]) -> [f64; D] {
         let d = &self.offsets[p * self.k + a];
         let (xj, xp) = (x[hood[a] as usize], x[hood[0] as usize]);
-        std::array::from_fn(|r| xj[r] - xp[r] - (0..D).map(|c| f[r][c] * d[c]).sum::<f64>())
+        let fd = mat_vec(f, d);
+        std::array::from_fn(|r| xj[r] - xp[r] - fd[r])
     }
 
     /// Node `p`'s contributions to $\partial E_s / \partial x$, one vector per neighbour
@@ -190,7 +192,7 @@ impl<const D: usize> Consistency<D> {
         }
         for (a, (o, g)) in out.iter_mut().zip(grad).enumerate() {
             for row in 0..D {
-                let tg: f64 = (0..D).map(|c| t[row][c] * g[c]).sum();
+                let tg = dot(&t[row], g);
                 o[row] -= s * tg;
                 if a == 0 {
                     o[row] -= s * sum[row];

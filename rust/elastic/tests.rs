@@ -3,6 +3,8 @@
 
 use super::*;
 use crate::efg::Plane;
+use crate::error::Error;
+use crate::linalg::{mat_mul, mat_vec};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -48,7 +50,7 @@ fn rotation3(angle: [f64; 3]) -> Block<3> {
         [c.sin(), c.cos(), 0.0],
         [0.0, 0.0, 1.0],
     ];
-    matmul(&rz, &matmul(&ry, &rx))
+    mat_mul(&rz, &mat_mul(&ry, &rx))
 }
 
 fn rotation2(angle: f64) -> Block<2> {
@@ -58,7 +60,7 @@ fn rotation2(angle: f64) -> Block<2> {
 fn moved<const D: usize>(rest: &[[f64; D]], r: &Block<D>, t: [f64; D]) -> Vec<[f64; D]> {
     rest.iter()
         .map(|x| {
-            let y = mul_vec(r, x);
+            let y = mat_vec(r, x);
             std::array::from_fn(|a| y[a] + t[a])
         })
         .collect()
@@ -121,7 +123,7 @@ fn perturbed<const D: usize>(rest: &[[f64; D]], seed: u64) -> Vec<[f64; D]> {
     rest.iter()
         .map(|x| {
             let y: [f64; D] = if D == 2 {
-                let v = mul_vec(&r, &[x[0], x[1]]);
+                let v = mat_vec(&r, &[x[0], x[1]]);
                 std::array::from_fn(|a| v[a])
             } else {
                 *x
@@ -150,7 +152,7 @@ fn consistency<const D: usize>(m: &ElasticModel<D>) {
     for (i, expected) in sx.iter().enumerate() {
         let mut y = [0.0; D];
         for at in pattern.indptr[i]..pattern.indptr[i + 1] {
-            let v = mul_vec(&blocks[at], &x[pattern.indices[at] as usize]);
+            let v = mat_vec(&blocks[at], &x[pattern.indices[at] as usize]);
             for a in 0..D {
                 y[a] += v[a];
             }

@@ -10,8 +10,11 @@
 
 use rayon::prelude::*;
 
-use super::surface::{dist, dot, sub, unit, FAR_APART};
+use super::associate::SurfaceTerms;
+use super::surface::FAR_APART;
+use super::workspace::FitWorkspace;
 use crate::efg::Block;
+use crate::linalg::{distance, dot, sub, unit};
 use crate::SpatialHash;
 
 /// Anisotropy of the contact metric (SPEC 5: $s_I = 0.1$).
@@ -60,11 +63,11 @@ pub fn find_contacts<const D: usize>(
             near.indices[p * k..(p + 1) * k]
                 .iter()
                 .map(|&q| q as usize)
-                .filter(|&q| dist(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q]))
+                .filter(|&q| distance(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q]))
                 .filter_map(|q| {
                     let offset = sub(&x, &positions[q]);
                     let depth = -dot(&offset, &normals[q]);
-                    (depth > 0.0 && dist(&x, &positions[q]) < support[q]).then_some((q, depth))
+                    (depth > 0.0 && distance(&x, &positions[q]) < support[q]).then_some((q, depth))
                 })
                 .max_by(|a, b| a.1.total_cmp(&b.1))
                 .map(|(q, depth)| contact(p, q, &x, depth, normals))
@@ -96,7 +99,7 @@ pub fn hold_contacts<const D: usize>(
             continue;
         }
         let x = positions[p];
-        if dist(&x, &positions[q]) < support[q] {
+        if distance(&x, &positions[q]) < support[q] {
             let depth = -dot(&sub(&x, &positions[q]), &normals[q]);
             found.push(contact(p, q, &x, depth.max(0.0), normals));
             active[p] = true;
@@ -126,4 +129,29 @@ fn contact<const D: usize>(
         weight,
         depth,
     }
+}
+
+/// SPEC 5 step 3 at one iterate: the penetrating surface nodes of `surface` (none when
+/// the term is off) with the `held` contacts of earlier iterations added
+/// ([`hold_contacts`]), and how many penetrate before holding.
+pub(super) fn contact_terms<const D: usize>(
+    workspace: &FitWorkspace<D>,
+    surface: &SurfaceTerms<D>,
+    enabled: bool,
+    held: &[Contact<D>],
+) -> (Vec<Contact<D>>, usize) {
+    let (positions, normals) = (&surface.positions, &surface.normals);
+    let mut contacts = if enabled {
+        find_contacts(
+            positions,
+            normals,
+            &workspace.rest_surface,
+            &workspace.support,
+        )
+    } else {
+        Vec::new()
+    };
+    let penetrating = contacts.len();
+    hold_contacts(&mut contacts, held, positions, normals, &workspace.support);
+    (contacts, penetrating)
 }

@@ -5,6 +5,7 @@ use rayon::prelude::*;
 
 use crate::efg::Block;
 use crate::grid_sample::Field;
+use crate::linalg::{cross, distance, dot, unit};
 use crate::SpatialHash;
 
 /// Lower clamp of the anisotropy $s$: moving across the surface costs at least 100 times
@@ -139,7 +140,7 @@ pub fn invalidate_collisions<const D: usize>(
                     let reach = support[p].min(support[q]);
                     q != p
                         && gap < COLLISION_FRACTION * reach
-                        && dist(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q])
+                        && distance(&rest[p], &rest[q]) > FAR_APART * support[p].max(support[q])
                 })
         })
         .collect();
@@ -152,34 +153,4 @@ pub fn invalidate_collisions<const D: usize>(
         }
     }
     count
-}
-
-pub(crate) fn sub<const D: usize>(a: &[f64; D], b: &[f64; D]) -> [f64; D] {
-    std::array::from_fn(|i| a[i] - b[i])
-}
-
-pub(crate) fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
-    (0..D).map(|i| a[i] * b[i]).sum()
-}
-
-pub(crate) fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn dist<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
-    dot(&sub(a, b), &sub(a, b)).sqrt()
-}
-
-/// `v / |v|`, or zero for a zero vector.
-pub(crate) fn unit<const D: usize>(v: &[f64; D]) -> [f64; D] {
-    let norm = dot(v, v).sqrt();
-    if norm > 0.0 {
-        v.map(|x| x / norm)
-    } else {
-        [0.0; D]
-    }
 }

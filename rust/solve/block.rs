@@ -20,8 +20,8 @@ pub use build::CsrIndex;
 /// are tens of microseconds of work, well above the cost of a task.
 pub(super) const ROWS_PER_TASK: usize = 64;
 
-/// A dense $B \times B$ block, row-major.
-pub type Block<const B: usize> = [[f64; B]; B];
+/// A dense $B \times B$ block, row-major (a [`crate::linalg::Matrix`]).
+pub type Block<const B: usize> = crate::linalg::Matrix<B>;
 
 /// Block columns of each block row, sorted, symmetric, with the diagonal present.
 #[derive(Debug, PartialEq, Eq)]

@@ -4,46 +4,13 @@ use rayon::prelude::*;
 
 use super::{dot, Preconditioner, PARALLEL_VECTOR_LEN};
 use crate::error::{Error, Result};
+use crate::linalg::{mat_vec, spd_inverse};
 use crate::solve::block::{Block, BlockCsr, ROWS_PER_TASK};
 
 /// The block-Jacobi preconditioner: the inverses of the $B \times B$ diagonal blocks.
 #[derive(Debug, Clone)]
 pub struct BlockJacobi<const B: usize> {
     inverse: Vec<[[f64; B]; B]>,
-}
-
-/// The inverse of a symmetric positive definite block by Cholesky, $M^{-1} = L^{-\top}
-/// L^{-1}$; `Err(pivot)` at the first non-positive (or non-finite) pivot.
-fn spd_inverse<const B: usize>(m: &[[f64; B]; B]) -> std::result::Result<[[f64; B]; B], usize> {
-    let mut l = [[0.0; B]; B];
-    for j in 0..B {
-        let d = m[j][j] - (0..j).map(|t| l[j][t] * l[j][t]).sum::<f64>();
-        // Relative to the block's own scale: a pivot lost to rounding is not positive.
-        if d.is_nan() || d <= 1e-14 * m[j][j].abs() || d.is_infinite() {
-            return Err(j);
-        }
-        l[j][j] = d.sqrt();
-        for i in j + 1..B {
-            l[i][j] = (m[i][j] - (0..j).map(|t| l[i][t] * l[j][t]).sum::<f64>()) / l[j][j];
-        }
-    }
-    // L^{-1}, lower triangular, by forward substitution on the identity.
-    let mut inv_l = [[0.0; B]; B];
-    for i in 0..B {
-        let mut row = [0.0; B];
-        for (c, value) in row.iter_mut().enumerate().take(i + 1) {
-            let identity = if i == c { 1.0 } else { 0.0 };
-            *value = (identity - (c..i).map(|t| l[i][t] * inv_l[t][c]).sum::<f64>()) / l[i][i];
-        }
-        inv_l[i] = row;
-    }
-    let mut inverse = [[0.0; B]; B];
-    for a in 0..B {
-        for b in 0..B {
-            inverse[a][b] = (a.max(b)..B).map(|t| inv_l[t][a] * inv_l[t][b]).sum();
-        }
-    }
-    Ok(inverse)
 }
 
 impl<const B: usize> BlockJacobi<B> {
@@ -118,8 +85,8 @@ impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
         }
         let mut rz = 0.0;
         for (zi, (m, ri)) in z.iter_mut().zip(self.inverse.iter().zip(r)) {
+            *zi = mat_vec(m, ri);
             for a in 0..B {
-                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
                 rz += zi[a] * ri[a];
             }
         }
@@ -128,9 +95,7 @@ impl<const B: usize> Preconditioner<B> for BlockJacobi<B> {
 
     fn apply(&mut self, r: &[[f64; B]], z: &mut [[f64; B]]) {
         let one = |(zi, (m, ri)): (&mut [f64; B], (&Block<B>, &[f64; B]))| {
-            for a in 0..B {
-                zi[a] = (0..B).map(|b| m[a][b] * ri[b]).sum();
-            }
+            *zi = mat_vec(m, ri);
         };
         if r.len() * B >= PARALLEL_VECTOR_LEN {
             z.par_iter_mut()

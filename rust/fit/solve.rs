@@ -1,0 +1,126 @@
+//! SPEC 5 step 4, the solve: PCG on $\alpha S + E$, warm-started from the current positions,
+//! either on the assembled matrix (block Jacobi plus the coarse rigid modes, or block Jacobi
+//! alone) or on the model's matrix-free product.
+
+use super::assemble::FitSystem;
+use super::workspace::FitWorkspace;
+use super::FitOptions;
+use crate::efg::Block;
+use crate::elastic::{ElasticModel, Rotation};
+use crate::error::Result;
+use crate::linalg::mat_vec;
+use crate::solve::{BlockJacobi, LinearOperator, PcgStatus};
+
+/// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
+struct FitOperator<'a, const D: usize> {
+    model: &'a ElasticModel<D>,
+    rotations: &'a [Block<D>],
+    alpha: f64,
+    extra: &'a [Block<D>],
+    stresses: Vec<Block<D>>,
+    slots: Vec<[f64; D]>,
+}
+
+impl<const D: usize> LinearOperator<D> for FitOperator<'_, D> {
+    fn len(&self) -> usize {
+        self.model.len()
+    }
+
+    fn apply(&mut self, x: &[[f64; D]], y: &mut [[f64; D]]) {
+        self.model
+            .apply_into(self.rotations, x, &mut self.stresses, &mut self.slots, y);
+        for ((yi, xi), e) in y.iter_mut().zip(x).zip(self.extra) {
+            let ex = mat_vec(e, xi);
+            for r in 0..D {
+                yi[r] = self.alpha * yi[r] + ex[r];
+            }
+        }
+    }
+}
+
+/// Solves `system` with the elastic part `alpha` $S$ (for `rotations`) from `x` in place.
+/// `first_iteration` of a frame refreshes the coarse space's rigid modes.
+///
+/// # Errors
+/// [`crate::Error::NotPositiveDefinite`] if the system (or a diagonal block) loses
+/// definiteness; bad rotations.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn solve<const D: usize>(
+    model: &ElasticModel<D>,
+    workspace: &mut FitWorkspace<D>,
+    rotations: &[Block<D>],
+    system: &FitSystem<D>,
+    alpha: f64,
+    first_iteration: bool,
+    options: &FitOptions,
+    x: &mut Vec<[f64; D]>,
+) -> Result<PcgStatus> {
+    let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
+    let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
+    let rhs = &system.rhs;
+    let status = if options.matrix_free {
+        let mut diagonal = model.diagonal_blocks(rotations)?;
+        for (d, e) in diagonal.iter_mut().zip(&system.extra) {
+            for r in 0..D {
+                for c in 0..D {
+                    d[r][c] = alpha * d[r][c] + e[r][c];
+                }
+            }
+        }
+        let mut preconditioner = BlockJacobi::from_diagonal(&diagonal)?;
+        let mut operator = FitOperator {
+            model,
+            rotations,
+            alpha,
+            extra: &system.extra,
+            stresses: Vec::new(),
+            slots: Vec::new(),
+        };
+        workspace.pcg.solve_operator(
+            &mut operator,
+            &mut preconditioner,
+            rhs,
+            &mut flat,
+            tolerance,
+            cap,
+        )?
+    } else {
+        // System: alpha S + E, assembled on the stiffness pattern.
+        if model.rotation() == Rotation::Warped {
+            model.system_blocks(rotations, workspace.stiffness.blocks_mut())?;
+        }
+        workspace
+            .stiffness
+            .scale_into(alpha, &mut workspace.system)?;
+        let all: Vec<u32> = (0..model.len() as u32).collect();
+        workspace
+            .system
+            .add_diagonal_blocks(1.0, &all, &system.extra)?;
+        if options.coarse {
+            // The coarse matrix once per frame (its modes change little between
+            // iterations; measured in benches/README.md), block Jacobi every time.
+            let coarse = &mut workspace.coarse;
+            if first_iteration {
+                coarse.set_positions(x)?;
+                coarse.update(&workspace.system)?;
+            } else {
+                coarse.update_smoother(&workspace.system)?;
+            }
+            workspace
+                .pcg
+                .solve(&workspace.system, coarse, rhs, &mut flat, tolerance, cap)?
+        } else {
+            let mut preconditioner = BlockJacobi::new(&workspace.system)?;
+            workspace.pcg.solve(
+                &workspace.system,
+                &mut preconditioner,
+                rhs,
+                &mut flat,
+                tolerance,
+                cap,
+            )?
+        }
+    };
+    *x = flat.as_chunks::<D>().0.to_vec();
+    Ok(status)
+}
