@@ -149,6 +149,7 @@ def fit_sequence(
     invalidate: bool = True,
     self_intersection: bool = True,
     hold_contacts: bool = False,
+    coverage: float = 0.0,
     predict: bool = True,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
@@ -257,6 +258,7 @@ def fit_sequence(
             invalidate=invalidate,
             self_intersection=self_intersection,
             hold_contacts=hold_contacts,
+            coverage=coverage,
         )
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
