@@ -66,6 +66,34 @@ fn unzip3<A, B, C>(v: Vec<(A, B, C)>) -> (Vec<A>, Vec<B>, Vec<C>) {
     (a, b, c)
 }
 
+/// `F` alone at each point (world), each ball cut at `|q| <= BOUND` (a sphere test first):
+/// the values marching cubes needs for a skin mesh, without the gradient and Hessian.
+///
+/// # Errors
+/// As [`field_at`].
+pub fn field_values(
+    skeleton: &Skeleton,
+    shape: &[f64],
+    motion: &[f64],
+    points: &[[f64; 3]],
+) -> Result<Vec<f64>> {
+    check_finite("points", points)?;
+    let field = Field::new(skeleton, skeleton.pose(shape, motion)?);
+    Ok(points
+        .par_iter()
+        .with_min_len(1024)
+        .map(|p| {
+            let x = Vector3::from(*p);
+            field
+                .balls
+                .iter()
+                .filter(|b| (x - b.world_centre).norm_squared() <= b.bound_radius * b.bound_radius)
+                .map(|b| Field::term(b, &x).value)
+                .sum()
+        })
+        .collect())
+}
+
 /// `F` at each point and the dense Jacobian `∂F/∂(motion, shape)` at fixed points,
 /// `N x (n_motion + 2 P)` row-major.
 ///

@@ -57,6 +57,45 @@ impl Silhouette {
     }
 }
 
+/// A borrowed row-major `(height, width)` mask, non-zero = foreground.
+#[derive(Debug, Clone, Copy)]
+pub struct Mask<'a> {
+    /// `height * width` pixels, row-major.
+    pub pixels: &'a [u8],
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+/// [`carve`] from masks: their summed-area tables are built in parallel first.
+///
+/// # Errors
+/// [`Error::WrongLength`] for a mask whose pixels are not `height * width`; as [`carve`].
+pub fn carve_masks(
+    cameras: &[Camera],
+    masks: &[Mask<'_>],
+    grid: GridSpec,
+    tolerance: usize,
+    footprint: Footprint,
+) -> Result<Vec<bool>> {
+    for mask in masks {
+        let expected = mask.width.saturating_mul(mask.height);
+        if mask.pixels.len() != expected {
+            return Err(Error::WrongLength {
+                argument: "masks",
+                expected,
+                got: mask.pixels.len(),
+            });
+        }
+    }
+    let silhouettes: Vec<Silhouette> = masks
+        .par_iter()
+        .map(|m| Silhouette::new(m.pixels, m.width, m.height))
+        .collect();
+    carve(cameras, &silhouettes, grid, tolerance, footprint)
+}
+
 /// What one camera says about a box of voxels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum View {
@@ -365,5 +404,41 @@ mod tests {
         // Tolerance 3: every camera may disagree, nothing is carved.
         let all = carve(&cams, &sils, grid, 3, Footprint::Center).unwrap();
         assert!(all.iter().all(|&o| o));
+    }
+
+    #[test]
+    fn carving_from_masks_equals_carving_from_silhouettes_and_checks_their_size() {
+        let cams: Vec<Camera> = (0..3).map(|a| looking_at_origin(a, 3.0)).collect();
+        let pixels: Vec<Vec<u8>> = cams.iter().map(|c| disc_mask(c, 0.4)).collect();
+        let sils: Vec<Silhouette> = pixels
+            .iter()
+            .map(|m| Silhouette::new(m, 200, 200))
+            .collect();
+        let masks: Vec<Mask> = pixels
+            .iter()
+            .map(|m| Mask {
+                pixels: m,
+                width: 200,
+                height: 200,
+            })
+            .collect();
+        let grid = GridSpec {
+            origin: [-0.7; 3],
+            spacing: 0.05,
+            shape: [29; 3],
+        };
+        let direct = carve(&cams, &sils, grid, 0, Footprint::Conservative).unwrap();
+        let from_masks = carve_masks(&cams, &masks, grid, 0, Footprint::Conservative).unwrap();
+        assert_eq!(direct, from_masks);
+        assert!(direct.iter().any(|&o| o) && !direct.iter().all(|&o| o));
+        let short = Mask {
+            pixels: &pixels[0][..100],
+            width: 200,
+            height: 200,
+        };
+        assert!(matches!(
+            carve_masks(&cams[..1], &[short], grid, 0, Footprint::Center),
+            Err(Error::WrongLength { got: 100, .. })
+        ));
     }
 }

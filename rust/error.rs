@@ -284,44 +284,6 @@ pub enum Error {
     },
 }
 
-impl Error {
-    /// True for errors caused by bad input (mapped to a `ValueError` subclass in Python).
-    pub fn is_invalid_input(&self) -> bool {
-        matches!(
-            self,
-            Error::Empty { .. }
-                | Error::NonFinite { .. }
-                | Error::InvalidK { .. }
-                | Error::InvalidRadius { .. }
-                | Error::TooManyPoints { .. }
-                | Error::GridShape { .. }
-                | Error::BadCamera { .. }
-                | Error::MaskSize { .. }
-                | Error::DimensionMismatch { .. }
-                | Error::LengthMismatch { .. }
-                | Error::NeighborIndex { .. }
-                | Error::SelfNotNeighbour { .. }
-                | Error::NotEnoughNeighbours { .. }
-                | Error::InvalidSupport { .. }
-                | Error::IllConditioned { .. }
-                | Error::InvalidMaterial { .. }
-                | Error::InvalidVolume { .. }
-                | Error::BlockSize { .. }
-                | Error::SparsePattern { .. }
-                | Error::PatternMismatch { .. }
-                | Error::VectorLength { .. }
-                | Error::NodeIndex { .. }
-                | Error::NotPositiveDefinite { .. }
-                | Error::InvalidOption { .. }
-                | Error::NotFactorized
-                | Error::BadModel { .. }
-                | Error::WrongLength { .. }
-                | Error::BadRay { .. }
-                | Error::IndexOutOfRange { .. }
-        )
-    }
-}
-
 /// Result with the core's [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 

@@ -172,7 +172,14 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
     start: &[[f64; D]],
     options: &FitOptions,
 ) -> Result<(Vec<[f64; D]>, FrameMetrics)> {
-    fit_frame_with(model, workspace, target, &FrameTargets::default(), start, options)
+    fit_frame_with(
+        model,
+        workspace,
+        target,
+        &FrameTargets::default(),
+        start,
+        options,
+    )
 }
 
 /// [`fit_frame`] with the data of SPEC 5.1's terms in `targets`.

@@ -17,6 +17,7 @@ pub mod lm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;
+pub mod snake;
 pub mod solve;
 pub mod spatial_hash;
 

@@ -110,6 +110,7 @@ pub fn quadratic_form<const D: usize>(m: &Matrix<D>, v: &Vector<D>) -> f64 {
 /// The inverse of a symmetric positive definite matrix by Cholesky,
 /// $M^{-1} = L^{-\top} L^{-1}$; `Err(pivot)` at the first pivot that is not positive
 /// (relative to the matrix's own scale: a pivot lost to rounding is not) or not finite.
+#[inline]
 pub fn spd_inverse<const D: usize>(m: &Matrix<D>) -> Result<Matrix<D>, usize> {
     let mut l = [[0.0; D]; D];
     for j in 0..D {

@@ -16,6 +16,8 @@
 //! * [`SparseCholesky`]: faer's sparse $L L^\top$ with the symbolic analysis (AMD ordering,
 //!   elimination tree, supernodes) done once per pattern; it also serves as the
 //!   preconditioner of CG while the values drift from those it factored.
+//! * [`conjugate_gradient_csr`]: CG from scalar CSR arrays ([`CsrParts`]) with the
+//!   preconditioner the caller holds ([`CsrPreconditioner`]).
 //!
 //! The per-iteration solve of the fitting, allocation-free after the first pass:
 //!
@@ -44,12 +46,14 @@
 mod block;
 mod cholesky;
 mod coarse;
+mod csr_solve;
 mod pcg;
 mod upper;
 
 pub use block::{Block, BlockCsr, CsrIndex};
 pub use cholesky::SparseCholesky;
 pub use coarse::{TwoLevel, STRENGTH};
+pub use csr_solve::{conjugate_gradient_csr, CsrParts, CsrPreconditioner};
 pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 
 #[cfg(test)]

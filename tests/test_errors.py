@@ -1,5 +1,6 @@
 """Bad input raises InvalidInputError (also a ValueError and an ElastocapError) whose message
-names the offending argument; valid edge cases work."""
+names the offending argument; valid edge cases work; numerical failure on valid input
+raises ConvergenceError or is reported in a returned status."""
 
 from __future__ import annotations
 
@@ -7,8 +8,11 @@ import re
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 import elastocap
+from elastocap import SparseCholesky, conjugate_gradient
+from elastocap.body import BodyModel, BodyObservations, BodyState, fit_body
 from tolerances import DISTANCE_ATOL, DISTANCE_RTOL, ROTATION_MATCH_ATOL
 
 RNG = np.random.default_rng(0)
@@ -392,3 +396,76 @@ def test_numpy_integer_k_and_list_inputs_accepted():
 def test_polar_integer_matrices_accepted():
     r = elastocap.polar_rotation(np.array([[[0, -2, 0], [2, 0, 0], [0, 0, 3]]]))
     np.testing.assert_allclose(r[0], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=ROTATION_MATCH_ATOL)
+
+
+# ------------------------------------------------------------------------------------------
+# Numerical failure on valid input: ConvergenceError, or a status where documented
+# ------------------------------------------------------------------------------------------
+
+
+def _indefinite_with_spd_blocks() -> scipy.sparse.csr_array:
+    """[[I, 2I], [2I, I]]: positive definite 3x3 diagonal blocks, indefinite as a whole."""
+    eye = np.eye(3)
+    return scipy.sparse.csr_array(np.block([[eye, 2 * eye], [2 * eye, eye]]))
+
+
+def test_conjugate_gradient_on_a_matrix_that_is_not_positive_definite_raises_convergence_error():
+    """Found by CG itself (a direction of non-positive curvature) or by its block-Jacobi
+    preconditioner (a diagonal block with a non-positive pivot): ConvergenceError, not
+    InvalidInputError (the matrix is well formed)."""
+    with pytest.raises(elastocap.ConvergenceError, match=r"not positive definite.*p\^T A p <= 0") as info:
+        conjugate_gradient(_indefinite_with_spd_blocks(), np.array([1.0, 0, 0, -1.0, 0, 0]))
+    assert not isinstance(info.value, ValueError)
+    negative = scipy.sparse.csr_array(np.diag([2.0, 2.0, -1.0, 2.0, 2.0, 2.0]))
+    with pytest.raises(elastocap.ConvergenceError, match=r"not positive definite.*diagonal block.*row 2"):
+        conjugate_gradient(negative, np.ones(6))
+    # The same matrices on the coarse (two-level) path.
+    with pytest.raises(elastocap.ConvergenceError, match="not positive definite"):
+        conjugate_gradient(negative, np.ones(6), nodes=np.zeros((2, 3)))
+
+
+def test_conjugate_gradient_out_of_iterations_reports_it_in_its_status():
+    """Running out of iterations is not an exception: the status says so."""
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((30, 30))
+    spd = scipy.sparse.csr_array(a @ a.T + 0.1 * np.eye(30))
+    x, status = conjugate_gradient(spd, np.ones(30), tolerance=1e-12, max_iterations=2)
+    assert not status.converged
+    assert status.iterations == 2
+    assert status.relative_residual > 1e-12
+    assert np.isfinite(x).all()
+
+
+def test_sparse_cholesky_of_an_indefinite_matrix_raises_convergence_error_naming_the_row():
+    with pytest.raises(elastocap.ConvergenceError, match="not positive definite"):
+        SparseCholesky(_indefinite_with_spd_blocks(), block=3)
+    negative = scipy.sparse.csr_array(np.diag([2.0, 2.0, 2.0, 2.0, -1.0, 2.0]))
+    with pytest.raises(elastocap.ConvergenceError, match="row 4"):
+        SparseCholesky(negative, block=3)
+
+
+def test_body_fit_that_cannot_converge_in_its_iterations_reports_it_in_its_status():
+    model = BodyModel.default_human()
+    truth = model.rest_state(position=(0, 0, 0.95))
+    points = model.skin_points(truth, 800, seed=2, spacing=0.02)
+    start = truth.motion.copy()
+    start[6:] = np.clip(start[6:] + 0.2, model.lower[6:], model.upper[6:])
+    init = BodyState(truth.shape.copy(), start)
+    # The shape held: one LM run (with the shape fitted, a motion-only run comes first).
+    fit = fit_body(model, [BodyObservations(points=points)], init=init, shape=truth.shape, max_iterations=2)
+    assert fit.status == "maximum iterations"
+    assert fit.iterations == 2
+    assert fit.final_cost < fit.initial_cost  # it did make progress, it just did not finish
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_mls_neighbourhood_singular_after_enlarging_the_support_is_invalid_input_naming_the_node(dim):
+    """SPEC 4.2: the support is enlarged before giving up; points on a line (2-D) or in a
+    plane (3-D) stay degenerate at any support, which is bad input, named by node."""
+    rng = np.random.default_rng(5)
+    t = rng.random((40, 2))
+    points = np.c_[t[:, 0], 2 * t[:, 0]] if dim == 2 else np.c_[t, t[:, 0] + t[:, 1]]
+    with pytest.raises(elastocap.InvalidInputError, match=r"node \d+ do not span.*support enlarged") as info:
+        elastocap.mls_shape_functions(points, k=8)
+    assert isinstance(info.value, ValueError)
+    assert not isinstance(info.value, elastocap.ConvergenceError)

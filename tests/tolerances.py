@@ -229,3 +229,17 @@ BODY_SYNTH_LEG_ANGLE_DEG = 3.0
 BODY_SYNTH_ROOT_M = 0.015
 BODY_SYNTH_HEADING_DEG = 1.0
 BODY_SYNTH_SHAPE_RTOL = 0.05
+
+# --- exports ----------------------------------------------------------------------------
+
+# GLB vertices read back (rest + delta, both float32) against the fit's float64 vertices,
+# relative to the mesh's bounding-box diagonal (the bound; float32 rounding of a
+# ~2 m figure is ~1e-7 of it).
+EXPORT_DIAGONAL_RTOL = 1e-5
+# BVH joint positions read by bvhio: offsets and channels are printed with 6 decimals
+# (1e-6 m, 1e-6 degree), and 4 to 5 joints chain each rounding.
+EXPORT_BVH_ATOL = 2e-5
+# .trc positions are printed with 6 decimals (metres).
+EXPORT_TRC_ATOL = 1e-6
+# .c3d stores float32 points: ~1e-7 relative of positions within a few metres.
+EXPORT_C3D_ATOL = 1e-6

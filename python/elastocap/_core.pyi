@@ -24,6 +24,8 @@ __all__ = [
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
+    "camera_project",
+    "active_contour",
 ]
 
 __version__: str
@@ -231,6 +233,9 @@ class BodySkeleton:
     def field(
         self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
+    def values(
+        self, shape: NDArray[np.float64], motion: NDArray[np.float64], points: NDArray[np.float64]
+    ) -> NDArray[np.float64]: ...
     def jacobian(
         self,
         shape: NDArray[np.float64],
@@ -268,3 +273,30 @@ class BodySkeleton:
         refresh_every: int,
         outlier_distance: float | None,
     ) -> dict[str, Any]: ...
+
+def camera_project(
+    points: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    width: int,
+    height: int,
+) -> NDArray[np.float64]: ...
+def active_contour(
+    image: NDArray[np.float64],
+    init: NDArray[np.float64],
+    *,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    kappa: float,
+    max_move: float,
+    spacing: float,
+    min_spacing: float,
+    max_spacing: float,
+    max_iterations: int,
+    tolerance: float,
+    window: int,
+    min_area: float,
+) -> tuple[NDArray[np.float64], str, int, int]: ...

@@ -139,9 +139,11 @@ def conjugate_gradient(
     ------
     InvalidInputError
         For a non-sparse, non-square or wrongly sized matrix, an asymmetric or malformed
-        pattern, NaN / infinity, a wrong ``rhs`` / ``x0`` shape, a negative tolerance, a
-        diagonal block that is not positive definite, or a search direction with
-        ``p^T A p <= 0`` (the matrix is not positive definite).
+        pattern, NaN / infinity, a wrong ``rhs`` / ``x0`` shape or a negative tolerance.
+    ConvergenceError
+        When the matrix shows it is not positive definite: a diagonal block with a
+        non-positive pivot, or a search direction with ``p^T A p <= 0``. Running out of
+        iterations is not an error: ``status.converged`` is then False.
 
     Notes
     -----
@@ -202,8 +204,10 @@ class SparseCholesky:
     Raises
     ------
     InvalidInputError
-        As :func:`conjugate_gradient` for the matrix, and when the matrix is not positive
-        definite (a non-positive pivot; the message names its row).
+        As :func:`conjugate_gradient` for the matrix.
+    ConvergenceError
+        When the matrix is not positive definite (a non-positive pivot; the message names
+        its row).
 
     Notes
     -----
@@ -247,8 +251,10 @@ class SparseCholesky:
         Raises
         ------
         InvalidInputError
-            For another size or pattern, NaN / infinity, or a matrix that is not positive
-            definite; after a failure, :meth:`solve` raises until a factorisation succeeds.
+            For another size or pattern, or NaN / infinity.
+        ConvergenceError
+            For a matrix that is not positive definite; after a failure, :meth:`solve`
+            raises InvalidInputError until a factorisation succeeds.
         """
         size, indptr, indices, data = _as_csr(matrix, self._block)
         if size != self.size:

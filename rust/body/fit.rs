@@ -311,9 +311,21 @@ impl ArrowProblem for BodyProblem<'_> {
                     .unwrap_or_else(|| (3.0 * 1.4826 * median(set.iter().map(|p| p.1))).max(5e-3))
             }
         };
-        let (lp, lr) = (limit(&points), limit(&rays));
+        // One-sided rays (inside / outside the silhouette) are never outliers: far from
+        // the skin is what most of them are, and their residual is bounded.
+        let outline: Vec<(usize, f64)> = rays
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| self.obs.side(*i) == 0)
+            .map(|(_, p)| *p)
+            .collect();
+        let (lp, lr) = (limit(&points), limit(&outline));
         self.point_inlier = points.iter().map(|p| p.1 <= lp).collect();
-        self.ray_inlier = rays.iter().map(|p| p.1 <= lr).collect();
+        self.ray_inlier = rays
+            .iter()
+            .enumerate()
+            .map(|(i, p)| self.obs.side(i) != 0 || p.1 <= lr)
+            .collect();
         Ok(())
     }
 }

@@ -43,6 +43,24 @@ pub struct Observations {
     /// starts a few centimetres off feels no pull; `g` keeps pulling (like a squared
     /// distance) until `F` falls well below `ε`. `benches/README.md` has the measurement.
     pub log_epsilon: Option<f64>,
+    /// Per-point factor on `sigma[0]` (its precision relative to the others, e.g. from
+    /// stereo's covariance); empty: all 1.
+    pub point_scale: Vec<f64>,
+    /// Per-ray factor on `sigma[1]`; empty: all 1.
+    pub ray_scale: Vec<f64>,
+    /// Per-ray kind; empty: all 0. 0: an outline ray, tangent to the skin (`F* = T`);
+    /// +1: a ray through a pixel inside the silhouette, which must meet the skin (only
+    /// `F* < T` is penalised); -1: a ray through a pixel outside it, which must miss the
+    /// skin (only `F* > T` is penalised). Outline rays alone let a limb hide inside the
+    /// silhouette of the torso; the one-sided rays say where the body is and is not.
+    pub ray_side: Vec<i8>,
+}
+
+/// Whether a one-sided ray of kind `side` with residual `r` (of `F* - T`'s sign) is
+/// satisfied, so that it adds nothing.
+#[inline]
+pub fn side_satisfied(side: i8, r: f64) -> bool {
+    (side > 0 && r >= 0.0) || (side < 0 && r <= 0.0)
 }
 
 /// The residual of a field value `F` (weighted by `w`) and its derivative in `F`.
@@ -82,6 +100,24 @@ fn check_len(argument: &'static str, got: usize, expected: usize) -> Result<()> 
 }
 
 impl Observations {
+    /// The weight `1 / (sigma[0] * point_scale[i])` of point `i`.
+    #[inline]
+    pub fn point_weight(&self, i: usize) -> f64 {
+        1.0 / (self.sigma[0] * self.point_scale.get(i).copied().unwrap_or(1.0))
+    }
+
+    /// The kind of ray `i` (see [`Observations::ray_side`]).
+    #[inline]
+    pub fn side(&self, i: usize) -> i8 {
+        self.ray_side.get(i).copied().unwrap_or(0)
+    }
+
+    /// The weight `1 / (sigma[1] * ray_scale[i])` of ray `i`.
+    #[inline]
+    pub fn ray_weight(&self, i: usize) -> f64 {
+        1.0 / (self.sigma[1] * self.ray_scale.get(i).copied().unwrap_or(1.0))
+    }
+
     /// Checks lengths, indices, finiteness and sigmas.
     ///
     /// # Errors
@@ -94,6 +130,27 @@ impl Observations {
         check_len("ray_frame", self.ray_frame.len(), self.origins.len())?;
         check_len("joint_part", self.joint_part.len(), self.joints.len())?;
         check_len("joint_frame", self.joint_frame.len(), self.joints.len())?;
+        if !self.point_scale.is_empty() {
+            check_len("point_scale", self.point_scale.len(), self.points.len())?;
+        }
+        if !self.ray_scale.is_empty() {
+            check_len("ray_scale", self.ray_scale.len(), self.origins.len())?;
+        }
+        if !self.ray_side.is_empty() {
+            check_len("ray_side", self.ray_side.len(), self.origins.len())?;
+        }
+        if let Some(bad) = self
+            .point_scale
+            .iter()
+            .chain(&self.ray_scale)
+            .find(|s| !(s.is_finite() && **s > 0.0))
+        {
+            return Err(Error::BadModel {
+                reason: format!(
+                    "point and ray sigma scales must be positive and finite, got {bad}"
+                ),
+            });
+        }
         check_index("point_frame", &self.point_frame, self.frames)?;
         check_index("ray_frame", &self.ray_frame, self.frames)?;
         check_index("joint_frame", &self.joint_frame, self.frames)?;
@@ -148,7 +205,7 @@ impl Residual {
     ) -> f64 {
         match *self {
             Residual::Point(i) => {
-                let w = 1.0 / obs.sigma[0];
+                let w = obs.point_weight(i);
                 let x = Vector3::from(obs.points[i]);
                 match row {
                     Some(row) => {
@@ -161,7 +218,7 @@ impl Residual {
                 }
             }
             Residual::Ray(i) => {
-                let w = 1.0 / obs.sigma[1];
+                let w = obs.ray_weight(i);
                 let o = Vector3::from(obs.origins[i]);
                 let r = Vector3::from(obs.directions[i]);
                 use std::sync::atomic::Ordering::Relaxed;
@@ -175,6 +232,12 @@ impl Residual {
                     start.store(max.s.to_bits(), Relaxed);
                 }
                 let (residual, slope) = field_residual(max.value, obs.log_epsilon);
+                if side_satisfied(obs.side(i), residual) {
+                    if let Some(row) = row {
+                        row.iter_mut().for_each(|v| *v = 0.0);
+                    }
+                    return 0.0;
+                }
                 if let Some(row) = row {
                     row.iter_mut().for_each(|v| *v = 0.0);
                     if max.hit {
@@ -220,7 +283,7 @@ impl Residual {
             Residual::Point(i) => {
                 let x = Vector3::from(obs.points[i]);
                 let f = field.part_derivatives_over(&x, subset, Cutoff::Bounded, reference, terms);
-                (1.0 / obs.sigma[0], f)
+                (obs.point_weight(i), f)
             }
             Residual::Ray(i) => {
                 let o = Vector3::from(obs.origins[i]);
@@ -244,11 +307,17 @@ impl Residual {
                         terms,
                     );
                 }
-                (1.0 / obs.sigma[1], max.value)
+                (obs.ray_weight(i), max.value)
             }
             Residual::Joint(..) => return None,
         };
         let (residual, slope) = field_residual(f, obs.log_epsilon);
+        if let Residual::Ray(i) = *self {
+            if side_satisfied(obs.side(i), residual) {
+                terms.clear();
+                return Some(0.0);
+            }
+        }
         let scale = w * slope;
         for (_, z) in terms.iter_mut() {
             z.iter_mut().for_each(|v| *v *= scale);

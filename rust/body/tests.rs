@@ -251,3 +251,40 @@ fn normal_blocks_match_dense_rows() {
         }
     }
 }
+
+#[test]
+fn one_sided_rays_add_only_when_violated() {
+    let skeleton = arm();
+    let shape = [1.0; 6];
+    let motion = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, -0.2, 0.1, -0.4];
+    let field = Field::new(&skeleton, skeleton.pose(&shape, &motion).unwrap());
+    // One ray through the root ball off its centre (it meets the skin), one far beside it.
+    let origins = vec![[0.03, -2.0, 0.13], [1.5, -2.0, 0.1]];
+    let directions = vec![[0.0, 1.0, 0.0]; 2];
+    let width = skeleton.n_motion + skeleton.n_shape();
+    let residual = |side: i8, i: usize| {
+        let obs = Observations {
+            frames: 1,
+            origins: origins.clone(),
+            directions: directions.clone(),
+            ray_frame: vec![0; 2],
+            ray_side: vec![side; 2],
+            sigma: [1.0, 1.0, 1.0],
+            log_epsilon: Some(0.01),
+            ..Default::default()
+        };
+        let mut row = vec![1.0; width];
+        let r = Residual::Ray(i).evaluate(&obs, &field, None, None, Some(&mut row));
+        (r, row.iter().any(|v| *v != 0.0))
+    };
+    let (through, _) = residual(0, 0);
+    let (beside, _) = residual(0, 1);
+    assert!(through > 0.0 && beside < 0.0);
+    // inside: the ray that meets the skin is satisfied, the one that misses is pulled
+    assert_eq!(residual(1, 0), (0.0, false));
+    assert_eq!(residual(1, 1).0, beside);
+    // outside: the reverse
+    assert_eq!(residual(-1, 1), (0.0, false));
+    assert_eq!(residual(-1, 0).0, through);
+    assert!(residual(-1, 0).1);
+}

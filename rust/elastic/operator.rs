@@ -119,4 +119,16 @@ impl<const D: usize> ElasticModel<D> {
         );
         Ok(())
     }
+
+    /// The system matrix $S$ as scalar CSR `(indptr, indices, data)` of shape `(n D, n D)`,
+    /// dof `node * D + axis`, columns sorted.
+    ///
+    /// # Errors
+    /// Wrong-length or non-finite rotations.
+    pub fn system_csr(&self, rotations: &[Block<D>]) -> Result<(Vec<usize>, Vec<usize>, Vec<f64>)> {
+        let pattern = self.pattern();
+        let mut blocks = vec![[[0.0; D]; D]; pattern.nnz()];
+        self.system_blocks(rotations, &mut blocks)?;
+        Ok(pattern.to_scalar_csr(&blocks))
+    }
 }

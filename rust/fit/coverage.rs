@@ -86,8 +86,7 @@ impl<const D: usize> TargetSamples<D> {
                 let centre: [f64; 3] = std::array::from_fn(|a| origin[a] + spacing * centre[a]);
                 let (d, gradient) = field.sample(&centre);
                 let g: [f64; D] = unit(&std::array::from_fn(|a| gradient[a]));
-                (dot(&g, &g) > 0.0)
-                    .then(|| (std::array::from_fn(|a| centre[a] - d * g[a]), g))
+                (dot(&g, &g) > 0.0).then(|| (std::array::from_fn(|a| centre[a] - d * g[a]), g))
             })
             .unzip();
         Ok(Self {

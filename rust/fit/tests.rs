@@ -179,3 +179,110 @@ fn a_contact_pushed_out_is_held_while_near_its_partner() {
     hold_contacts(&mut far, &before, &positions, &normals, &support);
     assert!(far.iter().all(|c| c.node != 12));
 }
+
+/// A disc of radius 1 (a jittered grid inside, a ring of surface nodes on the rim) and
+/// the signed distance of an ellipse with semi-axes 1.2 and 0.85 on a grid one voxel thick.
+fn disc_and_ellipse() -> (
+    crate::elastic::ElasticModel<2>,
+    Vec<u32>,
+    Vec<[u32; 2]>,
+    Vec<f64>,
+) {
+    use crate::efg::{Material, Plane};
+    use crate::elastic::{ElasticModel, Rotation, RotationFit};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let mut nodes = Vec::new();
+    for i in -9..=9 {
+        for j in -9..=9 {
+            let p = [
+                i as f64 * 0.1 + rng.random_range(-0.02..0.02),
+                j as f64 * 0.1 + rng.random_range(-0.02..0.02),
+            ];
+            if p[0].hypot(p[1]) < 0.93 {
+                nodes.push(p);
+            }
+        }
+    }
+    let first = nodes.len() as u32;
+    let ring = 60;
+    for t in 0..ring {
+        let a = std::f64::consts::TAU * t as f64 / ring as f64;
+        nodes.push([a.cos(), a.sin()]);
+    }
+    let surface: Vec<u32> = (first..first + ring).collect();
+    let faces = (0..ring)
+        .map(|t| [first + t, first + (t + 1) % ring])
+        .collect();
+    let volumes = vec![std::f64::consts::PI / nodes.len() as f64; nodes.len()];
+    let material = Material {
+        youngs: 1.0,
+        poisson: 0.3,
+        plane: Plane::Stress,
+    };
+    let model = ElasticModel::new(
+        nodes,
+        12,
+        volumes,
+        &material,
+        Rotation::Warped,
+        RotationFit::Gradient,
+    )
+    .unwrap()
+    .with_stabilization(0.1)
+    .unwrap();
+    let n = 161;
+    let mut values = Vec::with_capacity(n * n);
+    for i in 0..n {
+        for j in 0..n {
+            let (x, y) = (-2.0 + 0.025 * i as f64, -2.0 + 0.025 * j as f64);
+            // Distance-like: exact on the axes, a smooth level set with |grad| ~ 1 near it.
+            let r = ((x / 1.2).powi(2) + (y / 0.85).powi(2)).sqrt();
+            values.push((r - 1.0) * (1.2f64 * 0.85).sqrt());
+        }
+    }
+    (model, surface, faces, values)
+}
+
+#[test]
+fn planar_fit_matrix_free_agrees_with_the_assembled_system() {
+    use super::{fit_frame, FitOptions, FitWorkspace};
+    let (model, surface, faces, values) = disc_and_ellipse();
+    let field = GridField::new(&values, [161, 161, 1], [-2.0, -2.0, 0.0], 0.025).unwrap();
+    let mut fitted = Vec::new();
+    for matrix_free in [false, true] {
+        let mut workspace = FitWorkspace::new(&model, &surface, &faces).unwrap();
+        let options = FitOptions {
+            matrix_free,
+            solver_tolerance: 1e-10,
+            max_iterations: 3,
+            ..FitOptions::default()
+        };
+        let (x, metrics) =
+            fit_frame(&model, &mut workspace, &field, model.rest(), &options).unwrap();
+        assert!(metrics.solver_converged);
+        fitted.push((x, metrics));
+    }
+    let (assembled, free) = (&fitted[0], &fitted[1]);
+    assert_eq!(assembled.1.iterations, free.1.iterations);
+    let gap = assembled
+        .0
+        .iter()
+        .zip(&free.0)
+        .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
+        .fold(0.0, f64::max);
+    assert!(gap < 1e-6, "matrix-free and assembled fits differ by {gap}");
+    // The rim (radius 1 at rest) moved towards the ellipse: wider along x, narrower along y.
+    let rim = |x: &[[f64; 2]], a: usize| {
+        surface
+            .iter()
+            .map(|&i| x[i as usize][a].abs())
+            .fold(0.0, f64::max)
+    };
+    let (wide, tall) = (rim(&free.0, 0), rim(&free.0, 1));
+    assert!(
+        wide > 1.02 && tall < 0.98,
+        "rim {wide} x {tall}, metrics {:?}",
+        free.1
+    );
+}

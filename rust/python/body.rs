@@ -8,7 +8,7 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::body::fit::{fit, FitOptions};
 use crate::body::observe::Observations;
 use crate::body::{self, Cutoff, Metaball, PartSpec, Skeleton};
@@ -124,8 +124,7 @@ impl BodySkeleton {
                 radii: radii[i],
             })
             .collect();
-        let skeleton =
-            Skeleton::new(parts, balls).map_err(|e| Python::attach(|py| to_py(py, e)))?;
+        let skeleton = Skeleton::new(parts, balls)?;
         Ok(Self { skeleton })
     }
 
@@ -150,8 +149,7 @@ impl BodySkeleton {
     ) -> PyResult<PoseArrays<'py>> {
         let pose = self
             .skeleton
-            .pose(c_slice(&shape, "shape")?, c_slice(&motion, "motion")?)
-            .map_err(|e| to_py(py, e))?;
+            .pose(c_slice(&shape, "shape")?, c_slice(&motion, "motion")?)?;
         let n = pose.rotation.len();
         let rotations: Vec<f64> = pose
             .rotation
@@ -178,15 +176,30 @@ impl BodySkeleton {
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let (f, g, h) = py
-            .detach(|| body::field_at(&self.skeleton, s, m, p))
-            .map_err(|e| to_py(py, e))?;
+        let (f, g, h) = py.detach(|| body::field_at(&self.skeleton, s, m, p))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
             g.into_flattened().into_pyarray(py).reshape([n, 3])?,
             h.into_flattened().into_pyarray(py).reshape([n, 3, 3])?,
         ))
+    }
+
+    /// `F (N,)` alone at the points (balls cut at the field's bound).
+    fn values<'py>(
+        &self,
+        py: Python<'py>,
+        shape: PyReadonlyArray1<'py, f64>,
+        motion: PyReadonlyArray1<'py, f64>,
+        points: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (s, m, p) = (
+            c_slice(&shape, "shape")?,
+            c_slice(&motion, "motion")?,
+            rows::<3>(&points, "points")?,
+        );
+        let f = py.detach(|| body::field_values(&self.skeleton, s, m, p))?;
+        Ok(f.into_pyarray(py))
     }
 
     /// `(F (N,), J (N, n_motion + n_shape))`: the state Jacobian at fixed points.
@@ -209,9 +222,7 @@ impl BodySkeleton {
         } else {
             Cutoff::Bounded
         };
-        let (f, j) = py
-            .detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))
-            .map_err(|e| to_py(py, e))?;
+        let (f, j) = py.detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
@@ -234,9 +245,7 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let (t, x, f, hit, j) = py
-            .detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))
-            .map_err(|e| to_py(py, e))?;
+        let (t, x, f, hit, j) = py.detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))?;
         let n = t.len();
         Ok((
             t.into_pyarray(py),
@@ -262,9 +271,7 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let inside = py
-            .detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))
-            .map_err(|e| to_py(py, e))?;
+        let inside = py.detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))?;
         Ok(inside.into_pyarray(py))
     }
 
@@ -296,9 +303,7 @@ impl BodySkeleton {
         };
         let (s, m) = (c_slice(&shape, "shape")?, c_slice(&motion, "motion")?);
         let (lo, hi) = (c_slice(&lower, "lower")?, c_slice(&upper, "upper")?);
-        let result = py
-            .detach(|| fit(&self.skeleton, &obs, s, m, (lo, hi), &options))
-            .map_err(|e| to_py(py, e))?;
+        let result = py.detach(|| fit(&self.skeleton, &obs, s, m, (lo, hi), &options))?;
         let out = PyDict::new(py);
         let frames = obs.frames;
         out.set_item(
@@ -346,6 +351,15 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         let array: PyReadonlyArray1<'_, i64> = item.extract()?;
         indices(c_slice(&array, key)?, key, bound)
     }
+    fn optional(d: &Bound<'_, PyDict>, key: &str) -> PyResult<Vec<f64>> {
+        match d.get_item(key)? {
+            Some(v) if !v.is_none() => {
+                let array: PyReadonlyArray1<'_, f64> = v.extract()?;
+                Ok(c_slice(&array, key)?.to_vec())
+            }
+            _ => Ok(Vec::new()),
+        }
+    }
     let sigma: Vec<f64> = d
         .get_item("sigma")?
         .ok_or_else(|| invalid_input("observations lack sigma".into()))?
@@ -367,6 +381,15 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         log_epsilon: match d.get_item("log_epsilon")? {
             Some(v) if !v.is_none() => Some(v.extract()?),
             _ => None,
+        },
+        point_scale: optional(d, "point_scale")?,
+        ray_scale: optional(d, "ray_scale")?,
+        ray_side: match d.get_item("ray_side")? {
+            Some(v) if !v.is_none() => {
+                let array: PyReadonlyArray1<'_, i8> = v.extract()?;
+                c_slice(&array, "ray_side")?.to_vec()
+            }
+            _ => Vec::new(),
         },
     })
 }

@@ -4,18 +4,17 @@ use numpy::{
     PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
-use rayon::prelude::*;
 
-use super::{c_slice, invalid_input, to_py};
+use super::{c_slice, invalid_input};
 use crate::camera::Camera;
-use crate::carve::{carve as core_carve, Footprint, GridSpec, Silhouette};
+use crate::carve::{carve_masks, Footprint, GridSpec, Mask};
 
 /// Row `c` of a flat array of rows of `N` (lengths are checked by the caller).
 fn row<const N: usize>(flat: &[f64], c: usize) -> [f64; N] {
     std::array::from_fn(|i| flat[N * c + i])
 }
 
-/// Carves a visual hull. `k`, `r`: `(C, 3, 3)`; `dist`: `(C, 5)`; `t`: `(C, 3)`;
+/// Carves a visual hull. `k`, `r`: `(C, 3, 3)`; `dist`: `(C, 4|5|8|12|14)` (OpenCV order); `t`: `(C, 3)`;
 /// `masks`: C arrays `(H, W)` uint8 (non-zero = foreground), in camera order.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
@@ -44,10 +43,11 @@ fn carve<'py>(
     };
     let n = masks.len();
     let k = c_slice(&k, "K")?;
+    let width_of_dist = dist.shape()[1];
     let dist = c_slice(&dist, "dist")?;
     let r = c_slice(&r, "R")?;
     let t = c_slice(&t, "t")?;
-    if k.len() != 9 * n || r.len() != 9 * n || dist.len() != 5 * n || t.len() != 3 * n {
+    if k.len() != 9 * n || r.len() != 9 * n || dist.len() != width_of_dist * n || t.len() != 3 * n {
         return Err(invalid_input(format!(
             "need K, dist, R, t for each of the {n} masks"
         )));
@@ -56,25 +56,21 @@ fn carve<'py>(
     let mut views = Vec::with_capacity(n);
     for (c, mask) in masks.iter().enumerate() {
         let (height, width) = (mask.shape()[0], mask.shape()[1]);
-        let camera = Camera::new(row(k, c), row(dist, c), row(r, c), row(t, c), width, height)
-            .map_err(|e| to_py(py, e))?;
+        let coefficients = &dist[width_of_dist * c..width_of_dist * (c + 1)];
+        let camera = Camera::new(row(k, c), coefficients, row(r, c), row(t, c), width, height)?;
         cameras.push(camera);
-        views.push((c_slice(mask, "masks")?, width, height));
+        views.push(Mask {
+            pixels: c_slice(mask, "masks")?,
+            width,
+            height,
+        });
     }
     let grid = GridSpec {
         origin,
         spacing,
         shape,
     };
-    let occupancy = py
-        .detach(|| {
-            let silhouettes: Vec<Silhouette> = views
-                .par_iter()
-                .map(|&(m, w, h)| Silhouette::new(m, w, h))
-                .collect();
-            core_carve(&cameras, &silhouettes, grid, tolerance, footprint)
-        })
-        .map_err(|e| to_py(py, e))?;
+    let occupancy = py.detach(|| carve_masks(&cameras, &views, grid, tolerance, footprint))?;
     PyArray1::from_vec(py, occupancy).reshape(shape)
 }
 

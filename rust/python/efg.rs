@@ -6,7 +6,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::efg::{Material, NodalElasticity, Plane};
 
 type Csr<'py> = (
@@ -144,12 +144,10 @@ fn efg_stiffness<'py>(
     plane: &str,
 ) -> PyResult<Csr<'py>> {
     let inputs = inputs(&points, &neighbors, &grad, &volumes, youngs, poisson, plane)?;
-    let csr = py
-        .detach(|| match inputs.dim {
-            2 => stiffness::<2>(&inputs),
-            _ => stiffness::<3>(&inputs),
-        })
-        .map_err(|e| to_py(py, e))?;
+    let csr = py.detach(|| match inputs.dim {
+        2 => stiffness::<2>(&inputs),
+        _ => stiffness::<3>(&inputs),
+    })?;
     let as_i64 = |v: Vec<usize>| v.into_iter().map(|x| x as i64).collect::<Vec<_>>();
     Ok((
         as_i64(csr.indptr).into_pyarray(py),
@@ -191,8 +189,7 @@ fn efg_energy<'py>(
             let u = rows::<3>(&displacements, "displacements")?;
             py.detach(|| energy::<3>(&inputs, u))
         }
-    }
-    .map_err(|e| to_py(py, e))?;
+    }?;
     let s = dim * (dim + 1) / 2;
     let forces = numpy::ndarray::Array2::from_shape_vec((n, dim), forces)
         .map_err(|e| invalid_input(e.to_string()))?;

@@ -7,7 +7,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::efg::{Block, Material, Plane};
 use crate::elastic::{ElasticModel, Rotation, RotationFit};
 
@@ -167,23 +167,17 @@ impl ElasticCore {
         let model = match nodes.shape()[1] {
             2 => {
                 let rest = rows::<2>(&nodes, "nodes")?.to_vec();
-                Model::Planar(
-                    py.detach(|| {
-                        ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
-                            .with_stabilization(stabilization)
-                    })
-                    .map_err(|e| to_py(py, e))?,
-                )
+                Model::Planar(py.detach(|| {
+                    ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
+                        .with_stabilization(stabilization)
+                })?)
             }
             3 => {
                 let rest = rows::<3>(&nodes, "nodes")?.to_vec();
-                Model::Spatial(
-                    py.detach(|| {
-                        ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
-                            .with_stabilization(stabilization)
-                    })
-                    .map_err(|e| to_py(py, e))?,
-                )
+                Model::Spatial(py.detach(|| {
+                    ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
+                        .with_stabilization(stabilization)
+                })?)
             }
             d => {
                 return Err(invalid_input(format!(
@@ -260,7 +254,7 @@ impl ElasticCore {
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
-            let r = py.detach(|| m.rotations(x)).map_err(|e| to_py(py, e))?;
+            let r = py.detach(|| m.rotations(x))?;
             Ok(blocks_out(py, r))
         })
     }
@@ -275,7 +269,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            py.detach(|| m.energy(x, &r)).map_err(|e| to_py(py, e))
+            Ok(py.detach(|| m.energy(x, &r))?)
         })
     }
 
@@ -289,7 +283,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let f = py.detach(|| m.forces(x, &r)).map_err(|e| to_py(py, e))?;
+            let f = py.detach(|| m.forces(x, &r))?;
             Ok(rows_out(py, f))
         })
     }
@@ -302,7 +296,7 @@ impl ElasticCore {
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let f = py.detach(|| m.rhs(&r)).map_err(|e| to_py(py, e))?;
+            let f = py.detach(|| m.rhs(&r))?;
             Ok(rows_out(py, f))
         })
     }
@@ -317,7 +311,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
             let u = self::positions::<D>(&u, m.len(), "u")?;
-            let y = py.detach(|| m.apply(&r, u)).map_err(|e| to_py(py, e))?;
+            let y = py.detach(|| m.apply(&r, u))?;
             Ok(rows_out(py, y))
         })
     }
@@ -331,14 +325,7 @@ impl ElasticCore {
     ) -> PyResult<Csr<'py>> {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let (indptr, indices, data) = py
-                .detach(|| {
-                    let pattern = m.pattern();
-                    let mut values = vec![[[0.0; D]; D]; pattern.nnz()];
-                    m.system_blocks(&r, &mut values)?;
-                    Ok(pattern.to_scalar_csr(&values))
-                })
-                .map_err(|e| to_py(py, e))?;
+            let (indptr, indices, data) = py.detach(|| m.system_csr(&r))?;
             let as_i64 = |v: Vec<usize>| v.into_iter().map(|x| x as i64).collect::<Vec<_>>();
             Ok((
                 as_i64(indptr).into_pyarray(py),

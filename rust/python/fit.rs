@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use super::elastic::ElasticCore;
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::fit::coverage::TargetSamples;
 use crate::fit::{fit_frame_with, FitOptions, FitWorkspace, FrameMetrics, FrameTargets};
 use crate::grid_sample::GridField;
@@ -90,8 +90,7 @@ impl FitCore {
                     .map(Workspace::Planar)
             }
             (None, None) => unreachable!("a model is 2-D or 3-D"),
-        }
-        .map_err(|e| to_py(py, e))?;
+        }?;
         Ok(Self {
             model,
             workspace: Mutex::new(workspace),
@@ -129,7 +128,7 @@ impl FitCore {
         let shape = values.shape();
         let grid = [shape[0], shape[1], shape[2]];
         let flat = c_slice(&values, "values")?;
-        let field = GridField::new(flat, grid, origin, spacing).map_err(|e| to_py(py, e))?;
+        let field = GridField::new(flat, grid, origin, spacing)?;
         let options = FitOptions {
             stiffness,
             contact,
@@ -152,17 +151,15 @@ impl FitCore {
         let (positions, m) = match (&mut *workspace, core.spatial(), core.planar()) {
             (Workspace::Spatial(w), Some(model), _) => {
                 let start = rows::<3>(&start, "start")?;
-                let (x, m) = py
-                    .detach(|| {
-                        let samples = (coverage > 0.0)
-                            .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
-                            .transpose()?;
-                        let targets = FrameTargets {
-                            samples: samples.as_ref(),
-                        };
-                        fit_frame_with(model, w, &field, &targets, start, &options)
-                    })
-                    .map_err(|e| to_py(py, e))?;
+                let (x, m) = py.detach(|| {
+                    let samples = (coverage > 0.0)
+                        .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
+                        .transpose()?;
+                    let targets = FrameTargets {
+                        samples: samples.as_ref(),
+                    };
+                    fit_frame_with(model, w, &field, &targets, start, &options)
+                })?;
                 (positions_out(py, x), m)
             }
             (Workspace::Planar(w), _, Some(model)) => {
@@ -172,17 +169,15 @@ impl FitCore {
                     )));
                 }
                 let start = rows::<2>(&start, "start")?;
-                let (x, m) = py
-                    .detach(|| {
-                        let samples = (coverage > 0.0)
-                            .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
-                            .transpose()?;
-                        let targets = FrameTargets {
-                            samples: samples.as_ref(),
-                        };
-                        fit_frame_with(model, w, &field, &targets, start, &options)
-                    })
-                    .map_err(|e| to_py(py, e))?;
+                let (x, m) = py.detach(|| {
+                    let samples = (coverage > 0.0)
+                        .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
+                        .transpose()?;
+                    let targets = FrameTargets {
+                        samples: samples.as_ref(),
+                    };
+                    fit_frame_with(model, w, &field, &targets, start, &options)
+                })?;
                 (positions_out(py, x), m)
             }
             _ => unreachable!("the workspace matches the model's dimension"),

@@ -6,7 +6,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, rows, to_py};
+use super::{c_slice, invalid_input, rows};
 use crate::mls::shape_functions_into;
 
 type Outputs<'py> = (
@@ -50,8 +50,7 @@ fn run<'py, const D: usize, const M: usize>(
         let mut used = used.readwrite();
         let (phi, used) = (phi.as_slice_mut()?, used.as_slice_mut()?);
         let grad = grad.as_slice_mut()?.as_chunks_mut::<D>().0;
-        py.detach(|| shape_functions_into::<D, M>(points, neighbors, k, support, phi, grad, used))
-            .map_err(|e| to_py(py, e))?
+        py.detach(|| shape_functions_into::<D, M>(points, neighbors, k, support, phi, grad, used))?
     };
     Ok((phi, grad, used, repaired))
 }

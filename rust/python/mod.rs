@@ -2,6 +2,7 @@
 //! map errors, return numpy arrays. No algorithm lives here.
 
 mod body;
+mod camera;
 mod carve;
 mod efg;
 mod elastic;
@@ -11,12 +12,12 @@ mod mls;
 mod neighbors;
 mod polar;
 mod sdf;
+mod snake;
 mod solve;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use crate::Error;
 pub(crate) use errors::invalid_input;
 
 /// The data of a C-contiguous array. (`as_slice` alone also accepts Fortran order, whose
@@ -46,11 +47,6 @@ pub(crate) fn rows<'a, const D: usize>(
     Ok(c_slice(array, argument)?.as_chunks::<D>().0)
 }
 
-/// Maps a core error onto the exception hierarchy.
-pub(crate) fn to_py(py: Python<'_>, error: Error) -> PyErr {
-    errors::from_core(py, error)
-}
-
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
@@ -64,6 +60,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     polar::register(m)?;
     sdf::register(m)?;
     solve::register(m)?;
+    camera::register(m)?;
+    snake::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

@@ -3,7 +3,7 @@
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{invalid_input, rows, to_py};
+use super::{invalid_input, rows};
 use crate::spatial_hash::{RadiusNeighbors, SpatialHash};
 
 enum Index {
@@ -32,17 +32,14 @@ fn knn_arrays<'py, const D: usize>(
     queries: Option<&[[f64; D]]>,
     k: usize,
 ) -> PyResult<KnnArrays<'py>> {
-    let m = py
-        .detach(|| index.check_knn(queries, k))
-        .map_err(|e| to_py(py, e))?;
+    let m = py.detach(|| index.check_knn(queries, k))?;
     let indices = PyArray2::<i64>::zeros(py, [m, k], false);
     let distances = PyArray2::<f64>::zeros(py, [m, k], false);
     {
         let mut i = indices.readwrite();
         let mut d = distances.readwrite();
         let (i, d) = (i.as_slice_mut()?, d.as_slice_mut()?);
-        py.detach(|| index.knn_into(queries, k, i, d))
-            .map_err(|e| to_py(py, e))?;
+        py.detach(|| index.knn_into(queries, k, i, d))?;
     }
     Ok((indices, distances))
 }
@@ -62,17 +59,11 @@ impl SpatialIndex {
         let index = match points.shape()[1] {
             2 => {
                 let p = rows::<2>(&points, "points")?;
-                Index::Planar(
-                    py.detach(|| SpatialHash::new(p))
-                        .map_err(|e| to_py(py, e))?,
-                )
+                Index::Planar(py.detach(|| SpatialHash::new(p))?)
             }
             3 => {
                 let p = rows::<3>(&points, "points")?;
-                Index::Spatial(
-                    py.detach(|| SpatialHash::new(p))
-                        .map_err(|e| to_py(py, e))?,
-                )
+                Index::Spatial(py.detach(|| SpatialHash::new(p))?)
             }
             d => {
                 return Err(invalid_input(format!(
@@ -159,7 +150,7 @@ impl SpatialIndex {
                 py.detach(|| i.radius_neighbors(q, radius))
             }
         };
-        Ok(csr_arrays(py, result.map_err(|e| to_py(py, e))?))
+        Ok(csr_arrays(py, result?))
     }
 }
 

@@ -3,7 +3,7 @@
 use numpy::{PyArray3, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, to_py};
+use super::{c_slice, invalid_input};
 use crate::polar::{polar2, polar3};
 
 /// A batched kernel: matrices, rotations out, optional stretches out.
@@ -32,8 +32,7 @@ fn run<'py, const D: usize, const DD: usize>(
             Some(s) => Some(s.as_slice_mut()?.as_chunks_mut::<DD>().0),
             None => None,
         };
-        py.detach(|| kernel(matrices, r, s))
-            .map_err(|e| to_py(py, e))?;
+        py.detach(|| kernel(matrices, r, s))?;
     }
     Ok((rotations, stretches))
 }

@@ -6,7 +6,7 @@ use numpy::{
 };
 use pyo3::prelude::*;
 
-use super::{c_slice, rows, to_py};
+use super::{c_slice, rows};
 use crate::grid_sample::{sample_points, GridField};
 use crate::sdf::signed_distance as core_signed_distance;
 
@@ -23,9 +23,7 @@ fn signed_distance<'py>(
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let shape = shape3(occupancy.shape());
     let flat = c_slice(&occupancy, "occupancy")?;
-    let sdf = py
-        .detach(|| core_signed_distance(flat, shape, spacing))
-        .map_err(|e| to_py(py, e))?;
+    let sdf = py.detach(|| core_signed_distance(flat, shape, spacing))?;
     PyArray1::from_vec(py, sdf).reshape(shape)
 }
 
@@ -44,7 +42,7 @@ fn sample_grid<'py>(
 ) -> PyResult<Samples<'py>> {
     let shape = shape3(values.shape());
     let flat = c_slice(&values, "values")?;
-    let field = GridField::new(flat, shape, origin, spacing).map_err(|e| to_py(py, e))?;
+    let field = GridField::new(flat, shape, origin, spacing)?;
     let p = rows::<3>(&points, "points")?;
     let n = p.len();
     let out_values = PyArray1::<f64>::zeros(py, n, false);
@@ -57,8 +55,7 @@ fn sample_grid<'py>(
             Some(g) => Some(g.as_slice_mut()?.as_chunks_mut::<3>().0),
             None => None,
         };
-        py.detach(|| sample_points(&field, p, v, g))
-            .map_err(|e| to_py(py, e))?;
+        py.detach(|| sample_points(&field, p, v, g))?;
     }
     Ok((out_values, out_gradients))
 }

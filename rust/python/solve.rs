@@ -6,8 +6,10 @@ use std::sync::Mutex;
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-use super::{c_slice, invalid_input, to_py};
-use crate::solve::{BlockCsr, Pcg, PcgStatus, SparseCholesky as Cholesky, TwoLevel, STRENGTH};
+use super::{c_slice, invalid_input};
+use crate::solve::{
+    conjugate_gradient_csr, CsrParts, CsrPreconditioner, SparseCholesky as Cholesky,
+};
 
 /// `(x, converged, iterations, relative_residual)`.
 type CgOutputs<'py> = (Bound<'py, PyArray1<f64>>, bool, usize, f64);
@@ -35,41 +37,42 @@ fn index_arrays<'py>(
     ))
 }
 
-/// Borrowed scalar CSR arrays (scipy's, sorted); grouped into blocks by the core.
-enum Indices<'a> {
-    I32(&'a [i32], &'a [i32]),
-    I64(&'a [i64], &'a [i64]),
-}
-
-struct CsrArrays<'a> {
-    size: usize,
-    indices: Indices<'a>,
-    data: &'a [f64],
-}
-
-impl CsrArrays<'_> {
-    fn blocks<const B: usize>(&self) -> crate::Result<BlockCsr<B>> {
-        match self.indices {
-            Indices::I32(p, i) => BlockCsr::from_csr_parts(self.size, p, i, self.data),
-            Indices::I64(p, i) => BlockCsr::from_csr_parts(self.size, p, i, self.data),
-        }
-    }
+/// Borrowed scalar CSR arrays of either index type.
+enum Csr<'a> {
+    I32(CsrParts<'a, i32>),
+    I64(CsrParts<'a, i64>),
 }
 
 fn csr<'a>(
     size: usize,
     indices: &'a IndexArrays<'_>,
     data: &'a PyReadonlyArray1<'_, f64>,
-) -> PyResult<CsrArrays<'a>> {
-    let indices = match indices {
-        IndexArrays::I32(p, i) => Indices::I32(c_slice(p, "indptr")?, c_slice(i, "indices")?),
-        IndexArrays::I64(p, i) => Indices::I64(c_slice(p, "indptr")?, c_slice(i, "indices")?),
-    };
-    Ok(CsrArrays {
-        size,
-        indices,
-        data: c_slice(data, "data")?,
+) -> PyResult<Csr<'a>> {
+    let data = c_slice(data, "data")?;
+    Ok(match indices {
+        IndexArrays::I32(p, i) => Csr::I32(CsrParts {
+            size,
+            indptr: c_slice(p, "indptr")?,
+            indices: c_slice(i, "indices")?,
+            data,
+        }),
+        IndexArrays::I64(p, i) => Csr::I64(CsrParts {
+            size,
+            indptr: c_slice(p, "indptr")?,
+            indices: c_slice(i, "indices")?,
+            data,
+        }),
     })
+}
+
+/// Runs `$body` with `$m` bound to the CSR parts of either index type.
+macro_rules! with_csr {
+    ($csr:expr, $m:ident => $body:expr) => {
+        match $csr {
+            Csr::I32($m) => $body,
+            Csr::I64($m) => $body,
+        }
+    };
 }
 
 /// A factorisation of either block size.
@@ -86,52 +89,16 @@ fn check_block(block: usize) -> PyResult<()> {
     }
 }
 
-fn analyse_and_factorize<const B: usize>(csr: &CsrArrays<'_>) -> crate::Result<Cholesky<B>> {
-    let matrix = csr.blocks::<B>()?;
-    let mut factor = Cholesky::analyse(&matrix)?;
-    factor.factorize(&matrix)?;
-    Ok(factor)
-}
-
-fn factorize<const B: usize>(factor: &mut Cholesky<B>, csr: &CsrArrays<'_>) -> crate::Result<()> {
-    factor.factorize(&csr.blocks::<B>()?)
-}
-
-fn solve<const B: usize>(factor: &mut Cholesky<B>, rhs: &[f64]) -> crate::Result<Vec<f64>> {
-    let mut x = vec![0.0; rhs.len()];
-    factor.solve_into(rhs, &mut x)?;
-    Ok(x)
-}
-
-fn cg<const B: usize>(
-    csr: &CsrArrays<'_>,
-    rhs: &[f64],
-    x: &mut [f64],
-    tolerance: f64,
-    max_iterations: usize,
-    factor: Option<&mut Cholesky<B>>,
-    nodes: Option<&[f64]>,
-) -> crate::Result<PcgStatus> {
-    let mut pcg = Pcg::new();
+/// The core's preconditioner from what the caller passed: a factor, node positions (flat,
+/// `B` per block row) or neither.
+fn choose_preconditioner<'a, const B: usize>(
+    factor: Option<&'a mut Cholesky<B>>,
+    nodes: Option<&'a [f64]>,
+) -> CsrPreconditioner<'a, B> {
     match (factor, nodes) {
-        (Some(factor), _) => {
-            let matrix = csr.blocks::<B>()?;
-            pcg.solve(&matrix, factor, rhs, x, tolerance, max_iterations)
-        }
-        (None, Some(nodes)) => {
-            let matrix = csr.blocks::<B>()?;
-            let mut two_level = TwoLevel::new(&matrix, nodes.as_chunks::<B>().0, STRENGTH)?;
-            pcg.solve(&matrix, &mut two_level, rhs, x, tolerance, max_iterations)
-        }
-        // Block Jacobi needs only the upper triangle: read it straight from the arrays.
-        (None, None) => match csr.indices {
-            Indices::I32(p, i) => {
-                pcg.solve_csr_parts(csr.size, p, i, csr.data, rhs, x, tolerance, max_iterations)
-            }
-            Indices::I64(p, i) => {
-                pcg.solve_csr_parts(csr.size, p, i, csr.data, rhs, x, tolerance, max_iterations)
-            }
-        },
+        (Some(factor), _) => CsrPreconditioner::Factor(factor),
+        (None, Some(nodes)) => CsrPreconditioner::TwoLevel(nodes.as_chunks::<B>().0),
+        (None, None) => CsrPreconditioner::BlockJacobi,
     }
 }
 
@@ -167,12 +134,12 @@ impl SparseCholesky {
         check_block(block)?;
         let index = index_arrays(&indptr, &indices)?;
         let csr = csr(size, &index, &data)?;
-        let factor = py
-            .detach(|| match block {
-                2 => analyse_and_factorize::<2>(&csr).map(Factor::Two),
-                _ => analyse_and_factorize::<3>(&csr).map(Factor::Three),
+        let factor = py.detach(|| {
+            with_csr!(&csr, m => match block {
+                2 => Cholesky::from_csr_parts(m).map(Factor::Two),
+                _ => Cholesky::from_csr_parts(m).map(Factor::Three),
             })
-            .map_err(|e| to_py(py, e))?;
+        })?;
         Ok(Self {
             factor: Mutex::new(factor),
             size,
@@ -192,11 +159,12 @@ impl SparseCholesky {
         let csr = csr(self.size, &index, &data)?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        py.detach(|| match factor {
-            Factor::Two(f) => factorize(f, &csr),
-            Factor::Three(f) => factorize(f, &csr),
-        })
-        .map_err(|e| to_py(py, e))
+        Ok(py.detach(|| {
+            with_csr!(&csr, m => match factor {
+                Factor::Two(f) => f.factorize_csr_parts(m),
+                Factor::Three(f) => f.factorize_csr_parts(m),
+            })
+        })?)
     }
 
     /// `x = A^-1 rhs` for `rhs` of shape `(size,)`.
@@ -208,12 +176,10 @@ impl SparseCholesky {
         let rhs = c_slice(&rhs, "rhs")?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        let x = py
-            .detach(|| match factor {
-                Factor::Two(f) => solve(f, rhs),
-                Factor::Three(f) => solve(f, rhs),
-            })
-            .map_err(|e| to_py(py, e))?;
+        let x = py.detach(|| match factor {
+            Factor::Two(f) => f.solve(rhs),
+            Factor::Three(f) => f.solve(rhs),
+        })?;
         Ok(PyArray1::from_vec(py, x))
     }
 
@@ -295,17 +261,24 @@ fn conjugate_gradient<'py>(
         }
         let mut guard = held.map(|p| p.lock());
         let factor = guard.as_deref_mut();
-        py.detach(|| match (block, factor) {
-            (2, Some(Factor::Two(f))) => {
-                cg::<2>(&csr, rhs, out, tolerance, max_iterations, Some(f), nodes)
-            }
-            (2, _) => cg::<2>(&csr, rhs, out, tolerance, max_iterations, None, nodes),
-            (_, Some(Factor::Three(f))) => {
-                cg::<3>(&csr, rhs, out, tolerance, max_iterations, Some(f), nodes)
-            }
-            _ => cg::<3>(&csr, rhs, out, tolerance, max_iterations, None, nodes),
-        })
-        .map_err(|e| to_py(py, e))?
+        py.detach(|| {
+            with_csr!(&csr, m => match (block, factor) {
+                (2, factor) => {
+                    let factor = match factor {
+                        Some(Factor::Two(f)) => Some(f),
+                        _ => None,
+                    };
+                    conjugate_gradient_csr(m, rhs, out, tolerance, max_iterations, choose_preconditioner::<2>(factor, nodes))
+                }
+                (_, factor) => {
+                    let factor = match factor {
+                        Some(Factor::Three(f)) => Some(f),
+                        _ => None,
+                    };
+                    conjugate_gradient_csr(m, rhs, out, tolerance, max_iterations, choose_preconditioner::<3>(factor, nodes))
+                }
+            })
+        })?
     };
     Ok((
         x,

@@ -288,3 +288,58 @@ fn symmetry_check_finds_the_first_asymmetric_row() {
         assert_eq!(got, expected, "{rows:?}");
     }
 }
+
+#[test]
+fn conjugate_gradient_csr_solves_with_each_preconditioner() {
+    let matrix = random_spd::<3>(40, 0.2, 9);
+    let csr = matrix.to_csr();
+    let (p, i) = (narrow(&csr.indptr), narrow(&csr.indices));
+    let parts = CsrParts {
+        size: csr.size,
+        indptr: &p,
+        indices: &i,
+        data: &csr.data,
+    };
+    let rhs: Vec<f64> = (0..csr.size).map(|r| (r as f64 * 0.37).sin()).collect();
+    let nodes: Vec<[f64; 3]> = (0..40).map(|n| [n as f64, (n % 7) as f64, 0.5]).collect();
+    let mut factor = SparseCholesky::<3>::from_csr_parts(&parts).unwrap();
+    let exact = factor.solve(&rhs).unwrap();
+    let choices = [
+        CsrPreconditioner::BlockJacobi,
+        CsrPreconditioner::TwoLevel(&nodes),
+        CsrPreconditioner::Factor(&mut factor),
+    ];
+    for preconditioner in choices {
+        let mut x = vec![0.0; csr.size];
+        let status =
+            conjugate_gradient_csr(&parts, &rhs, &mut x, 1e-12, 1000, preconditioner).unwrap();
+        assert!(status.converged);
+        let error = x
+            .iter()
+            .zip(&exact)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let scale = exact.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        assert!(error <= 1e-9 * scale, "{error} vs {scale}");
+    }
+}
+
+fn parts(c: &Csr) -> CsrParts<'_, usize> {
+    CsrParts {
+        size: c.size,
+        indptr: &c.indptr,
+        indices: &c.indices,
+        data: &c.data,
+    }
+}
+
+#[test]
+fn factorize_csr_parts_refuses_another_pattern() {
+    let first = random_spd::<2>(20, 0.3, 1).to_csr();
+    let other = random_spd::<2>(20, 0.3, 2).to_csr();
+    let mut factor = SparseCholesky::<2>::from_csr_parts(&parts(&first)).unwrap();
+    assert!(matches!(
+        factor.factorize_csr_parts(&parts(&other)),
+        Err(Error::PatternMismatch { .. })
+    ));
+}

@@ -4,8 +4,10 @@ See :class:`BodyModel` for the model and its description format and :func:`fit_b
 the sparse Levenberg-Marquardt fit to points, silhouettes and joints.
 """
 
-from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_rays
+from elastocap.body.bvh import write_bvh
+from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_rays, silhouette_samples
 from elastocap.body.model import SKIN_LEVEL, BodyModel, BodyState
+from elastocap.body.track import BodyTrack, BodyTracker, track_body
 
 __all__ = [
     "SKIN_LEVEL",
@@ -13,6 +15,11 @@ __all__ = [
     "BodyModel",
     "BodyObservations",
     "BodyState",
+    "BodyTrack",
+    "BodyTracker",
     "fit_body",
     "silhouette_rays",
+    "silhouette_samples",
+    "track_body",
+    "write_bvh",
 ]

@@ -15,7 +15,7 @@ from elastocap._validate import as_count, as_float_array, as_positive
 from elastocap.body.model import BodyModel, BodyState
 from elastocap.cameras.camera import Camera
 
-__all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays"]
+__all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays", "silhouette_samples"]
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,15 @@ class BodyObservations:
         :func:`silhouette_rays`.
     joints : mapping of part name to (3,) array_like, optional
         Observed joint positions (the origin of the named part's frame), metres.
+    ray_side : (R,) array_like of int or None
+        Kind of each given ray (``origins``): 0 an outline ray (tangent to the skin), +1
+        through a pixel inside the silhouette (must meet the skin), -1 outside it (must
+        miss it); see :func:`silhouette_samples`. Default: all outline rays. Rays drawn
+        from ``masks`` are outline rays.
+    point_sigma : (N,) array_like or None
+        Standard deviation of each point (metres), e.g. from stereo's or a track's
+        covariance: a point's weight is ``(POINT_SIGMA_REFERENCE / point_sigma)^2`` times
+        that of ``fit_body(sigma_point=...)``. Default: all points equally precise.
     """
 
     points: Any = None
@@ -40,6 +49,14 @@ class BodyObservations:
     directions: Any = None
     masks: Any = None
     joints: Mapping[str, Any] = field(default_factory=dict)
+    point_sigma: Any = None
+    ray_side: Any = None
+
+
+#: The point standard deviation (metres) that ``fit_body(sigma_point=...)`` (field units)
+#: stands for when points carry their own ``point_sigma``: about what 0.05 field units are
+#: across the skin of a limb (``|grad F|`` ~ 10 per metre there).
+POINT_SIGMA_REFERENCE = 0.005
 
 
 @dataclass(frozen=True)
@@ -121,6 +138,63 @@ def silhouette_rays(mask: Any, camera: Camera, *, max_rays: int | None = None, s
     return np.ascontiguousarray(origins[ok]), np.ascontiguousarray(directions[ok])
 
 
+def silhouette_samples(
+    mask: Any, camera: Camera, *, outline: int = 300, inside: int = 100, outside: int = 100, margin: float = 2.5, seed: int = 0
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int8]]:
+    """Rays of one silhouette for :func:`fit_body`: outline rays (:func:`silhouette_rays`)
+    and sparse one-sided rays through pixels inside the mask and outside it (at least
+    ``margin`` pixels from the outline, so that outline quantisation does not contradict
+    them); the outside pixels are drawn from the mask's bounding box grown by half its size.
+
+    Parameters
+    ----------
+    mask : (height, width) array_like
+        Non-zero = body.
+    camera : Camera
+    outline, inside, outside : int, keyword-only
+        How many of each to draw (fewer when the mask has fewer pixels).
+    margin : float, keyword-only
+        Pixels.
+    seed : int, keyword-only
+
+    Returns
+    -------
+    origins, directions : (R, 3) float64
+    side : (R,) int8
+        0 outline, +1 inside, -1 outside (``BodyObservations.ray_side``).
+    """
+    import cv2
+
+    m = np.asarray(mask) != 0
+    o, d = silhouette_rays(m, camera, max_rays=outline if outline > 0 else None, seed=seed)
+    if outline == 0:
+        o, d = o[:0], d[:0]
+    parts = [(o, d, np.zeros(len(o), dtype=np.int8))]
+    rng = np.random.default_rng([seed, 0x51DE])
+    if m.any():
+        inner = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 3)
+        outer = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3)
+        rows, cols = np.nonzero(m)
+        r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+        grow_r, grow_c = (r1 - r0) // 2, (c1 - c0) // 2
+        box = np.zeros_like(m)
+        box[max(r0 - grow_r, 0) : r1 + grow_r, max(c0 - grow_c, 0) : c1 + grow_c] = True
+        for count, candidates, side in ((inside, inner > margin, 1), (outside, (outer > margin) & box, -1)):
+            v, u = np.nonzero(candidates)
+            if count <= 0 or len(v) == 0:
+                continue
+            pick = rng.choice(len(v), min(count, len(v)), replace=False)
+            uv = np.stack([u[pick], v[pick]], axis=1).astype(float)
+            origins, directions = camera.rays(uv)
+            ok = np.isfinite(directions).all(axis=1)
+            parts.append((origins[ok], directions[ok], np.full(int(ok.sum()), side, dtype=np.int8)))
+    return (
+        np.ascontiguousarray(np.concatenate([p[0] for p in parts])),
+        np.ascontiguousarray(np.concatenate([p[1] for p in parts])),
+        np.concatenate([p[2] for p in parts]),
+    )
+
+
 def _rows3(name: str, value: Any) -> NDArray[np.float64]:
     if value is None:
         return np.zeros((0, 3))
@@ -140,19 +214,34 @@ def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None,
     directions = _rows3(f"frames[{f}].directions", obs.directions)
     if len(origins) != len(directions):
         raise InvalidInputError(f"frames[{f}]: origins and directions must have as many rows, got {len(origins)} and {len(directions)}")
+    if obs.ray_side is None:
+        sides = np.zeros(len(origins), dtype=np.int8)
+    else:
+        sides = np.asarray(obs.ray_side).reshape(-1)
+        if sides.shape != (len(origins),) or not np.isin(sides, (-1, 0, 1)).all():
+            raise InvalidInputError(f"frames[{f}].ray_side must hold -1, 0 or 1 per ray ({len(origins)}), got shape {sides.shape}")
+        sides = sides.astype(np.int8)
+    if obs.point_sigma is None:
+        point_scale = np.ones(len(points))
+    else:
+        point_scale = as_float_array(f"frames[{f}].point_sigma", obs.point_sigma).reshape(-1) / POINT_SIGMA_REFERENCE
+        if point_scale.shape != (len(points),) or not (np.isfinite(point_scale).all() and (point_scale > 0).all()):
+            raise InvalidInputError(f"frames[{f}].point_sigma must hold one positive finite value per point ({len(points)}), got shape {point_scale.shape}")
     if obs.masks is not None:
         if cameras is None or len(cameras) != len(obs.masks):
             raise InvalidInputError(f"frames[{f}].masks needs one camera per mask in fit_body(cameras=...)")
-        rays = [silhouette_rays(mask, cam, max_rays=max_rays, seed=f) for mask, cam in zip(obs.masks, cameras)]
+        # A camera without a mask (None) gives no rays.
+        rays = [silhouette_rays(mask, cam, max_rays=max_rays, seed=f) for mask, cam in zip(obs.masks, cameras) if mask is not None]
         origins = np.concatenate([origins] + [o for o, _ in rays])
         directions = np.concatenate([directions] + [d for _, d in rays])
+        sides = np.concatenate([sides, np.zeros(len(origins) - len(sides), dtype=np.int8)])
     names = {n: i for i, n in enumerate(model.part_names)}
     unknown = [n for n in obs.joints if n not in names]
     if unknown:
         raise InvalidInputError(f"frames[{f}].joints names unknown parts {unknown}; parts are {model.part_names}")
     joints = _rows3(f"frames[{f}].joints", [obs.joints[n] for n in obs.joints] if obs.joints else None)
     joint_part = np.array([names[n] for n in obs.joints], dtype=np.int64)
-    return points, origins, directions, joints, joint_part
+    return points, origins, directions, joints, joint_part, point_scale, sides
 
 
 def fit_body(
@@ -259,6 +348,8 @@ def fit_body(
         "joint_part": np.concatenate([p[4] for p in per_frame]).astype(np.int64),
         "joint_frame": frame_of(3),
         "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
+        "point_scale": np.ascontiguousarray(np.concatenate([p[5] for p in per_frame])),
+        "ray_side": np.ascontiguousarray(np.concatenate([p[6] for p in per_frame])),
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
     result = model._core.fit(

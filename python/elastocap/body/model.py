@@ -140,6 +140,12 @@ class BodyModel:
             *self._balls,
         )
         self.part_names: list[str] = [p["name"] for p in parts]
+        #: Parent part of each part (-1 for the root), ``(P,) int64``.
+        self.parent = parent
+        self.parent.setflags(write=False)
+        #: Part of each metaball, ``(M,) int64``.
+        self.ball_part = self._balls[0].copy()
+        self.ball_part.setflags(write=False)
         self.n_motion: int = self._core.n_motion
         self.n_shape: int = self._core.n_shape
         limits = _ROOT_LIMITS + [np.radians(j["limits"]).tolist() for p in parts for j in p["joints"]]
@@ -284,7 +290,7 @@ class BodyModel:
         counts = np.ceil((upper - lower) / h).astype(int) + 1
         axes = [lower[a] + h * np.arange(counts[a]) for a in range(3)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        values = self._core.field(*self.check_state(state), np.ascontiguousarray(grid))[0]
+        values = self._core.values(*self.check_state(state), np.ascontiguousarray(grid))
         volume = values.reshape(counts) - SKIN_LEVEL
         vertices, faces, _, _ = measure.marching_cubes(volume, level=0.0, spacing=(h, h, h))
         # skimage winds faces for a field increasing outwards; F decreases outwards.

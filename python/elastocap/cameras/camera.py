@@ -27,7 +27,7 @@ from elastocap.cameras.checks import (
     as_rotation,
     read_only,
 )
-from elastocap.cameras.distortion import distort, fold_radius, undistort
+from elastocap.cameras.distortion import distort, fold_radius, padded, undistort
 
 __all__ = ["Camera"]
 
@@ -43,10 +43,14 @@ class Camera:
         be non-zero. ``fx`` and ``fy`` must be positive. A last row within 1e-6 of
         ``[0, 0, 1]`` and ``K[1, 0]`` within 1e-6 fy of 0 (printed precision) are set
         exactly.
-    dist : (<= 5,) array_like of float or None
-        OpenCV distortion ``k1 k2 p1 p2 k3`` (radial k1 k2 k3, tangential p1 p2); shorter
-        input is padded with zeros, ``None`` means no distortion. Any shape with at most 5
-        entries (``(1, 5)``, ``(5, 1)``, ...) is accepted.
+    dist : (n,) array_like of float or None
+        OpenCV distortion coefficients in OpenCV's order, ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1
+        s2 s3 s4 [tauX tauY]]]]`` (n = 4, 5, 8, 12 or 14; fewer than 4 are padded): radial
+        k1 k2 k3, rational k4 k5 k6 (denominator), tangential p1 p2, thin prism s1-s4 (see
+        :mod:`elastocap.cameras.distortion`). ``None`` means no distortion. ``(1, n)`` and
+        ``(n, 1)`` are accepted. Stored as the shortest of 5, 8 or 12 coefficients that
+        holds every non-zero one (a 4- or 5-coefficient camera keeps ``(5,)``). Tilted
+        sensors (non-zero tauX, tauY) are refused.
     R : (3, 3) array_like of float
         World -> camera rotation. Printed calibrations carry 6-8 digits, so a matrix whose
         ``max |R^T R - I|`` is at most ``ROTATION_TOLERANCE`` (1e-3) is accepted and
@@ -198,14 +202,21 @@ class Camera:
     @cached_property
     def fold_radius(self) -> float:
         """The radius, in normalised image coordinates ``sqrt(a^2 + b^2)``, beyond which the
-        radial distortion folds back (``r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` decreases);
-        ``inf`` when it never does.
+        radial distortion folds back (``r (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 +
+        k5 r^4 + k6 r^6)`` decreases, or its denominator vanishes); ``inf`` when it never
+        does.
 
         Beyond it the lens model is outside its calibrated range: points there project to
         spurious pixels, often inside the image. :meth:`visible` excludes them and
         :meth:`rays` only returns rays inside this radius.
         """
         return fold_radius(self.dist)
+
+    @cached_property
+    def full_dist(self) -> NDArray[np.float64]:
+        """(12,) float64: :attr:`dist` padded with zeros to all of OpenCV's ``k1 k2 p1 p2
+        k3 k4 k5 k6 s1 s2 s3 s4`` (what the Rust kernels take)."""
+        return read_only(padded(self.dist))
 
     @property
     def has_distortion(self) -> bool:
@@ -252,11 +263,12 @@ class Camera:
         Notes
         -----
         SPEC section 1: ``x = R X + t``; ``(a, b) = (x/z, y/z)``; with ``r^2 = a^2 + b^2``,
-        ``a' = a (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 a b + p2 (r^2 + 2 a^2)`` and
-        ``b' = b (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 b^2) + 2 p2 a b``;
+        ``q = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)``,
+        ``a' = a q + 2 p1 a b + p2 (r^2 + 2 a^2) + s1 r^2 + s2 r^4`` and
+        ``b' = b q + p1 (r^2 + 2 b^2) + 2 p2 a b + s3 r^2 + s4 r^4``;
         ``[u, v, 1] = K [a', b', 1]``, so ``u = fx a' + s b' + cx``, ``v = fy b' + cy``.
-        This equals ``cv2.projectPoints`` when the skew ``s`` is 0 (OpenCV ignores
-        ``K[0, 1]``).
+        This equals ``cv2.projectPoints`` with the same coefficients when the skew ``s`` is
+        0 (OpenCV ignores ``K[0, 1]``).
         """
         x = self.to_camera(points)
         depth = x[:, 2].copy()

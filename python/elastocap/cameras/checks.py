@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_float_array
+from elastocap.cameras.distortion import as_coefficients
 from elastocap.geometry.polar import polar_rotation
 
 __all__ = [
@@ -112,18 +113,9 @@ def as_matrix(name: str, value: Any, shape: tuple[int, int]) -> NDArray[np.float
 
 
 def as_distortion(value: Any) -> NDArray[np.float64]:
-    if value is None:
-        return np.zeros(5)
-    dist = as_float_array("dist", value)
-    if dist.size > 5 or (dist.ndim == 2 and 1 not in dist.shape) or dist.ndim > 2:
-        raise InvalidInputError(
-            f"dist must hold at most 5 coefficients (k1 k2 p1 p2 k3) as (5,), (1, 5) or (5, 1), "
-            f"got shape {dist.shape}"
-        )
-    dist = dist.ravel()
-    if not np.isfinite(dist).all():
-        raise InvalidInputError(f"dist must be finite, got {dist.tolist()}")
-    return np.concatenate([dist, np.zeros(5 - dist.size)])
+    """``value`` as OpenCV distortion coefficients (see
+    :func:`elastocap.cameras.distortion.as_coefficients`)."""
+    return as_coefficients(value)
 
 
 def as_image_size(name: str, value: Any) -> int:

@@ -5,15 +5,17 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
 from elastocap.cameras import formats as _calibration_files
 from elastocap.cameras.camera import Camera
+from elastocap.cameras.checks import as_rotation as _as_rotation
 
 __all__ = ["Rig"]
-
-
 
 
 class Rig(Mapping[str, Camera]):
@@ -77,22 +79,49 @@ class Rig(Mapping[str, Camera]):
     # -- loading --------------------------------------------------------------------------
 
     @classmethod
-    def load(cls, path: str | Path, *, size: tuple[int, int] | None = None) -> Rig:
-        """Read a rig from a capture folder or a calibration file.
+    def load(
+        cls,
+        path: str | Path,
+        *,
+        size: tuple[int, int] | None = None,
+        format: str | None = None,
+        units: str | None = None,
+        scale: float | None = None,
+        up: str | None = None,
+    ) -> Rig:
+        """Read a rig from a capture folder or a calibration file, in any format
+        elastocap knows (see :mod:`elastocap.cameras.formats`).
 
         Parameters
         ----------
         path : str or Path
-            One of
-
-            - a capture folder with ``intri.yml`` + ``extri.yml`` (preferred when present)
-              or ``rig.json``, or a single ``*_par.txt``;
-            - ``intri.yml`` or ``extri.yml`` itself (the pair is read from its folder);
-            - a ``.json`` file in the ``rig.json`` format;
-            - a Middlebury ``*_par.txt`` file.
+            A calibration file, or a folder holding one. In a folder the first found of:
+            ``intri.yml`` + ``extri.yml`` (EasyMocap), ``rig.json``, a COLMAP model
+            (``cameras.txt`` + ``images.txt`` or ``.bin``, also under ``sparse/0/`` or
+            ``sparse/``), ``calib.toml`` (Anipose / Pose2Sim, or one ``Calib*.toml``),
+            ``transforms.json`` (NeRF), a single ``*_par.txt`` (Middlebury), OpenCV's
+            ``intrinsics.yml`` + ``extrinsics.yml`` (stereo). A file is told by its name:
+            ``intri.yml`` / ``extri.yml``, ``*.json`` (``transforms*.json`` or a
+            ``"frames"`` list: NeRF), ``cameras.txt`` / ``images.txt``, ``*.bin``,
+            ``*.toml``, other ``*.yml`` / ``*.yaml`` / ``*.xml`` (OpenCV stereo), other
+            ``*.txt`` (Middlebury).
         size : (width, height), optional, keyword-only
             Image size for cameras whose file does not give it. Where a size is also found
             in the files or images, the two must agree.
+        format : str, optional, keyword-only
+            Force the format: ``easymocap``, ``json``, ``middlebury``, ``colmap``,
+            ``colmap-binary``, ``anipose``, ``opencv-stereo`` or ``nerf``.
+        units : {"m", "cm", "mm"}, optional, keyword-only
+            The units the calibration's world is in (its translations). Given, the rig is
+            converted to metres, which the body model assumes. Without it (and without
+            ``scale``) world units are the file's.
+        scale : float, optional, keyword-only
+            Multiply world coordinates by this instead (e.g. an SfM model's arbitrary
+            scale, or feet: 0.3048). Not with ``units``.
+        up : {"x", "-x", "y", "-y", "z", "-z"}, optional, keyword-only
+            The calibration world's up axis. Given, the world is rotated so that it
+            becomes +y, elastocap's up (the synthetic captures' floor is y = 0 and the
+            body stage assumes y up): e.g. ``up="z"`` maps (x, y, z) to (x, z, -y).
 
         Returns
         -------
@@ -104,55 +133,162 @@ class Rig(Mapping[str, Camera]):
             The path or a calibration file does not exist, or a folder holds no
             calibration.
         InvalidInputError
-            A malformed file, a camera listed in ``names`` without its matrices, a
-            non-finite or invalid calibration, or no way to tell an image size; the
+            A malformed file, a camera model or field elastocap does not support (named),
+            a non-finite or invalid calibration, or no way to tell an image size; the
             message names the file and the camera.
 
         Notes
         -----
-        ``intri.yml``: ``names`` (sequence of strings), ``K_<name>`` (3x3),
-        ``dist_<name>`` (1x5 or shorter; missing means none), optional ``H_<name>``,
-        ``W_<name>`` (image height and width). ``extri.yml``: ``Rot_<name>`` (3x3,
-        preferred) or ``R_<name>`` (3x1 Rodrigues), ``T_<name>`` (3x1); when both
-        rotations are present they must agree to the precision the file prints them with
-        (a few units in the last digit of each) and the matrix wins. Rotations printed with
-        few digits are projected onto the nearest rotation with a
-        :class:`CalibrationWarning` (see :class:`Camera`). Without ``H_``/``W_``, the size
-        comes from the camera's first image, mask, background or video in the folder
-        (see :class:`elastocap.Capture`), else from ``size``; with them, images are not
-        opened (:class:`elastocap.Capture` checks each image's size when reading it).
-
-        Middlebury ``*_par.txt``: a count, then one line per image ``name.png k11 .. k33
-        r11 .. r33 t1 t2 t3`` (P = K [R | t]); camera names are the image names' stems;
-        the size is read from the image beside the file if it exists.
+        Rotations printed with few digits are projected onto the nearest rotation with a
+        :class:`CalibrationWarning` (see :class:`Camera`). EasyMocap: when both ``Rot_``
+        and ``R_`` are present they must agree to the precision the file prints them
+        with, and the matrix wins. COLMAP and NeRF files put the image origin at the
+        corner of the top-left pixel: their principal points are moved by half a pixel
+        to elastocap's (OpenCV's) pixel-centre origin. NeRF's camera-to-world matrices
+        with OpenGL axes (y up, looking down -z) are converted to world-to-camera with
+        OpenCV's axes. Without a size in the file, it comes from the camera's first
+        image, mask, background or video in the folder (see :class:`elastocap.Capture`),
+        else from ``size``.
         """
-        records = _calibration_files.read(Path(path), size)
-        return cls(_camera(record) for record in records)
+        records = _calibration_files.read(Path(path), size, format)
+        rig = cls(_camera(record) for record in records)
+        factor = world_scale(units, scale)
+        rotation = up_rotation(up)
+        if factor == 1.0 and rotation is None:
+            return rig
+        return rig.transformed(rotation=rotation, scale=factor)
 
     # -- saving ---------------------------------------------------------------------------
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, *, format: str | None = None, model: str | None = None) -> Path:
         """Write the rig.
 
         Parameters
         ----------
         path : str or Path
-            A path ending in ``.json``: the ``rig.json`` format. Anything else is a folder
-            (created if needed) that receives ``intri.yml`` and ``extri.yml`` in the
-            EasyMocap layout, with both ``R_<name>`` (Rodrigues) and ``Rot_<name>`` (3x3)
-            and the image size as ``H_<name>`` / ``W_<name>``; existing files are
-            overwritten.
+            Where to write; the format comes from the name unless ``format`` is given:
+            ``*.json`` (``rig.json``; ``transforms*.json``: NeRF), ``*_par.txt`` or other
+            ``*.txt`` (Middlebury), ``cameras.txt`` / ``images.txt`` (COLMAP text, into
+            that folder), ``cameras.bin`` / ``images.bin`` (COLMAP binary), ``*.toml``
+            (Anipose), ``*.yml`` / ``*.yaml`` / ``*.xml`` (OpenCV stereo; ``intri.yml`` /
+            ``extri.yml``: EasyMocap). A path without a suffix is a folder (created if
+            needed) that receives ``intri.yml`` + ``extri.yml`` (EasyMocap), or the
+            ``format``'s files. Existing files are overwritten.
+        format : str, optional, keyword-only
+            As in :meth:`load`.
+        model : str, optional, keyword-only
+            COLMAP only: the camera model to write (``SIMPLE_PINHOLE``, ``PINHOLE``,
+            ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV``, ``FULL_OPENCV``); default the
+            simplest that holds each camera.
+
+        Returns
+        -------
+        Path
+            The file or folder written.
+
+        Raises
+        ------
+        InvalidInputError
+            The format cannot hold the rig (skew in COLMAP or NeRF, distortion terms the
+            format or the chosen COLMAP model lacks, distortion in Middlebury, other than
+            two cameras or a first camera off the origin in OpenCV stereo); the message
+            names the camera and what the format lacks.
 
         Notes
         -----
-        Both formats store doubles exactly (OpenCV prints 17 significant digits, JSON the
-        shortest exact form), so :meth:`load` gives back exactly the same cameras.
+        EasyMocap, rig.json, Middlebury, OpenCV stereo and COLMAP text store every number
+        exactly (17 significant digits or the shortest exact decimal; the half-pixel shift
+        of COLMAP and NeRF in exact decimal arithmetic), so :meth:`load` gives back the
+        same cameras bit for bit. Formats that store the rotation differently round it:
+        COLMAP (quaternion) and Anipose (Rodrigues vector) change R by a few units in the
+        last place; NeRF (camera-to-world) changes t likewise; COLMAP binary stores
+        ``cx + 0.5`` as a double, exact unless it needs one more bit than ``cx``.
         """
-        path = Path(path)
-        if path.suffix.lower() == ".json":
-            _calibration_files.write_json(path, self.cameras)
-        else:
-            _calibration_files.write_yaml(path, self.cameras)
+        _, target = _calibration_files.write(
+            Path(path), self.cameras, format, **({"model": model} if model is not None else {})
+        )
+        return target
+
+    # -- world frames ---------------------------------------------------------------------
+
+    def transformed(
+        self, *, rotation: Any = None, translation: Any = None, scale: float = 1.0
+    ) -> Rig:
+        """The rig in a new world frame ``X' = scale * (rotation @ X) + translation``.
+
+        Parameters
+        ----------
+        rotation : (3, 3) array_like, optional, keyword-only
+            A rotation (default identity).
+        translation : (3,) array_like, optional, keyword-only
+            In the new world's units (default zero).
+        scale : float, keyword-only
+            Positive; camera coordinates scale with the world, so projections are unchanged.
+
+        Returns
+        -------
+        Rig
+            Cameras with ``R' = R A^T`` and ``t' = scale t - R' b``: every world point maps
+            to the same pixel in both rigs.
+        """
+        if not (isinstance(scale, (int, float)) and np.isfinite(scale) and scale > 0):
+            raise InvalidInputError(f"scale must be a positive number, got {scale!r}")
+        A = np.eye(3) if rotation is None else _as_rotation("rotation", rotation)
+        b = np.zeros(3) if translation is None else np.asarray(translation, dtype=np.float64).reshape(3)
+        cameras = []
+        for camera in self.cameras:
+            R = camera.R @ A.T
+            cameras.append(camera.replace(R=R, t=scale * camera.t - R @ b))
+        return Rig(cameras)
+
+    def relative_to(self, name: str) -> Rig:
+        """The rig in camera ``name``'s frame: that camera gets ``R = I``, ``t = 0``
+        exactly (what the OpenCV stereo format needs); world units unchanged."""
+        reference = self[name]
+        moved = self.transformed(rotation=reference.R, translation=reference.t)
+        return Rig(
+            camera.replace(R=np.eye(3), t=np.zeros(3)) if camera.name == name else camera
+            for camera in moved.cameras
+        )
+
+
+# Metres per unit.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+# Rotations taking each axis to +y (up_rotation); "z" is the body model's z-up -> y-up.
+_UP = {
+    "y": None,
+    "-y": [[1, 0, 0], [0, -1, 0], [0, 0, -1]],
+    "z": [[1, 0, 0], [0, 0, 1], [0, -1, 0]],
+    "-z": [[1, 0, 0], [0, 0, -1], [0, 1, 0]],
+    "x": [[0, -1, 0], [1, 0, 0], [0, 0, 1]],
+    "-x": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]],
+}
+
+
+def world_scale(units: Any, scale: Any) -> float:
+    """The factor to metres from ``units`` or ``scale`` (1 with neither)."""
+    if units is not None and scale is not None:
+        raise InvalidInputError("give units or scale, not both")
+    if units is not None:
+        if units not in UNITS:
+            raise InvalidInputError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
+        return UNITS[units]
+    if scale is None:
+        return 1.0
+    if isinstance(scale, bool) or not isinstance(scale, (int, float, np.floating)) or not (np.isfinite(scale) and scale > 0):
+        raise InvalidInputError(f"scale must be a positive number, got {scale!r}")
+    return float(scale)
+
+
+def up_rotation(up: Any) -> NDArray[np.float64] | None:
+    """The rotation taking axis ``up`` to +y, or None for none."""
+    if up is None:
+        return None
+    key = up.lstrip("+") if isinstance(up, str) else up
+    if key not in _UP:
+        raise InvalidInputError(f"up must be one of x, -x, y, -y, z, -z, got {up!r}")
+    matrix = _UP[key]
+    return None if matrix is None else np.array(matrix, dtype=np.float64)
 
 
 def _camera(record: _calibration_files.CameraRecord) -> Camera:

@@ -209,6 +209,10 @@ def fit_sequence(
     InvalidInputError
         A 2-D model or one without a surface, ``rest_frame`` out of range, a bad target
         (empty hull, non-watertight mesh), bad options.
+    ConvergenceError
+        A frame's system matrix is found not positive definite (it cannot be with a
+        positive stiffness; reported, not hidden). A linear solve that stops at its
+        iteration cap is not an error: the frame's ``solver_converged`` metric is False.
     """
     if len(model.surface_faces) == 0:
         raise InvalidInputError(

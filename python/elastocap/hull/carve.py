@@ -179,7 +179,7 @@ def visual_hull(
     occupancy = _core.carve(
         ordered,
         np.ascontiguousarray([c.K for c in cameras], dtype=np.float64),
-        np.ascontiguousarray([c.dist for c in cameras], dtype=np.float64),
+        np.ascontiguousarray([c.full_dist for c in cameras], dtype=np.float64),
         np.ascontiguousarray([c.R for c in cameras], dtype=np.float64),
         np.ascontiguousarray([c.t for c in cameras], dtype=np.float64),
         (float(grid.origin[0]), float(grid.origin[1]), float(grid.origin[2])),

@@ -1,5 +1,5 @@
-"""The body stage behind ``elastocap body``: fit the default human to a capture's
-silhouettes, frame by frame, then all frames with one shared shape."""
+"""The body stage behind ``elastocap body``: track the default human through a capture's
+silhouettes and stereo points, one shape for the take."""
 
 from __future__ import annotations
 
@@ -14,30 +14,44 @@ from tqdm import tqdm
 
 from elastocap._core import InvalidInputError
 from elastocap._io import save_bytes, save_image, save_mesh
-from elastocap.body.fit import BodyObservations, fit_body
+from elastocap.body.fit import BodyObservations
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
-from elastocap.cameras import Camera, Rig
+from elastocap.body.track import BodyTracker
 from elastocap.capture.folder import Capture
+from elastocap.pipeline.hull import with_masks
 from elastocap.pipeline.pictures import contact_sheet
+from elastocap.render import render_silhouette
 
 __all__ = ["run_body_stage"]
 
 
 
-def _centre(masks: dict[str, NDArray[np.bool_]], cameras: Rig | dict[str, Camera]) -> NDArray[np.float64]:
-    """The point nearest (least squares) to the rays through the masks' centroids."""
-    a, b = np.zeros((3, 3)), np.zeros(3)
-    for name, mask in masks.items():
-        rows, cols = np.nonzero(mask)
-        if len(rows) == 0:
-            continue
-        origin, direction = cameras[name].rays(np.array([[cols.mean(), rows.mean()]]))
-        projector = np.eye(3) - np.outer(direction[0], direction[0])
-        a += projector
-        b += projector @ origin[0]
-    if np.linalg.matrix_rank(a) < 3:
-        raise InvalidInputError("the masks do not locate the body: fewer than two cameras see it")
-    return np.asarray(np.linalg.solve(a, b), dtype=np.float64)
+def _stereo_points(out: Path, frame: int) -> tuple[NDArray[np.float64], NDArray[np.float64] | None] | None:
+    """Points of ``out/points/<frame>.npz`` (``points (N, 3)``, optional ``sigma (N,)``
+    metres) and tracked points of ``out/tracks/<frame>.npz`` (``positions``, NaN where not
+    tracked, ``covariances (N, 3, 3)``), world frame; None when neither exists."""
+    found = []
+    path = out / "points" / f"{frame:06d}.npz"
+    if path.exists():
+        with np.load(path, allow_pickle=False) as data:
+            points = np.asarray(data["points"], dtype=np.float64).reshape(-1, 3)
+            sigma = np.asarray(data["sigma"], dtype=np.float64).reshape(-1) if "sigma" in data.files else np.full(len(points), 0.005)
+            found.append((points, sigma))
+    path = out / "tracks" / f"{frame:06d}.npz"
+    if path.exists():
+        with np.load(path, allow_pickle=False) as data:
+            positions = np.asarray(data["positions"], dtype=np.float64).reshape(-1, 3)
+            ok = np.isfinite(positions).all(axis=1)
+            if "covariances" in data.files:
+                cov = np.asarray(data["covariances"], dtype=np.float64).reshape(-1, 3, 3)
+                sigma = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2) / 3, 1e-8))
+            else:
+                sigma = np.full(len(positions), 0.005)
+            ok &= np.isfinite(sigma)
+            found.append((positions[ok], sigma[ok]))
+    if not found:
+        return None
+    return np.concatenate([p for p, _ in found]), np.concatenate([s for _, s in found])
 
 
 def run_body_stage(
@@ -45,73 +59,63 @@ def run_body_stage(
     out: str | Path,
     *,
     frames: Iterable[int] | None = None,
-    max_rays_per_mask: int = 800,
+    max_rays_per_mask: int = 300,
     progress: bool = True,
 ) -> Path:
-    """Fit the default human to every frame's silhouettes and write ``out/body/``:
-    ``fit.json`` (shape per part, joint angles per frame, fit status), ``<frame>.ply``
-    (skin meshes, world units) and ``out/body_views.png`` (the first frame's skin over the
-    camera images or masks). A finished ``fit.json`` makes a rerun a no-op.
+    """Track the default human through a capture and write ``out/body/``: ``fit.json``
+    (the take's one shape, joint angles per frame, fit quality), ``<frame>.ply`` (skin
+    meshes, world units) and ``out/body_views.png`` (the first frame's skin over the camera
+    images or masks). A finished ``fit.json`` makes a rerun a no-op.
 
-    Each frame's own fit is saved as it finishes (``out/body/frames/<frame>.json``, written
-    atomically), so a run that was stopped resumes at the first frame without one; the
-    joint fit over all frames runs again from the saved states.
+    Observations: the silhouettes (``CAPTURE/masks``, else ``OUT/masks`` from
+    ``elastocap silhouettes``), stereo points (``OUT/points``) and tracked points
+    (``OUT/tracks``) when present, each weighted by its precision.
+    :class:`~elastocap.body.track.BodyTracker` does the fitting: a global pose search on
+    the first frame, constant-velocity prediction after it, one shape fitted over the first
+    frames. A subject the model cannot explain is refused (``InvalidInputError``).
 
-    The fit is local: the root starts at the point nearest to the rays through the mask
-    centroids, upright, at the best of eight headings; each later frame starts from the one
-    before; a last fit shares the shape over all frames.
+    Each frame's state is saved as it finishes (``out/body/frames/<frame>.json``, written
+    atomically), so a run that was stopped resumes after the last frame saved.
     """
-    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
-    if not cap.has_masks:
-        raise InvalidInputError(f"{cap} has no masks/ folder: the body stage needs silhouettes")
-    wanted = list(cap.frames if frames is None else frames)
     out = Path(out)
+    cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
+    wanted = list(cap.frames if frames is None else frames)
+    has_points = (out / "points").is_dir() or (out / "tracks").is_dir()
+    if not cap.has_masks and not has_points:
+        raise InvalidInputError(f"{cap} has no masks/ folder, nor OUT/masks, OUT/points or OUT/tracks: the body stage needs silhouettes or points")
     result_file = out / "body" / "fit.json"
     if result_file.exists():
         return result_file
     model = BodyModel.default_human()
     names = cap.rig.names
     cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ Z_UP_TO_WORLD) for n in names}
-    camera_list = [cameras[n] for n in names]
-    frames_obs: list[BodyObservations] = []
-    states: list[BodyState] = []
-    options: dict[str, Any] = {"cameras": camera_list, "max_rays_per_mask": max_rays_per_mask, "sigma_ray": 0.1}
-    settings = {"max_rays_per_mask": max_rays_per_mask, "cameras": names, "model": model.to_dict()}
-    for i, frame in enumerate(tqdm(wanted, desc="body (per frame)", unit="frame", disable=not progress)):
-        masks = cap.masks(frame)
-        observed = BodyObservations(masks=[masks[n] for n in names])
-        frames_obs.append(observed)
+    tracker = BodyTracker(model, cameras=[cameras[n] for n in names], rays_per_mask=max_rays_per_mask)
+    settings = {"max_rays_per_mask": max_rays_per_mask, "cameras": names, "model": model.to_dict(), "tracker": 1}
+    for frame in tqdm(wanted, desc="body", unit="frame", disable=not progress):
+        masks = cap.masks(frame) if cap.has_masks else None
+        stereo = _stereo_points(out, frame)
+        observed = BodyObservations(
+            masks=None if masks is None else [masks[n] for n in names],
+            points=None if stereo is None else stereo[0] @ Z_UP_TO_WORLD,
+            point_sigma=None if stereo is None else stereo[1],
+        )
         saved = _load_frame_state(out, frame, settings, model)
         if saved is not None:
-            states.append(saved)
+            tracker.resume(observed, saved)
             continue
-        if i == 0:
-            centre = Z_UP_TO_WORLD.T @ _centre(masks, cap.rig)
-            best = None
-            for heading in np.linspace(-np.pi, np.pi, 8, endpoint=False):
-                start = model.rest_state(position=centre)
-                start.motion[3] = heading
-                trial = fit_body(model, [observed], init=start, shape=start.shape, max_iterations=30, **options)
-                if best is None or trial.final_cost < best.final_cost:
-                    best = trial
-            assert best is not None
-            fit = fit_body(model, [observed], init=best.states[0], **options)
-        else:
-            fit = fit_body(model, [observed], init=states[-1], shape=states[-1].shape, **options)
-        states.append(fit.states[0])
-        _save_frame_state(out, frame, settings, fit.states[0])
-    if progress:
-        print(f"body: joint fit of {len(wanted)} frame(s) with one shape", flush=True)
-    joint = fit_body(model, frames_obs, init=states, **options)
+        state = tracker.update(observed)
+        _save_frame_state(out, frame, settings, state)
+    track = tracker.result()
     (out / "body").mkdir(parents=True, exist_ok=True)
-    for frame, state in zip(wanted, joint.states):
+    meshes = []
+    for frame, state in zip(wanted, track.states):
         mesh = model.skin_mesh(state, spacing=0.015)
         mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
         save_mesh(out / "body" / f"{frame:06d}.ply", mesh)
-    first = joint.states[0]
+        meshes.append(mesh)
     views = []
     for name in names:
-        silhouette = model.silhouette(first, cameras[name])
+        silhouette = render_silhouette(meshes[0], cap.rig[name])
         if cap.has_images:
             base = cap.image(name, wanted[0])
         else:
@@ -123,14 +127,15 @@ def run_body_stage(
     record = {
         "frames": wanted,
         "parts": model.part_names,
-        "shape": {name: {"length": float(joint.shape[2 * b]), "width": float(joint.shape[2 * b + 1])} for b, name in enumerate(model.part_names)},
+        "shape": {name: {"length": float(track.shape[2 * b]), "width": float(track.shape[2 * b + 1])} for b, name in enumerate(model.part_names)},
+        "shape_vector": track.shape.tolist(),
         "motion_names": model.motion_names,
-        "motion": joint.motion.tolist(),
+        "motion": track.motion.tolist(),
         "frame": "z-up body frame; world = R_body_to_world @ x",
         "R_body_to_world": Z_UP_TO_WORLD.tolist(),
-        "status": joint.status,
-        "iterations": joint.iterations,
-        "final_cost": joint.final_cost,
+        "quality": [{"median_distance": q.median_distance, "explained": q.explained, "observations": q.observations} for q in track.quality],
+        "searched": track.searched,
+        "observed": track.observed,
     }
     save_bytes(result_file, json.dumps(record, indent=1).encode())
     return result_file

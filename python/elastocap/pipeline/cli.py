@@ -82,6 +82,62 @@ def _body(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from elastocap.stereo.calibration_cli import run_calibrate
+
+    run_calibrate(args.images, args.board, args.square_size, args.out, world=args.world, focal_length=args.focal_length)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.export import export_settings, export_take
+
+    settings = export_settings(args.out, take=args.take, fps=args.fps, units=args.units, up=args.up)
+    for path in export_take(args.out, args.format, settings):
+        print(f"wrote {path}")
+    return 0
+
+
+def _capture(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.capture import run_capture
+    from elastocap.pipeline.options import resolve_options
+
+    options, extra = resolve_options(args.config, args)
+    capture = args.capture if args.capture is not None else extra.get("capture")
+    if capture is None:
+        raise ElastocapError("name the capture folder (CAPTURE, or capture = \"...\" in the --config file)")
+    run = run_capture(capture, Path(args.out), options, progress=not args.quiet)
+    print(f"wrote {run.out / 'report.html'}, {run.out / 'metrics.json'} and {len(run.exports)} export(s) in {run.out / 'export'}")
+    return 0
+
+
+def _batch(args: argparse.Namespace) -> int:
+    from elastocap.pipeline.batch import run_batch
+    from elastocap.pipeline.options import resolve_options
+
+    options, _ = resolve_options(args.config, args)
+    result = run_batch(
+        args.takes, Path(args.out), options, scheduler=args.scheduler, workers=args.workers, threads=options.threads,
+        serial=args.serial, progress=not args.quiet,
+    )
+    summary = result.summary
+    print(f"{summary['done']} of {summary['takes']} take(s) done, {len(summary['failed'])} failed; see {Path(args.out) / 'batch.json'}")
+    for take in summary["failed"]:
+        print(f"  {take}: {result.takes[take]['reason']}", file=sys.stderr)
+    return 0 if not summary["failed"] else 1
+
+
+def _silhouettes(args: argparse.Namespace) -> int:
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames
+    from elastocap.silhouettes.model_based import run_silhouettes_stage
+
+    capture = Capture.open(args.capture)
+    written = run_silhouettes_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
+    print(f"wrote the masks of {len(written)} frame(s) into {Path(args.out) / 'masks'}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -91,11 +147,11 @@ def _parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo",
         help="synthetic capture -> visual hulls -> elastic fit, plus kernel checks; writes a report",
-        description="Write a synthetic capture, carve its visual hulls, fit an elastic model "
-        "through all frames, measure it against the ground truth, draw the fits over the camera "
-        "images (OUT/report.html with fit_views.png, fit_strip.png, fit_plots.png, "
-        "hull_views.png), check the kernels against scipy and numpy, and write "
-        "OUT/metrics.json. A second run resumes the first.",
+        description="Write a synthetic capture and run elastocap capture on it (visual hulls, an "
+        "elastic model fitted through all frames, OUT/report.html with fit_views.png, fit_strip.png, "
+        "fit_plots.png, hull_views.png, and OUT/export/capture.glb, .pc2, .obj), measure it against "
+        "the ground truth, check the kernels against scipy and numpy, and write OUT/metrics.json. "
+        "A second run resumes the first.",
     )
     demo.add_argument("--out", default="demo-out", help="output folder (default: demo-out)")
     demo.add_argument("--points", type=int, default=100_000, help="points per generated cloud (default: 100000)")
@@ -170,6 +226,89 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
+    from elastocap.cameras.commands import add_rig_parser
+
+    add_rig_parser(commands)
+    calibrate = commands.add_parser(
+        "calibrate",
+        help="calibrate a rig from chessboard images (per-camera RMS; warns on what the views cannot determine)",
+        description="Find the chessboard in IMAGES/<camera>/<view>.png|jpg (or a flat folder of "
+        "<camera><view>.png|jpg, e.g. left01.jpg right01.jpg), calibrate every camera and their "
+        "relative poses, and write the rig (a folder: intri.yml + extri.yml; or a .json file).",
+    )
+    calibrate.add_argument("images", metavar="IMAGES", help="folder of board images")
+    calibrate.add_argument("--board", required=True, help="inner corners COLUMNSxROWS, e.g. 7x5")
+    calibrate.add_argument("--square-size", type=float, default=1.0, help="square edge in the rig's unit (default: 1)")
+    calibrate.add_argument("--out", required=True, metavar="RIG", help="output folder (intri/extri.yml) or .json")
+    calibrate.add_argument("--world", default=None, help="camera whose frame is the world (default: first board pose)")
+    calibrate.add_argument("--focal-length", type=float, default=None, help="focal length (px) to hold if undetermined")
+    calibrate.set_defaults(run=_calibrate)
+    from elastocap.pipeline.options import add_option_flags
+
+    capture = commands.add_parser(
+        "capture",
+        help="every stage the capture allows, the report and the animation files, in one command",
+        description="Silhouettes (the capture's masks, its background/ plates or a dark background), "
+        "visual hulls, the elastic fit through every frame (and the body model with --body), then "
+        "OUT/metrics.json, OUT/report.html and OUT/export/<take>.glb, .pc2 (+ .obj). Options come from "
+        "--config (TOML; keys as below with underscores), overridden by the flags given; the options "
+        "used are written to OUT/capture.toml. Interrupted runs resume where they stopped.",
+    )
+    capture.add_argument("capture", metavar="CAPTURE", nargs="?", default=None, help="capture folder (default: capture = in --config)")
+    capture.add_argument("--out", required=True, help="output folder")
+    capture.add_argument("--config", default=None, metavar="capture.toml", help="options file (TOML)")
+    add_option_flags(capture)
+    capture.add_argument("--quiet", action="store_true", help="no progress bars")
+    capture.set_defaults(run=_capture)
+    batch = commands.add_parser(
+        "batch",
+        help="many takes through elastocap capture on a Dask cluster (a take per task)",
+        description="Run elastocap capture on every take under TAKES_DIR (a folder holding a "
+        "calibration, at any depth) into OUT/<take>/, on a local cluster of worker processes or "
+        "on a running Dask scheduler (--scheduler; e.g. dask-jobqueue on SLURM). A failing take is "
+        "recorded with its reason in OUT/batch.json and the others go on; a rerun skips the takes "
+        "already done. Exits 1 when a take failed.",
+    )
+    batch.add_argument("takes", metavar="TAKES_DIR", help="folder of takes (capture folders)")
+    batch.add_argument("--out", required=True, help="output folder")
+    batch.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address (default: a local cluster)")
+    batch.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster (default: cores / 2)")
+    batch.add_argument("--serial", action="store_true", help="no cluster: one take after the other in this process")
+    batch.add_argument("--config", default=None, metavar="capture.toml", help="options of every take (TOML)")
+    add_option_flags(batch)  # --threads: each take's threads (default: cores / workers)
+    batch.add_argument("--quiet", action="store_true", help="no progress bar")
+    batch.set_defaults(run=_batch)
+    export = commands.add_parser(
+        "export",
+        help="animation files of an output folder: glb, pc2 (+ obj), usd; bvh, trc, c3d",
+        description="Write OUT/export/<take>.<format> in metres with +Y up: glb (rest mesh with a "
+        "morph target per frame and the weights animated at the frame rate), pc2 (Blender Mesh "
+        "Cache point cache, with <take>.obj, the rest mesh) and usd (time-sampled points, needs "
+        "usd-core) from the elastic fit; bvh (skeleton), trc and c3d (joint trajectories) from the "
+        "body fit. Frame rate, units and up axis come from OUT/capture.toml unless given.",
+    )
+    export.add_argument("out", metavar="OUT", help="output folder of the capture stages")
+    export.add_argument(
+        "--format", nargs="+", required=True, choices=["glb", "pc2", "usd", "bvh", "trc", "c3d"], help="one or more formats"
+    )
+    export.add_argument("--fps", type=float, default=None, help="frames per second (default: OUT/capture.toml, else 30)")
+    export.add_argument("--units", default=None, help="the capture's units: m, cm, mm or metres per unit (default: m)")
+    export.add_argument("--up", choices=["y", "z"], default=None, help="the capture's up axis (default: y)")
+    export.add_argument("--take", default=None, help="file name of the exports (default: the capture folder's name)")
+    export.set_defaults(run=_export)
+    silhouettes = commands.add_parser(
+        "silhouettes",
+        help="model-based silhouettes without a background plate (snakes + body model)",
+        description="Extract every frame's silhouettes in clutter (SPEC 8): active contours on "
+        "the disparity-filtered gradient, corrected by the body model fitted to them. Reads "
+        "OUT/disparity/<cam>/<frame>.png and OUT/points/<frame>.npz from the stereo stage; "
+        "writes OUT/masks/<cam>/<frame>.png, which hull, fit and body then use.",
+    )
+    silhouettes.add_argument("capture", metavar="CAPTURE", help="capture folder (calibration, images/ or videos/)")
+    silhouettes.add_argument("--out", required=True, help="output folder")
+    silhouettes.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    silhouettes.add_argument("--quiet", action="store_true", help="no progress bar")
+    silhouettes.set_defaults(run=_silhouettes)
     return parser
 
 

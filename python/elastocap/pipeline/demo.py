@@ -1,11 +1,13 @@
-"""``elastocap demo``: the capture chain end to end on a synthetic capture, measured against
-its ground truth, and the kernels checked against scipy and numpy.
+"""``elastocap demo``: ``elastocap capture`` on a synthetic capture (the same code path as on
+real data), measured against its ground truth, and the kernels checked against scipy and
+numpy.
 
 Writes ``OUT/capture/`` (the synthetic capture), ``OUT/hull/`` (hull surfaces and signed
 distances per frame), ``OUT/model/`` and ``OUT/fit/`` (the elastic model and its fit through
 every frame), ``OUT/report.html`` with ``fit_views.png`` (fitted surfaces over camera
 images), ``fit_strip.png`` (the sequence), ``fit_plots.png`` (error and volume per frame)
-and ``hull_views.png``, and ``OUT/metrics.json`` (what was measured). Rerunning resumes:
+and ``hull_views.png``, ``OUT/export/capture.glb``, ``.pc2`` and ``.obj`` (the fitted
+sequence as animation files), and ``OUT/metrics.json`` (what was measured). Rerunning resumes:
 finished frames are not redone.
 """
 
@@ -15,7 +17,7 @@ import json
 import os
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +29,15 @@ from tqdm import tqdm
 import elastocap
 from elastocap._validate import as_count
 from elastocap.capture.folder import Capture
-from elastocap.pipeline.hull import load_hull, run_hull_stage
-from elastocap.pipeline.pictures import contact_sheet, mesh_over_image, save_png
+from elastocap.pipeline.capture import run_capture
+from elastocap.pipeline.hull import load_hull
+from elastocap.pipeline.options import CaptureOptions
 from elastocap.synth.capture import write_synthetic_capture
 
 __all__ = ["run_demo"]
+
+# The synthetic capture's frame rate: 30 frames are one walk cycle of about a second.
+DEMO_FPS = 30.0
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -108,17 +114,6 @@ def _hull_metrics(capture_dir: Path, out: Path, frames: list[int]) -> list[dict[
     return rows
 
 
-def _hull_picture(capture: Capture, out: Path, frame: int) -> Path:
-    import trimesh
-
-    surface = trimesh.load_mesh(out / "hull" / f"{frame:06d}.ply")
-    names = capture.cameras[:8]
-    views = [mesh_over_image(capture.image(name, frame), surface, capture.rig[name]) for name in names]
-    path = out / "hull_views.png"
-    save_png(path, contact_sheet(views, [f"{name}, frame {frame}" for name in names]))
-    return path
-
-
 def _truth_distance(capture_dir: Path, frame: int, meshes: list[Any]) -> list[float]:
     """Mean distance of each mesh's vertices to the frame's ground-truth surface."""
     from elastocap.geometry._distance import distance_to_mesh
@@ -132,38 +127,32 @@ def _truth_distance(capture_dir: Path, frame: int, meshes: list[Any]) -> list[fl
     return [float(distance_to_mesh(v, truth).mean()) for v in samples]
 
 
-def _fit(capture: Capture, capture_dir: Path, out: Path, resolution: int, n_nodes: int, progress: bool) -> dict[str, Any]:
-    """The fit stage, its figures against the ground truth, and the report."""
-    from elastocap.pipeline.fit import run_fit_stage
-    from elastocap.pipeline.report import write_fit_report
+class _TruthFigures:
+    """The capture command's report hook: each fitted frame's distance to the ground truth
+    (and the hull's), kept in ``rows`` and ``summary`` for metrics.json."""
 
-    seconds = _timed(lambda: run_fit_stage(capture, out, n_nodes=n_nodes, resolution=resolution, progress=progress))
-    fit = seconds[0]
-    rows = []
-    for frame in fit.frames:
-        hull_surface_mesh = trimesh.load_mesh(out / "hull" / f"{frame:06d}.ply")  # as the hull stage wrote it
-        fitted, hull_surface = _truth_distance(capture_dir, frame, [fit.surface(frame), hull_surface_mesh])
-        rows.append({"frame": frame, "fit_to_truth_mean_m": fitted, "hull_to_truth_mean_m": hull_surface, **fit.fits[frame].metrics})
-    summary = {
-        "frames fitted": len(rows),
-        "nodes": fit.model.n_nodes,
-        "fit seconds (this run)": round(seconds[1], 2),
-        "mean fit-to-truth distance (mm)": 1000 * float(np.mean([r["fit_to_truth_mean_m"] for r in rows])),
-        "mean hull-to-truth distance (mm)": 1000 * float(np.mean([r["hull_to_truth_mean_m"] for r in rows])),
-        "volume ratio min": float(min(r.get("volume_ratio", 1.0) for r in rows)),
-        "volume ratio max": float(max(r.get("volume_ratio", 1.0) for r in rows)),
-    }
-    page = write_fit_report(
-        out,
-        capture,
-        fit,
-        extra={
+    def __init__(self, capture_dir: Path, out: Path) -> None:
+        self.capture_dir, self.out = capture_dir, out
+        self.rows: list[dict[str, Any]] = []
+        self.summary: dict[str, Any] = {}
+
+    def __call__(self, fit: Any) -> tuple[dict[str, Sequence[float]], dict[str, Any]]:
+        rows = self.rows
+        for frame in fit.frames:
+            hull_surface_mesh = trimesh.load_mesh(self.out / "hull" / f"{frame:06d}.ply")  # as the hull stage wrote it
+            fitted, hull_surface = _truth_distance(self.capture_dir, frame, [fit.surface(frame), hull_surface_mesh])
+            rows.append({"frame": frame, "fit_to_truth_mean_m": fitted, "hull_to_truth_mean_m": hull_surface, **fit.fits[frame].metrics})
+        self.summary = {
+            "mean fit-to-truth distance (mm)": 1000 * float(np.mean([r["fit_to_truth_mean_m"] for r in rows])),
+            "mean hull-to-truth distance (mm)": 1000 * float(np.mean([r["hull_to_truth_mean_m"] for r in rows])),
+            "volume ratio min": float(min(r.get("volume_ratio", 1.0) for r in rows)),
+            "volume ratio max": float(max(r.get("volume_ratio", 1.0) for r in rows)),
+        }
+        series: dict[str, Sequence[float]] = {
             "fit to truth (mm)": [1000 * r["fit_to_truth_mean_m"] for r in rows],
             "hull to truth (mm)": [1000 * r["hull_to_truth_mean_m"] for r in rows],
-        },
-        summary=summary,
-    )
-    return {"summary": summary, "frames": rows, "report": str(page.relative_to(out))}
+        }
+        return series, self.summary
 
 
 def _body(out: Path, progress: bool) -> dict[str, Any]:
@@ -236,14 +225,22 @@ def run_demo(
         out / "capture", frames=as_count("frames", frames), cameras=as_count("cameras", cameras, minimum=2), progress=progress
     )
     capture = Capture.open(capture_dir)
-    hull_seconds = _timed(lambda: run_hull_stage(capture, out, resolution=resolution, progress=progress))[1]
+    options = CaptureOptions(resolution=resolution, nodes=as_count("n_nodes", n_nodes, minimum=50), fps=DEMO_FPS)
+    truth = _TruthFigures(capture_dir, out)
+    run = run_capture(capture_dir, out, options, progress=progress, report_figures=truth)
     results: dict[str, Any] = {
-        "capture": {"frames": len(capture.frames), "cameras": len(capture.cameras)},
-        "hull": {"seconds_this_run": round(hull_seconds, 2), "frames": _hull_metrics(capture_dir, out, capture.frames)},
-        "picture": str(_hull_picture(capture, out, capture.frames[0]).relative_to(out)),
+        "capture": {"frames": len(capture.frames), "cameras": len(capture.cameras), "fps": run.fps},
+        "hull": {"seconds_this_run": run.stages["hull"], "frames": _hull_metrics(capture_dir, out, capture.frames)},
+        "picture": "hull_views.png",
         "neighbours": [],
+        "fit": {
+            "summary": {"frames fitted": len(truth.rows), "nodes": options.nodes, "fit seconds (this run)": run.stages["fit"], **truth.summary},
+            "frames": truth.rows,
+            "report": "report.html",
+        },
+        "stages_seconds_this_run": run.stages,
+        "exports": [str(p.relative_to(out)) for p in run.exports],
     }
-    results["fit"] = _fit(capture, capture_dir, out, resolution, as_count("n_nodes", n_nodes, minimum=50), progress)
     results["body"] = _body(out, progress)
     rng = np.random.default_rng(0)
     steps = [

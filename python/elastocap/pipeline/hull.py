@@ -22,7 +22,22 @@ from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.hull.sdf import SDF
 from elastocap.hull.carve import Hull, visual_hull
 
-__all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage"]
+__all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage", "with_masks"]
+
+
+def with_masks(cap: Capture, out: str | Path) -> Capture:
+    """``cap`` itself when it has ``masks/``, else the same capture with the masks that
+    ``elastocap silhouettes`` wrote into ``out/masks`` (same layout), when there are any."""
+    from elastocap.capture.folder import _list_frames
+
+    folder = Path(out) / "masks"
+    if cap.has_masks or not folder.is_dir() or not all((folder / n).is_dir() for n in cap.rig.names):
+        return cap
+    masks = _list_frames(folder, cap.rig.names)
+    common = set(cap.frames) if cap.frames else None
+    for name in cap.rig.names:
+        common = set(masks[name]) if common is None else common & set(masks[name])
+    return Capture(cap.root, cap.rig, cap._images, masks, cap._videos, sorted(common or ()))
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
@@ -108,9 +123,9 @@ def run_hull_stage(
     progress : bool
         Show a progress bar.
     """
-    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
+    cap = with_masks(capture if isinstance(capture, Capture) else Capture.open(capture), out)
     if not cap.has_masks:
-        raise InvalidInputError(f"{cap} has no masks/ folder: the hull stage needs silhouettes")
+        raise InvalidInputError(f"{cap} has no masks/ folder (nor OUT/masks from `elastocap silhouettes`): the hull stage needs silhouettes")
     wanted = list(cap.frames if frames is None else frames)
     unknown = sorted(set(wanted) - set(cap.frames))
     if unknown:
@@ -121,14 +136,16 @@ def run_hull_stage(
     visibility = coarse_visibility(cap.rig, seen)
     for frame in tqdm(todo, desc="hull", unit="frame", disable=not progress):
         masks = cap.masks(frame)
+        # missing = "present": a frame some cameras lack is carved with the others.
+        rig = cap.rig_at(frame)
         blank = [name for name, mask in masks.items() if not mask.any()]
         if blank:
             raise InvalidInputError(
                 f"frame {frame}: the mask of camera(s) {blank} is all background, which carves "
                 f"the whole hull away; frames written so far are kept"
             )
-        grid = frame_grid(masks, cap.rig, resolution, seen, visibility)
-        hull = visual_hull(masks, cap.rig, grid, tolerance=tolerance, footprint=footprint)
+        grid = frame_grid(masks, rig, resolution, seen, visibility if rig is cap.rig else None)
+        hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint=footprint)
         ply, npz = _frame_files(out, frame)
         save_npz(
             npz,

@@ -1,0 +1,457 @@
+"""The body fit as a tracker (issue 16): :class:`BodyTracker`, :func:`track_body`.
+
+The first frame is found by a global pose search (the root placed at the centre of the
+data, several headings fitted briefly, the best refined); every later frame starts from
+its predecessor moved on at constant velocity and is fitted with the shape held; the shape
+is fitted once, jointly over the first ``window`` frames, and then shared by the whole take
+(BVH bones have fixed lengths). A frame the prediction loses (its observations far from
+the fitted skin) is searched for again. A subject the model cannot explain (an animal, an
+object) is refused on the first frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap._core import InvalidInputError
+from elastocap._validate import as_count, as_positive
+from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_samples
+from elastocap.body.model import SKIN_LEVEL, BodyModel, BodyState
+from elastocap.cameras.camera import Camera
+
+__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "observation_distances", "track_body"]
+
+#: Shoulder starts of the global search (left, right first shoulder angle, radians): both
+#: hanging, both reaching forward, one forward and one back (a walk's swing).
+ARM_STARTS = ((0.0, 0.0), (-1.0, -1.0), (-0.8, 0.8), (0.8, -0.8))
+
+#: Limb restarts of the search (first joint angle of the upper arm / thigh, radians).
+ARM_SWINGS = (-1.0, -0.4, 0.4, 1.0)
+LEG_SWINGS = (-0.3, 0.3, 0.9)
+#: A search result explaining this share of the observations is not refined further.
+WELL_EXPLAINED = 0.98
+
+#: Observations within this distance of the fitted skin (metres) count as explained.
+EXPLAINED_DISTANCE = 0.02
+
+
+@dataclass(frozen=True)
+class FrameQuality:
+    """How well a state explains one frame's observations.
+
+    Attributes
+    ----------
+    median_distance : float
+        Median approximate distance ``|F - T| / |grad F|`` of the points and silhouette rays
+        from the skin, metres (rays: at their field maximum).
+    explained : float
+        Share of them within :data:`EXPLAINED_DISTANCE`.
+    observations : int
+    """
+
+    median_distance: float
+    explained: float
+    observations: int
+
+
+@dataclass(frozen=True)
+class BodyTrack:
+    """The result of :func:`track_body` / :meth:`BodyTracker.result`.
+
+    Attributes
+    ----------
+    states : list of BodyState
+        One per frame, all with ``shape``.
+    shape : (2 P,) float64
+        The take's one shape.
+    motion : (F, n_motion) float64
+    quality : list of FrameQuality
+    searched : list of bool
+        Frames found by the global pose search (the first, and any the prediction lost).
+    observed : list of bool
+        False for frames with no observations (their state is the prediction).
+    """
+
+    states: list[BodyState]
+    shape: NDArray[np.float64]
+    motion: NDArray[np.float64]
+    quality: list[FrameQuality]
+    searched: list[bool]
+    observed: list[bool]
+
+
+def observation_distances(
+    model: BodyModel, state: BodyState, points: Any, origins: Any, directions: Any, side: Any = None
+) -> NDArray[np.float64]:
+    """Approximate distances (metres) of points and silhouette rays from the skin of
+    ``state``: ``|F - T| / |grad F|`` at each point, and at each ray's field maximum (a ray
+    that misses the model: infinity; a one-sided ray, ``side`` +1 / -1, that is satisfied:
+    0). Points first, then rays."""
+    out = []
+    if len(points):
+        f, g, _ = model.field(points, state)
+        out.append(_distance(f, g))
+    if len(origins):
+        found = model.ray_maxima(origins, directions, state)
+        f, g, _ = model.field(found["points"], state)
+        d = _distance(f, g)
+        d[~found["hit"]] = np.inf
+        if side is not None:
+            side = np.asarray(side)
+            value = np.where(found["hit"], found["values"], 0.0)
+            d[((side > 0) & (value >= SKIN_LEVEL)) | ((side < 0) & (value <= SKIN_LEVEL))] = 0.0
+        out.append(d)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _distance(f: NDArray[np.float64], g: NDArray[np.float64]) -> NDArray[np.float64]:
+    norm = np.linalg.norm(g, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.abs(f - SKIN_LEVEL) / norm
+    d[(f < 1e-8) | ~np.isfinite(d)] = np.inf
+    return np.asarray(d)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """One frame's observations with the silhouette rays drawn once."""
+
+    points: NDArray[np.float64]
+    point_sigma: NDArray[np.float64] | None
+    origins: NDArray[np.float64]
+    directions: NDArray[np.float64]
+    side: NDArray[np.int8]
+    joints: Mapping[str, Any]
+
+    @property
+    def empty(self) -> bool:
+        return len(self.points) + len(self.origins) + len(self.joints) == 0
+
+    def observations(self, rays: int | None = None) -> BodyObservations:
+        o, d, s = self.origins, self.directions, self.side
+        if rays is not None and len(o) > rays:
+            keep = np.linspace(0, len(o) - 1, rays).round().astype(int)
+            o, d, s = o[keep], d[keep], s[keep]
+        return BodyObservations(points=self.points, point_sigma=self.point_sigma, origins=o, directions=d, ray_side=s, joints=self.joints)
+
+    def centre(self) -> NDArray[np.float64] | None:
+        """Where the body is: the points' median, else the point nearest to all rays."""
+        if len(self.points) >= 10:
+            return np.asarray(np.median(self.points, axis=0))
+        if (self.side >= 0).sum() >= 3:
+            keep = self.side >= 0
+            d = self.directions[keep] / np.linalg.norm(self.directions[keep], axis=1, keepdims=True)
+            projector = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+            a = projector.sum(axis=0)
+            if np.linalg.cond(a) < 1e8:
+                return np.asarray(np.linalg.solve(a, np.einsum("nij,nj->i", projector, self.origins[keep])))
+        if self.joints:
+            return np.mean([np.asarray(v, dtype=float) for v in self.joints.values()], axis=0)
+        return None
+
+
+class BodyTracker:
+    """Fits a body model frame by frame (see the module docstring).
+
+    Parameters
+    ----------
+    model : BodyModel
+    cameras : sequence of Camera, optional, keyword-only
+        The cameras of the frames' masks (body frame: ``R`` composed with
+        ``Z_UP_TO_WORLD``, as the body stage does).
+    window : int, default 5, keyword-only
+        Frames over which the shape is fitted jointly; then it is held for the take.
+    rays_per_mask : int, default 300, keyword-only
+        Silhouette outline rays drawn per mask.
+    inside_per_mask : int, default 100, keyword-only
+        One-sided rays drawn per mask inside the silhouette, and as many outside it
+        (:func:`silhouette_samples`): they keep limbs from hiding inside the silhouette of
+        the torso, which outline rays alone allow.
+    sigma_point, sigma_ray, sigma_joint : float, keyword-only
+        A-priori standard deviations (see :func:`fit_body`); points may carry their own
+        ``point_sigma`` (metres) on top.
+    headings : int, default 8, keyword-only
+        Headings tried by the global pose search.
+    max_iterations : int, default 40, keyword-only
+        Levenberg-Marquardt iterations per tracked frame.
+    lost_distance : float, default 0.015, keyword-only
+        A tracked frame whose observations lie farther than this (median, metres) from the
+        fitted skin, or of which clearly less are explained than in the frames before
+        (0.1 less, and below 0.9), is searched for again.
+    refuse_distance : float, default 0.03, keyword-only
+        The first frame is refused (``InvalidInputError``) when, after the search, the
+        median distance exceeds this or less than half the observations are explained: the
+        body model cannot explain the subject.
+    """
+
+    def __init__(
+        self,
+        model: BodyModel,
+        *,
+        cameras: Sequence[Camera] | None = None,
+        window: int = 5,
+        rays_per_mask: int = 300,
+        inside_per_mask: int = 100,
+        sigma_point: float = 0.05,
+        sigma_ray: float = 0.1,
+        sigma_joint: float = 0.01,
+        headings: int = 8,
+        max_iterations: int = 40,
+        lost_distance: float = 0.015,
+        refuse_distance: float = 0.03,
+    ) -> None:
+        if not isinstance(model, BodyModel):
+            raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
+        self.model = model
+        self.cameras = None if cameras is None else list(cameras)
+        self.window = as_count("window", window)
+        self.rays_per_mask = as_count("rays_per_mask", rays_per_mask)
+        self.inside_per_mask = as_count("inside_per_mask", inside_per_mask, minimum=0)
+        self.headings = as_count("headings", headings)
+        self.max_iterations = as_count("max_iterations", max_iterations)
+        self.lost_distance = as_positive("lost_distance", lost_distance)
+        self.refuse_distance = as_positive("refuse_distance", refuse_distance)
+        self._sigmas = {
+            "sigma_point": as_positive("sigma_point", sigma_point),
+            "sigma_ray": as_positive("sigma_ray", sigma_ray),
+            "sigma_joint": as_positive("sigma_joint", sigma_joint),
+        }
+        self._frames: list[_Frame] = []
+        self._states: list[BodyState] = []
+        self._quality: list[FrameQuality] = []
+        self._searched: list[bool] = []
+        self._observed: list[bool] = []
+        self._shape_fixed = False
+
+    # -- observations ---------------------------------------------------------------------
+
+    def _prepare(self, obs: Any, index: int) -> _Frame:
+        if isinstance(obs, Mapping):
+            obs = BodyObservations(**obs)
+        if not isinstance(obs, BodyObservations):
+            raise InvalidInputError(f"frame {index} must be a BodyObservations or a dict, got {type(obs).__name__}")
+        points = np.zeros((0, 3)) if obs.points is None else np.asarray(obs.points, dtype=np.float64).reshape(-1, 3)
+        sigma = None if obs.point_sigma is None else np.asarray(obs.point_sigma, dtype=np.float64).reshape(-1)
+        origins = [np.zeros((0, 3)) if obs.origins is None else np.asarray(obs.origins, dtype=np.float64).reshape(-1, 3)]
+        directions = [np.zeros((0, 3)) if obs.directions is None else np.asarray(obs.directions, dtype=np.float64).reshape(-1, 3)]
+        sides = [np.zeros(len(origins[0]), dtype=np.int8) if obs.ray_side is None else np.asarray(obs.ray_side, dtype=np.int8).reshape(-1)]
+        if obs.masks is not None:
+            if self.cameras is None or len(self.cameras) != len(obs.masks):
+                raise InvalidInputError(f"frame {index}: masks need one camera per mask in BodyTracker(cameras=...)")
+            for k, (mask, camera) in enumerate(zip(obs.masks, self.cameras)):
+                if mask is None:
+                    continue
+                o, d, s = silhouette_samples(
+                    mask, camera, outline=self.rays_per_mask, inside=self.inside_per_mask, outside=self.inside_per_mask, seed=index * 1009 + k
+                )
+                origins.append(o)
+                directions.append(d)
+                sides.append(s)
+        return _Frame(points, sigma, np.concatenate(origins), np.concatenate(directions), np.concatenate(sides), dict(obs.joints))
+
+    def quality(self, state: BodyState, frame: _Frame) -> FrameQuality:
+        d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
+        if len(d) == 0:
+            return FrameQuality(0.0, 1.0, 0)
+        return FrameQuality(float(np.median(d)), float(np.mean(d <= EXPLAINED_DISTANCE)), len(d))
+
+    # -- fitting --------------------------------------------------------------------------
+
+    def _fit(self, frames: list[_Frame], init: list[BodyState], *, shape: Any, iterations: int, rays: int | None = None) -> BodyFit:
+        return fit_body(
+            self.model,
+            [f.observations(rays) for f in frames],
+            init=init,
+            shape=shape,
+            max_iterations=iterations,
+            sigma_point=self._sigmas["sigma_point"],
+            sigma_ray=self._sigmas["sigma_ray"],
+            sigma_joint=self._sigmas["sigma_joint"],
+        )
+
+    def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:
+        """The global pose search on one frame: the root at the centre of the data, upright,
+        at ``headings`` headings, each fitted briefly on a subset of the observations; the
+        two best by cost, and each turned round by half a turn (silhouettes and stereo look
+        alike from the front and the back), are fitted fully, and the one whose
+        observations lie closest to its skin is kept."""
+        centre = frame.centre()
+        if centre is None:
+            raise InvalidInputError("the frame's observations do not locate the body")
+
+        def start(heading: float, motion: NDArray[np.float64] | None = None) -> BodyState:
+            state = self.model.rest_state(position=centre).replace(shape=shape)
+            if motion is not None:
+                state = state.replace(motion=motion.copy())
+            state.motion[3] = heading
+            return state
+
+        coarse = [
+            self._fit([frame], [self._arms(start(h), arms)], shape=shape, iterations=15, rays=400)
+            for h in np.linspace(-np.pi, np.pi, self.headings, endpoint=False)
+            for arms in ARM_STARTS
+        ]
+        best: tuple[BodyState, FrameQuality, float] | None = None
+        for fit in sorted(coarse, key=lambda f: f.final_cost)[:2]:
+            found = fit.states[0]
+            for init in (found, start(found.motion[3] + np.pi, found.motion)):
+                refined = self._fit([frame], [init], shape=None if fit_shape else shape, iterations=60)
+                state = refined.states[0]
+                d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
+                score = float(np.mean(np.minimum(d, 0.05))) if len(d) else 0.0
+                if best is None or score < best[2]:
+                    best = (state, self.quality(state, frame), score)
+        assert best is not None
+        # A limb can settle in a wrong valley (an arm twisted or swung the other way, a leg
+        # on the other leg's data) while the rest fits: while observations are left
+        # unexplained, each limb is restarted alone from a few swings, straight and bent,
+        # and a restart is kept when the observations end up closer to the skin.
+        state, quality, score = best
+        names = self.model.motion_names
+        for side in ("l", "r"):
+            for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
+                if quality.explained >= WELL_EXPLAINED:
+                    break
+                for angle in swings:
+                    for bend in (0.0, 0.5):
+                        motion = state.motion.copy()
+                        for k in range(3):
+                            name = f"{side}_{root}.{k}"
+                            if name in names:
+                                motion[names.index(name)] = angle if k == 0 else 0.0
+                        name = f"{side}_{distal}.0"
+                        if name in names:
+                            i = names.index(name)
+                            lo, hi = self.model.lower[i], self.model.upper[i]
+                            # part-way into the joint's range, whichever its sign
+                            motion[i] = (1 - bend) * np.clip(0.0, lo, hi) + bend * (lo if abs(lo) > abs(hi) else hi)
+                        refined = self._fit([frame], [state.replace(motion=motion)], shape=None if fit_shape else shape, iterations=30, rays=1200)
+                        trial = refined.states[0]
+                        d = observation_distances(self.model, trial, frame.points, frame.origins, frame.directions, frame.side)
+                        trial_score = float(np.mean(np.minimum(d, 0.05))) if len(d) else 0.0
+                        if trial_score < score:
+                            state, quality, score = trial, self.quality(trial, frame), trial_score
+        return state, quality
+
+    def _arms(self, state: BodyState, arms: tuple[float, float]) -> BodyState:
+        """``state`` with the first shoulder angle of each arm set (radians): the fit
+        does not swing an arm from hanging to reaching forward on its own."""
+        motion = state.motion.copy()
+        for name, angle in zip(("l_upperarm.0", "r_upperarm.0"), arms):
+            if name in self.model.motion_names:
+                motion[self.model.motion_names.index(name)] = angle
+        return state.replace(motion=motion)
+
+    def _predict(self) -> BodyState:
+        last = self._states[-1]
+        if len(self._states) >= 2 and not self._searched[-1]:
+            motion = 2 * last.motion - self._states[-2].motion
+        else:
+            motion = last.motion.copy()
+        return BodyState(last.shape, np.clip(motion, self.model.lower, self.model.upper))
+
+    def _lost(self, quality: FrameQuality) -> bool:
+        """Farther than ``lost_distance`` (median), or explaining clearly less than the
+        frames before did (a subject the model fits only roughly explains less every
+        frame; a lost track falls from there)."""
+        recent = [q.explained for q, seen in zip(self._quality[-10:], self._observed[-10:]) if seen]
+        reference = float(np.median(recent)) if recent else 1.0
+        return quality.median_distance > self.lost_distance or quality.explained < min(reference - 0.1, 0.9)
+
+    def update(self, observations: BodyObservations | Mapping[str, Any]) -> BodyState:
+        """Fits the next frame and returns its state (shape may still change until
+        ``window`` frames have been seen; :meth:`result` has the final states).
+
+        Raises
+        ------
+        InvalidInputError
+            Malformed observations; on the first frame, no observations or a subject the
+            model cannot explain (see ``refuse_distance``).
+        """
+        index = len(self._states)
+        frame = self._prepare(observations, index)
+        if index == 0:
+            if frame.empty:
+                raise InvalidInputError("the first frame has no observations (no points, masks, rays or joints): nothing to start from")
+            state, quality = self.search(frame, np.ones(self.model.n_shape), fit_shape=True)
+            if quality.median_distance > self.refuse_distance or quality.explained < 0.5:
+                raise InvalidInputError(
+                    f"the body model cannot explain this subject: after the pose search, the observations lie "
+                    f"{100 * quality.median_distance:.1f} cm (median) from the fitted skin and {100 * quality.explained:.0f}% "
+                    f"within {100 * EXPLAINED_DISTANCE:.0f} cm (a person: within {100 * self.refuse_distance:.0f} cm, most "
+                    "explained); is the subject a person, and are the masks and calibration right?"
+                )
+            self._append(frame, state, quality, searched=True, observed=True)
+            return state
+        predicted = self._predict()
+        if frame.empty:
+            self._append(frame, predicted, FrameQuality(0.0, 1.0, 0), searched=False, observed=False)
+            return predicted
+        fit = self._fit([frame], [predicted], shape=predicted.shape, iterations=self.max_iterations)
+        state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
+        if self._lost(quality):
+            found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
+            if (found_quality.median_distance, -found_quality.explained) < (quality.median_distance, -quality.explained):
+                state, quality, searched = found, found_quality, True
+        self._append(frame, state, quality, searched=searched, observed=True)
+        if not self._shape_fixed and len(self._states) >= self.window:
+            self._fit_shape()
+        return self._states[-1]
+
+    def resume(self, observations: BodyObservations | Mapping[str, Any], state: BodyState, *, searched: bool = False) -> None:
+        """Appends a frame whose state is already known (a resumed run): no fit, but the
+        frame counts for the prediction and the shape window."""
+        self.model.check_state(state)
+        frame = self._prepare(observations, len(self._states))
+        self._append(frame, state, self.quality(state, frame), searched=searched, observed=not frame.empty)
+        if not self._shape_fixed and len(self._states) >= self.window:
+            self._fit_shape()
+
+    def _append(self, frame: _Frame, state: BodyState, quality: FrameQuality, *, searched: bool, observed: bool) -> None:
+        self._frames.append(frame)
+        self._states.append(state)
+        self._quality.append(quality)
+        self._searched.append(searched)
+        self._observed.append(observed)
+
+    def _fit_shape(self) -> None:
+        """One shape, fitted jointly with the motion of the observed frames seen so far."""
+        use = [i for i, seen in enumerate(self._observed) if seen]
+        fit = self._fit([self._frames[i] for i in use], [self._states[i] for i in use], shape=None, iterations=self.max_iterations)
+        for i, state in zip(use, fit.states):
+            self._states[i] = state
+            self._quality[i] = self.quality(state, self._frames[i])
+        self._states = [BodyState(fit.shape, s.motion) for s in self._states]
+        self._shape_fixed = True
+
+    def result(self) -> BodyTrack:
+        """The track so far, with one shape (fitted now over the frames seen if fewer than
+        ``window``)."""
+        if not self._states:
+            raise InvalidInputError("no frame has been tracked")
+        if not self._shape_fixed:
+            self._fit_shape()
+        return BodyTrack(
+            states=list(self._states),
+            shape=self._states[0].shape.copy(),
+            motion=np.stack([s.motion for s in self._states]),
+            quality=list(self._quality),
+            searched=list(self._searched),
+            observed=list(self._observed),
+        )
+
+
+def track_body(model: BodyModel, frames: Sequence[BodyObservations | Mapping[str, Any]], **options: Any) -> BodyTrack:
+    """Tracks ``model`` through ``frames`` (one BodyObservations per frame) with a
+    :class:`BodyTracker` built from ``options``; see there."""
+    if isinstance(frames, (BodyObservations, Mapping)) or not isinstance(frames, Sequence) or len(frames) == 0:
+        raise InvalidInputError("frames must be a non-empty sequence of BodyObservations, one per frame")
+    tracker = BodyTracker(model, **options)
+    for obs in frames:
+        tracker.update(obs)
+    return tracker.result()

@@ -1,0 +1,327 @@
+"""Model-based silhouette extraction in clutter (SPEC 8; paper 002, section 4.3):
+:class:`SilhouetteTracker` and :func:`extract_silhouettes`.
+
+Per frame and camera: the previous frame's silhouette starts an active contour on the
+disparity-filtered gradient image; the body model is fitted to the stereo points and
+these silhouettes; the fitted model's silhouette starts a second contour, whose result is
+the frame's silhouette. The first frame starts from what the cameras agree on: the visual
+hull of the disparity masks (one camera may disagree) inside the space every camera sees,
+projected back into each camera. No background plate, no hand-drawn mask.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap._core import InvalidInputError
+from elastocap.body.fit import BodyObservations
+from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
+from elastocap.body.track import BodyTracker
+from elastocap.cameras.rig import Rig
+from elastocap.capture.folder import Capture
+from elastocap.hull.carve import Hull, visual_hull
+from elastocap.hull.grid import Grid, space_seen_by
+from elastocap.render.mesh import render_silhouette
+from elastocap.silhouettes.background import clean_mask
+from elastocap.silhouettes.gradient import filtered_gradient
+from elastocap.silhouettes.snake import snake_silhouette
+
+__all__ = ["SilhouetteTracker", "agreed_silhouettes", "extract_silhouettes"]
+
+#: Snake options for silhouettes (tuned on seed 1 of the clutter scene): a soft contour
+#: that follows limbs, pulled hard by the filtered edges.
+SNAKE_DEFAULTS = {"alpha": 0.01, "beta": 0.02, "kappa": 10.0, "max_iterations": 150}
+#: Body tracker options in the loop (seed 1): the first contours are noisy, so they are
+#: weighted less than clean masks and give outline rays only (one-sided rays through a wrong
+#: silhouette pull limbs into the clutter).
+TRACKER_DEFAULTS = {"inside_per_mask": 0, "sigma_ray": 0.3}
+#: Pixels: the second contour starts from the first one where it lies within this of the
+#: fitted model's silhouette, and from the model's silhouette shrunk by it elsewhere.
+MODEL_MARGIN = 6
+
+#: Voxels along the longest side of the hull that locates the subject on the first frame.
+AGREEMENT_RESOLUTION = 64
+
+
+def agreed_silhouettes(rig: Rig, disparity_masks: Mapping[str, Any], *, tolerance: int = 0) -> dict[str, NDArray[np.bool_]]:
+    """Silhouettes of what the cameras agree on: the visual hull of the cleaned disparity
+    masks (``tolerance`` cameras may disagree) inside the space every
+    camera sees, its largest connected part kept, projected into every camera.
+
+    Raises
+    ------
+    InvalidInputError
+        When the cameras agree on nothing (no voxel survives).
+    """
+    from scipy import ndimage
+
+    # Holes (poor texture) and speckle of each mask cleaned first, so that every camera
+    # must agree.
+    masks = {name: clean_mask(np.asarray(disparity_masks[name]) != 0, open_radius=2, close_radius=4) for name in rig.names}
+    blank = [name for name, mask in masks.items() if not mask.any()]
+    if len(blank) > tolerance:
+        raise InvalidInputError(f"the cameras' disparity masks agree on nothing: camera(s) {blank} have an empty disparity mask")
+    lower, upper = space_seen_by(rig)
+    # A coarse hull over the whole shared space locates the subject; a finer one around it
+    # gives its outline.
+    for resolution in (AGREEMENT_RESOLUTION, 2 * AGREEMENT_RESOLUTION):
+        grid = Grid.around(lower, upper, resolution)
+        hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint="center")
+        # Only the volume every camera sees: a voxel outside some view is not carved by it.
+        centres = grid.centers().reshape(-1, 3)
+        seen = np.logical_and.reduce([camera.visible(centres) for camera in rig.cameras]).reshape(grid.shape)
+        labels, count = ndimage.label(hull.occupancy & seen)
+        if count == 0:
+            raise InvalidInputError("the cameras' disparity masks agree on nothing: no subject to start from")
+        sizes = ndimage.sum(hull.occupancy, labels, index=np.arange(1, count + 1))
+        occupancy = labels == 1 + int(np.argmax(sizes))
+        index = np.argwhere(occupancy)
+        lower = grid.origin + grid.spacing * (index.min(axis=0) - 2)
+        upper = grid.origin + grid.spacing * (index.max(axis=0) + 2)
+    mesh = Hull(occupancy, grid).mesh()
+    return {camera.name: render_silhouette(mesh, camera) for camera in rig.cameras}
+
+
+class SilhouetteTracker:
+    """Model-based silhouettes, frame by frame (see the module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+    model : BodyModel, optional, keyword-only
+        Default: :meth:`BodyModel.default_human`.
+    snake : dict, optional, keyword-only
+        Options of :func:`~elastocap.silhouettes.snake.active_contour`.
+    gradient : dict, optional, keyword-only
+        Options of :func:`~elastocap.silhouettes.gradient.filtered_gradient`.
+    tracker : dict, optional, keyword-only
+        Options of :class:`~elastocap.body.track.BodyTracker`.
+    model_margin : int, keyword-only
+        See :data:`MODEL_MARGIN`: the model corrects the first contour where it strays
+        (into clutter, or away from a limb) rather than replacing it, since the body model
+        is not the subject's exact shape.
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        *,
+        model: BodyModel | None = None,
+        snake: Mapping[str, Any] | None = None,
+        gradient: Mapping[str, Any] | None = None,
+        tracker: Mapping[str, Any] | None = None,
+        model_margin: int = MODEL_MARGIN,
+    ) -> None:
+        if not isinstance(rig, Rig):
+            raise InvalidInputError(f"rig must be an elastocap.Rig, got {type(rig).__name__}")
+        self.rig = rig
+        self.model = BodyModel.default_human() if model is None else model
+        self.snake_options = {**SNAKE_DEFAULTS, **(snake or {})}
+        self.gradient_options = dict(gradient or {})
+        self.model_margin = int(model_margin)
+        body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
+        self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
+        self.previous: dict[str, NDArray[np.bool_]] | None = None
+        self.states: list[BodyState] = []
+        self.first_pass: dict[str, NDArray[np.bool_]] = {}
+        self.model_masks: dict[str, NDArray[np.bool_]] = {}
+        #: Seconds spent so far in the snakes, the body fit and the rest.
+        self.timings = {"snakes": 0.0, "body": 0.0, "other": 0.0}
+
+    def _snake(self, attraction: NDArray[np.float64], init: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        if not init.any() or not attraction.any():
+            return init
+        started = time.perf_counter()
+        mask, _ = snake_silhouette(attraction, init, **self.snake_options)
+        self.timings["snakes"] += time.perf_counter() - started
+        # A contour that collapsed is reported by the snake; the start is kept instead.
+        return init if mask is None else mask
+
+    def _second_start(self, first: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        import cv2
+
+        if self.model_margin <= 0 or not model.any():
+            return model
+        r = self.model_margin
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        near = cv2.dilate(model.astype(np.uint8), kernel) != 0
+        core = cv2.erode(model.astype(np.uint8), kernel) != 0
+        return np.asarray((first & near) | core)
+
+    def step(
+        self,
+        images: Mapping[str, Any],
+        *,
+        disparity_masks: Mapping[str, Any] | None = None,
+        points: Any = None,
+    ) -> dict[str, NDArray[np.bool_]]:
+        """The silhouettes of the next frame.
+
+        Parameters
+        ----------
+        images : mapping of camera name to (H, W, 3) uint8
+        disparity_masks : mapping of camera name to (H, W) array_like, optional
+            The stereo stage's binarised disparity (a camera may lack one: its gradient is
+            then unfiltered). Needed on the first frame unless ``points`` locate the body.
+        points : (N, 3) array_like, optional
+            Stereo points of this frame, world metres.
+
+        Returns
+        -------
+        dict of camera name to (H, W) bool
+        """
+        names = self.rig.names
+        missing = [n for n in names if n not in images]
+        if missing:
+            raise InvalidInputError(f"images lack camera(s) {missing}")
+        disparity = dict(disparity_masks or {})
+        attraction = {}
+        for n in names:
+            near = disparity.get(n)
+            if disparity and (near is None or not np.asarray(near).any()):
+                # Stereo saw nothing in this view while it did in others: the unfiltered
+                # gradient would pull the contour into the clutter, so this view keeps its
+                # starts (previous silhouette, then the model's) without a snake.
+                attraction[n] = np.zeros(np.asarray(images[n]).shape[:2])
+                continue
+            attraction[n] = filtered_gradient(images[n], near, **self.gradient_options)[0]
+        if self.previous is None:
+            if not disparity or any(n not in disparity for n in names):
+                raise InvalidInputError("the first frame needs a disparity mask for every camera: the cameras' agreement is where the subject starts")
+            start = agreed_silhouettes(self.rig, disparity)
+        else:
+            start = self.previous
+        first = {n: self._snake(attraction[n], start[n]) for n in names}
+        world = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        observed = BodyObservations(
+            masks=[first[n] if first[n].any() else None for n in names],
+            points=None if world is None or len(world) == 0 else world @ Z_UP_TO_WORLD,
+        )
+        started = time.perf_counter()
+        state = self.body.update(observed)
+        self.timings["body"] += time.perf_counter() - started
+        self.states.append(state)
+        mesh = self.model.skin_mesh(state, spacing=0.015)
+        mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
+        projected = {c.name: render_silhouette(mesh, c) for c in self.rig.cameras}
+        final = {n: self._snake(attraction[n], self._second_start(first[n], projected[n])) for n in names}
+        self.first_pass, self.model_masks, self.previous = first, projected, final
+        return final
+
+
+def extract_silhouettes(
+    capture: Capture | str | Path,
+    *,
+    frames: Iterable[int] | None = None,
+    disparity_masks: Mapping[int, Mapping[str, Any]] | None = None,
+    points: Mapping[int, Any] | None = None,
+    progress: bool = False,
+    **options: Any,
+) -> dict[int, dict[str, NDArray[np.bool_]]]:
+    """Silhouettes of every frame of a capture without a background plate (SPEC 8).
+
+    Parameters
+    ----------
+    capture : Capture or path
+        With colour images (or videos) and a calibration.
+    frames : iterable of int, optional, keyword-only
+        Consecutive frames to process (default: all).
+    disparity_masks : mapping of frame to (mapping of camera name to (H, W) mask), optional
+        The stereo stage's binarised disparity masks; required for the first frame.
+    points : mapping of frame to (N, 3) array_like, optional
+        Stereo points per frame, world metres.
+    progress : bool, keyword-only
+    **options
+        Passed to :class:`SilhouetteTracker`.
+
+    Returns
+    -------
+    dict of frame to (dict of camera name to (H, W) bool)
+    """
+    from tqdm import tqdm
+
+    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
+    if not (cap.has_images or cap._videos):
+        raise InvalidInputError(f"{cap} has no images or videos: silhouettes need colour frames")
+    wanted = list(cap.frames if frames is None else frames)
+    tracker = SilhouetteTracker(cap.rig, **options)
+    out = {}
+    for frame in tqdm(wanted, desc="silhouettes", unit="frame", disable=not progress):
+        images = {n: cap.image(n, frame) for n in cap.rig.names}
+        out[frame] = tracker.step(
+            images,
+            disparity_masks=None if disparity_masks is None else disparity_masks.get(frame),
+            points=None if points is None else points.get(frame),
+        )
+    return out
+
+
+def _read_mask(path: Path) -> NDArray[np.bool_] | None:
+    import cv2
+
+    if not path.exists():
+        return None
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InvalidInputError(f"cannot read the mask {path}")
+    return np.asarray(image != 0)
+
+
+def run_silhouettes_stage(
+    capture: Capture | str | Path,
+    out: str | Path,
+    *,
+    frames: Iterable[int] | None = None,
+    progress: bool = True,
+    **options: Any,
+) -> list[int]:
+    """``elastocap silhouettes``: model-based silhouettes of every frame, written as
+    ``out/masks/<camera>/<frame:06d>.png`` (0 / 255), the layout of a capture's ``masks/``,
+    which ``elastocap hull``, ``fit`` and ``body`` then use.
+
+    Inputs beside the images: the stereo stage's binarised disparity masks
+    ``out/disparity/<camera>/<frame:06d>.png`` (non-zero: a disparity inside the
+    reconstruction volume; needed for the first frame) and points
+    ``out/points/<frame:06d>.npz`` (``points (N, 3)``, world) when present. Frames whose
+    masks are all written are skipped; the loop resumes from the last of them.
+
+    Returns
+    -------
+    list of int
+        The frames written now.
+    """
+    from tqdm import tqdm
+
+    from elastocap._io import save_image
+
+    cap = capture if isinstance(capture, Capture) else Capture.open(capture)
+    out = Path(out)
+    wanted = list(cap.frames if frames is None else frames)
+    names = cap.rig.names
+    tracker = SilhouetteTracker(cap.rig, **options)
+
+    def mask_path(name: str, frame: int) -> Path:
+        return out / "masks" / name / f"{frame:06d}.png"
+
+    written = []
+    for frame in tqdm(wanted, desc="silhouettes", unit="frame", disable=not progress):
+        if all(mask_path(n, frame).exists() for n in names):
+            tracker.previous = {n: _read_mask(mask_path(n, frame)) for n in names}  # type: ignore[misc]
+            continue
+        disparity = {n: m for n in names if (m := _read_mask(out / "disparity" / n / f"{frame:06d}.png")) is not None}
+        points_file = out / "points" / f"{frame:06d}.npz"
+        points = None
+        if points_file.exists():
+            with np.load(points_file, allow_pickle=False) as data:
+                points = np.asarray(data["points"], dtype=np.float64)
+        masks = tracker.step({n: cap.image(n, frame) for n in names}, disparity_masks=disparity, points=points)
+        for n in names:
+            save_image(mask_path(n, frame), masks[n].astype(np.uint8) * 255)
+        written.append(frame)
+    return written

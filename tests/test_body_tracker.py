@@ -1,0 +1,128 @@
+"""The body fit as a tracker (issue 16): joint angles recovered from stereo points and
+silhouettes over consecutive frames; a frame far from its predecessor found again by the
+global search; a subject the model cannot explain refused; frames with missing input;
+BVH written and read back with bvhio."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from body_scenes import z_up_cameras
+from elastocap import InvalidInputError
+from elastocap.body import BodyModel, BodyObservations, BodyState
+from elastocap.body.bvh import write_bvh
+from elastocap.body.track import BodyTracker, track_body
+from elastocap.render import render_silhouette
+from elastocap.synth.body import BodyFigure
+
+MODEL = BodyModel.default_human()
+CAMERAS = z_up_cameras(6, width=320, height=240)
+
+
+def observe(state: BodyState, *, points: int = 1500, seed: int = 0, cameras=CAMERAS) -> BodyObservations:
+    mesh = MODEL.skin_mesh(state, spacing=0.01)
+    rng = np.random.default_rng(seed)
+    skin = MODEL.skin_points(state, points, seed=seed, spacing=0.015) + rng.normal(0, 0.002, (points, 3))
+    return BodyObservations(points=skin, masks=[render_silhouette(mesh, c) for c in cameras])
+
+
+def angles_rms(fit: BodyState, truth: BodyState) -> float:
+    return float(np.degrees(np.sqrt(np.mean((fit.motion[6:] - truth.motion[6:]) ** 2))))
+
+
+LIMB_JOINTS = [MODEL.part_names.index(f"{s}_{p}") for s in "lr" for p in ("forearm", "hand", "shin", "foot")]
+
+
+def joint_errors(fit: BodyState, truth: BodyState) -> np.ndarray:
+    """Errors of the elbows, wrists, knees and ankles, metres."""
+    return np.linalg.norm(MODEL.pose(fit)[1][LIMB_JOINTS] - MODEL.pose(truth)[1][LIMB_JOINTS], axis=1)
+
+
+def joint_error(fit: BodyState, truth: BodyState) -> float:
+    return float(joint_errors(fit, truth).max())
+
+
+def test_tracker_recovers_joint_angles_from_stereo_and_silhouettes() -> None:
+    figure = BodyFigure(5)
+    truths = [figure.state(f) for f in range(4)]
+    track = track_body(MODEL, [observe(s, seed=f) for f, s in enumerate(truths)], cameras=CAMERAS, window=3)
+    assert track.searched[0] and not any(track.searched[1:])
+    for fit, truth in zip(track.states, truths):
+        # (angles about a straight limb's own axis are barely observable: positions are)
+        errors = joint_errors(fit, truth)
+        assert np.sqrt(np.mean(errors**2)) < 0.02 and errors.max() < 0.04
+        assert angles_rms(fit, truth) < 12.0
+    assert np.abs(track.shape / figure.shape - 1).max() < 0.05
+    assert all(np.array_equal(s.shape, track.shape) for s in track.states)
+
+
+def test_a_frame_far_from_its_predecessor_is_found_by_the_global_search() -> None:
+    figure = BodyFigure(5)
+    truths = [figure.state(f) for f in range(3)]
+    jumped = truths[-1].motion.copy()
+    jumped[:2] += (0.25, -0.2)
+    jumped[3] += np.radians(150)
+    truths.append(BodyState(figure.shape, jumped))
+    tracker = BodyTracker(MODEL, cameras=CAMERAS, window=2)
+    for f, truth in enumerate(truths):
+        tracker.update(observe(truth, seed=f))
+    track = tracker.result()
+    assert track.searched[-1]
+    assert joint_error(track.states[-1], truths[-1]) < 0.04
+
+
+def test_a_subject_the_model_cannot_explain_is_refused() -> None:
+    """A four-legged animal (a horizontal barrel on legs, a neck and a head)."""
+    parts = [trimesh.creation.capsule(0.9, 0.22).apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))]
+    for x in (-0.4, 0.4):
+        for y in (-0.15, 0.15):
+            parts.append(trimesh.creation.capsule(0.6, 0.06).apply_translation([x, y, -0.3]))
+    parts.append(trimesh.creation.capsule(0.4, 0.08).apply_translation([0.75, 0, 0.35]))
+    animal = trimesh.util.concatenate(parts).apply_translation([0.0, 0.0, 0.8])
+    masks = [render_silhouette(animal, c) for c in CAMERAS]
+    points = animal.sample(1500, seed=1)
+    with pytest.raises(InvalidInputError, match="cannot explain"):
+        track_body(MODEL, [BodyObservations(points=points, masks=masks)], cameras=CAMERAS)
+
+
+def test_missing_input_frames_and_cameras() -> None:
+    figure = BodyFigure(7)
+    truths = [figure.state(f) for f in range(3)]
+    first = observe(truths[0])
+    # no stereo points, and one camera without a mask
+    masks_only = observe(truths[1])
+    masks_only = BodyObservations(masks=[None] + list(masks_only.masks[1:]))
+    tracker = BodyTracker(MODEL, cameras=CAMERAS, window=3)
+    tracker.update(first)
+    tracker.update(masks_only)
+    # nothing at all: the prediction is kept and the frame marked unobserved
+    tracker.update(BodyObservations(masks=[None] * len(CAMERAS)))
+    track = tracker.result()
+    assert track.observed == [True, True, False]
+    assert joint_error(track.states[1], truths[1]) < 0.04
+    with pytest.raises(InvalidInputError, match="first frame has no observations"):
+        BodyTracker(MODEL, cameras=CAMERAS).update(BodyObservations())
+    with pytest.raises(InvalidInputError, match="one camera per mask"):
+        BodyTracker(MODEL, cameras=CAMERAS).update(BodyObservations(masks=first.masks[:2]))
+
+
+def test_bvh_reads_back_with_bvhio(tmp_path) -> None:
+    bvhio = pytest.importorskip("bvhio")
+    from elastocap.body.model import Z_UP_TO_WORLD
+
+    figure = BodyFigure(3)
+    states = [figure.state(f) for f in range(4)]
+    path = write_bvh(tmp_path / "take.bvh", MODEL, figure.shape, states, 30.0)
+    root = bvhio.readAsHierarchy(str(path))
+    joints = [item[0] for item in root.layout() if item[0].Name in MODEL.part_names]
+    assert sorted(j.Name for j in joints) == sorted(MODEL.part_names)
+    for f, state in enumerate(states):
+        root.loadPose(f)
+        _, origins = MODEL.pose(state)
+        world = origins @ Z_UP_TO_WORLD.T
+        for joint in joints:
+            assert np.allclose(np.array(joint.PositionWorld), world[MODEL.part_names.index(joint.Name)], atol=1e-5)
+    with pytest.raises(InvalidInputError, match="fps"):
+        write_bvh(tmp_path / "bad.bvh", MODEL, figure.shape, states, 0.0)
