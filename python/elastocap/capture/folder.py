@@ -394,9 +394,10 @@ class Capture:
         FileNotFoundError
             ``folder`` lacks a camera's folder.
         """
-        masks = _list_frames(Path(folder), self.cameras)
+        masks = list_source([Path(folder)], self.cameras, self.config.offsets, "silhouettes")
         shared = set.intersection(*(set(table) for table in masks.values()))
-        return Capture(self.root, self.rig, self._images, masks, self._videos, sorted(shared & set(self._frames)))
+        frames = {frame: present for frame, present in self._present.items() if frame in shared}
+        return Capture(self.root, self.rig, self.config, self._colour, masks, frames, self.skipped)
 
     # -- helpers --------------------------------------------------------------------------
 

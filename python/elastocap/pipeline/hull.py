@@ -28,16 +28,10 @@ __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_
 def with_masks(cap: Capture, out: str | Path) -> Capture:
     """``cap`` itself when it has ``masks/``, else the same capture with the masks that
     ``elastocap silhouettes`` wrote into ``out/masks`` (same layout), when there are any."""
-    from elastocap.capture.folder import _list_frames
-
     folder = Path(out) / "masks"
     if cap.has_masks or not folder.is_dir() or not all((folder / n).is_dir() for n in cap.rig.names):
         return cap
-    masks = _list_frames(folder, cap.rig.names)
-    common = set(cap.frames) if cap.frames else None
-    for name in cap.rig.names:
-        common = set(masks[name]) if common is None else common & set(masks[name])
-    return Capture(cap.root, cap.rig, cap._images, masks, cap._videos, sorted(common or ()))
+    return cap.with_masks(folder)
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
