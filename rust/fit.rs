@@ -97,7 +97,7 @@ impl Default for FitOptions {
             matrix_free: false,
             coarse: true,
             hold_contacts: false,
-            coverage: 0.0,
+            coverage: 2.0,
         }
     }
 }

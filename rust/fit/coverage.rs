@@ -8,7 +8,7 @@
 //! ($y_j$ with outward normal $g_j$: points of the narrow band of the signed distance moved
 //! onto its zero level); a sample is *unexplained* when its nearest normal-compatible model
 //! surface node $p(j)$ ($n_p \cdot g_j > 0$, among the [`CANDIDATES`] nearest) is farther
-//! than $d_p / 2$, and then pulls that node:
+//! than $d_p / 2$, and then pulls that node (its weight ramped from 0 there to full at $d_p$):
 //! $C = \sum_j w_j (x_{p(j)} - y_j)^\top M_j (x_{p(j)} - y_j)$ with SPEC 5's anisotropic
 //! metric $M_j = s^2 I + (1 - s^2) g_j g_j^\top$, $s = \operatorname{clamp}(|x_p - y_j| /
 //! d_p, 0.1, 1)$. $w_j$ is the sample's share of the target's area over a surface node's
@@ -180,9 +180,16 @@ pub fn coverage<const D: usize>(
             }
             let s = (gap / support[p]).clamp(MIN_ANISOTROPY, 1.0);
             let s2 = s * s;
+            // Full weight from one support radius on, none at the threshold: a sample just
+            // beyond it lies between surface nodes of a surface that is in place (a rigid
+            // motion then gained 6x the elastic energy of a step pull), a lost limb's lie
+            // limb widths away.
+            let ramp = scale
+                * ((gap / support[p] - EXPLAINED_FRACTION) / (1.0 - EXPLAINED_FRACTION))
+                    .clamp(0.0, 1.0);
             let metric = std::array::from_fn(|r| {
                 std::array::from_fn(|c| {
-                    scale * (if r == c { s2 } else { 0.0 } + (1.0 - s2) * g[r] * g[c])
+                    ramp * (if r == c { s2 } else { 0.0 } + (1.0 - s2) * g[r] * g[c])
                 })
             });
             Some(Some(Pull {

@@ -103,7 +103,7 @@ impl FitCore {
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
         solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true,
-        hold_contacts = false, coverage = 0.0))]
+        hold_contacts = false, coverage = 2.0))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
