@@ -394,10 +394,13 @@ class Capture:
         FileNotFoundError
             ``folder`` lacks a camera's folder.
         """
-        masks = list_source([Path(folder)], self.cameras, self.config.offsets, "silhouettes")
-        shared = set.intersection(*(set(table) for table in masks.values()))
-        frames = {frame: present for frame, present in self._present.items() if frame in shared}
-        return Capture(self.root, self.rig, self.config, self._colour, masks, frames, self.skipped)
+        # Masks elastocap wrote are numbered by capture frame already: no offsets.
+        masks = list_source([Path(folder)], self.cameras, {}, f"silhouettes in {folder}")
+        frames = {frame: present for frame, present in self._present.items()
+                  if all(frame in masks[name] for name in present)}
+        capture = Capture(self.root, self.rig, self.config, self._colour, masks, frames, dict(self.skipped))
+        capture.trimmed = dict(self.trimmed)
+        return capture
 
     # -- helpers --------------------------------------------------------------------------
 

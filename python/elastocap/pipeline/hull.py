@@ -27,11 +27,13 @@ __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_
 
 def with_masks(cap: Capture, out: str | Path) -> Capture:
     """``cap`` itself when it has ``masks/``, else the same capture with the masks that
-    ``elastocap silhouettes`` wrote into ``out/masks`` (same layout), when there are any."""
+    ``elastocap silhouettes`` wrote into ``out/masks`` (same layout), when every camera
+    has some there."""
     folder = Path(out) / "masks"
-    if cap.has_masks or not folder.is_dir() or not all((folder / n).is_dir() for n in cap.rig.names):
+    if cap.has_masks or not folder.is_dir() or not all((folder / name).is_dir() for name in cap.cameras):
         return cap
     return cap.with_masks(folder)
+
 
 # Voxels along the longest side of the coarse carving that locates the object.
 _COARSE = 48
