@@ -620,6 +620,145 @@ def snake_cases(repeats: int) -> list[dict[str, Any]]:
 CASES["snake"] = snake_cases
 
 
+def _lsm_mosaic(side: int, seed: int, searches: int = 1) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """``side^2`` independent 49x49 scenes tiled into one template and ``searches`` search
+    images: per tile a procedural texture (24 sinusoids, wavelengths 6-30 px, contrast 35
+    grey levels), an affine warp (scale 0.8-1.25, shear +-0.2, rotation +-15 degrees,
+    aspect 0.9-1.1), gain 0.7-1.3, offset +-20, noise sigma 2 in every image, and a start
+    with the identity linear part and the centre +-2 px off. Returns template, search
+    images, points (P, 2), true maps (P, 2, 3), starts (P, 2, 3) in mosaic pixels."""
+    n, half = 49, 24
+    rng = np.random.default_rng(seed)
+    template = np.zeros((side * n, side * n), np.float32)
+    images = [np.zeros_like(template) for _ in range(searches)]
+    g = np.arange(n, dtype=np.float64)
+    U, V = np.meshgrid(g, g)
+    points, truths, starts = [], [], []
+    for k in range(side * side):
+        r, c = divmod(k, side)
+        angle, frequency, phase = rng.uniform(0, 2 * np.pi, 24), rng.uniform(2 * np.pi / 30, 2 * np.pi / 6, 24), rng.uniform(0, 2 * np.pi, 24)
+        w = np.stack([frequency * np.cos(angle), frequency * np.sin(angle)], axis=1)
+        texture = lambda u, v, w=w, phase=phase: 128 + 35 * np.sqrt(2 / 24) * np.sin(u[..., None] * w[:, 0] + v[..., None] * w[:, 1] + phase).sum(-1)  # noqa: E731
+        scale, shear, rot, aspect = rng.uniform(0.8, 1.25), rng.uniform(-0.2, 0.2), np.deg2rad(rng.uniform(-15, 15)), rng.uniform(0.9, 1.1)
+        gain, offset = rng.uniform(0.7, 1.3), rng.uniform(-20, 20)
+        A = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]]) @ np.array([[scale, shear * scale], [0, scale * aspect]])
+        b = np.array([half, half]) + rng.uniform(-0.5, 0.5, 2)
+        tile = (slice(r * n, (r + 1) * n), slice(c * n, (c + 1) * n))
+        template[tile] = texture(U - half, V - half) + rng.normal(0, 2, (n, n))
+        Y = np.stack([U - b[0], V - b[1]], axis=-1) @ np.linalg.inv(A).T
+        clean = (texture(Y[..., 0], Y[..., 1]) - offset) / gain
+        for image in images:
+            image[tile] = clean + rng.normal(0, 2, (n, n))
+        corner = np.array([c * n, r * n], np.float64)
+        points.append(corner + half)
+        truths.append(np.hstack([A, (corner + b)[:, None]]))
+        starts.append(np.hstack([np.eye(2), (corner + b + rng.uniform(-2, 2, 2))[:, None]]))
+    return template, images, np.array(points), np.array(truths), np.array(starts)
+
+
+def lsm_cases(repeats: int) -> list[dict[str, Any]]:
+    """Issue 14: least-squares matching of 400 11x11 patches (held-out seed 5000 of the
+    scenes of tests/test_lsm.py: warps, gain/offset, noise 2, starts 2 px off) against
+    cv2.findTransformECC(MOTION_AFFINE) on the same patches: the same 11x11 template crop,
+    the tile as input image, the same start, no Gaussian pre-filter (gaussFiltSize 1), at
+    most 30 iterations, both single-threaded. ECC stops on the change of its correlation
+    (eps 1e-5, where its accuracy stops improving), ours on the 0.01 px shift update. Rows:
+    bilinear and bicubic resampling; accuracy (RMS 2-D centre error) on the patches both
+    matched, gross errors (> 0.5 px) counted apart; then the throughput with all cores
+    (two search images per point)."""
+    import cv2
+
+    from elastocap.stereo import match_patches
+
+    cv2.setNumThreads(1)
+    side, n, half = 20, 49, 24
+    template, images, points, truths, starts = _lsm_mosaic(side, 5000)
+    search = images[0]
+    crops = []
+    for k in range(len(points)):
+        r, c = divmod(k, side)
+        patch = np.ascontiguousarray(template[r * n + half - 5 : r * n + half + 6, c * n + half - 5 : c * n + half + 6])
+        tile = np.ascontiguousarray(search[r * n : (r + 1) * n, c * n : (c + 1) * n])
+        b = starts[k, :, 2] - [c * n, r * n]
+        crops.append((patch, tile, np.array([[1, 0, b[0] - 5], [0, 1, b[1] - 5]], np.float32), np.array([c * n, r * n])))
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-5)
+
+    def ecc() -> np.ndarray:
+        out = np.full((len(crops), 2), np.nan)
+        for k, (patch, tile, warp, corner) in enumerate(crops):
+            try:
+                _, w = cv2.findTransformECC(patch, tile, warp.copy(), cv2.MOTION_AFFINE, criteria, None, 1)
+            except cv2.error:  # it raises where it does not converge
+                continue
+            out[k] = w[:, :2] @ [5.0, 5.0] + w[:, 2] + corner
+        return out
+
+    rows = []
+    truth = truths[:, :, 2]
+    peer_positions = ecc()
+    peer_error = np.linalg.norm(peer_positions - truth, axis=1)
+    for interpolation in ("bilinear", "bicubic"):
+        # min_texture: twice the noise, as the default estimates it (not timed here: the
+        # default estimates the noise over the whole 980x980 mosaic).
+        ours = lambda interpolation=interpolation: match_patches(  # noqa: E731
+            template, points, search, initial=starts[:, None], threads=1, min_texture=4.0, interpolation=interpolation
+        )
+        row = _compare(f"lsm_11x11_one_thread_{interpolation}", len(points), ours, "cv2.findTransformECC(MOTION_AFFINE), one thread", ecc, repeats)
+        # CPU seconds too (this process, all threads): the machine is shared and loaded.
+        cpu_ours, cpu_peer = [], []
+        for _ in range(repeats):
+            start_cpu = time.process_time()
+            ours()
+            cpu_ours.append(time.process_time() - start_cpu)
+            start_cpu = time.process_time()
+            ecc()
+            cpu_peer.append(time.process_time() - start_cpu)
+        row.update(
+            ours_cpu_s=round(statistics.median(cpu_ours), 6),
+            peer_cpu_s=round(statistics.median(cpu_peer), 6),
+            cpu_ratio=round(statistics.median(cpu_peer) / statistics.median(cpu_ours), 2),
+        )
+        m = ours()
+        converged = m.status[:, 0] == 0
+        error = np.linalg.norm(m.positions[:, 0] - truth, axis=1)
+        both = converged & np.isfinite(peer_error)
+        fine = both & (error < 0.5) & (peer_error < 0.5)
+        rms = lambda e: round(float(np.sqrt(np.mean(e**2))), 4)  # noqa: E731
+        row.update(
+            ours_us_per_patch=round(row["ours_s"] / len(points) * 1e6, 1),
+            peer_us_per_patch=round(row["peer_s"] / len(points) * 1e6, 1),
+            ours_matched=int(converged.sum()),
+            peer_matched=int(np.isfinite(peer_error).sum()),
+            ours_gross=int((converged & (error >= 0.5)).sum()),
+            peer_gross=int((np.isfinite(peer_error) & (peer_error >= 0.5)).sum()),
+            ours_rms_px=rms(error[both]),
+            peer_rms_px=rms(peer_error[both]),
+            ours_rms_px_no_gross=rms(error[fine]),
+            peer_rms_px_no_gross=rms(peer_error[fine]),
+        )
+        rows.append(row)
+    template2, images2, points2, _, starts2 = _lsm_mosaic(side, 5001, searches=2)
+    initial = np.repeat(starts2[:, None], 2, axis=1)
+    run = lambda: match_patches(template2, points2, images2, initial=initial, min_texture=4.0)  # noqa: E731
+    run()
+    times = [_time(run) for _ in range(repeats)]
+    median = statistics.median(times)
+    rows.append(
+        {
+            "case": "lsm_11x11_two_images_all_cores",
+            "n": len(points2),
+            "ours_s": round(median, 6),
+            "points_per_s": round(len(points2) / median),
+            "matches_per_s": round(2 * len(points2) / median),
+            "repeats": repeats,
+        }
+    )
+    return rows
+
+
+CASES["lsm"] = lsm_cases
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("filter", nargs="?", default="", help="run only case groups whose name contains this")
@@ -633,3 +772,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+

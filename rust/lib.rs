@@ -14,6 +14,7 @@ pub mod fit;
 pub mod grid_sample;
 pub mod linalg;
 pub mod lm;
+pub mod lsm;
 pub mod mls;
 pub mod polar;
 pub mod sdf;

@@ -90,7 +90,12 @@ def test_cluster_batch_matches_serial_and_isolates_the_bad_take(takes, serial, t
     record = json.loads((tmp_path / "batch.json").read_text())
     assert record["summary"]["done"] == 3 and record["summary"]["failed"] == ["c"]
     assert record["takes"]["c"]["status"] == "failed"
-    assert "000001.png: unreadable mask image" in record["takes"]["c"]["reason"]
+    assert "masks/cam01/000001.png: unreadable image" in record["takes"]["c"]["reason"]
+    index = (tmp_path / "index.html").read_text()
+    assert "unreadable image" in index and "4 take(s), 1 failed" in index
+    for take in GOOD:
+        assert f'href="{take}/report.html"' in index
+    assert 'href="c/report.html"' not in index
     for take in GOOD:
         assert record["takes"][take]["status"] == "done"
         assert record["takes"][take]["threads"] == "1"  # pinned in every worker

@@ -32,8 +32,9 @@ FORMATS = {
 }
 # Rounding of a rotation stored as a quaternion or Rodrigues vector, or of a camera centre
 # turned back into t: a few units in the last place of entries of size ~1 (R) or of the
-# rig's size (t, here ~5).
-ROTATION_ROUNDING = 1e-14
+# rig's size (t, here ~5). A Rodrigues vector near a half turn loses a few more digits
+# (hypothesis found 2.1e-14 there).
+ROTATION_ROUNDING = 1e-13
 TRANSLATION_ROUNDING = 1e-13
 
 

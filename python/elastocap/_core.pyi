@@ -26,6 +26,7 @@ __all__ = [
     "SparseCholesky",
     "camera_project",
     "active_contour",
+    "lsm_match_patches",
 ]
 
 __version__: str
@@ -301,3 +302,29 @@ def active_contour(
     window: int,
     min_area: float,
 ) -> tuple[NDArray[np.float64], str, int, int]: ...
+def lsm_match_patches(
+    template: NDArray[np.float32],
+    points: NDArray[np.float64],
+    search_images: list[NDArray[np.float32]],
+    initial: NDArray[np.float64],
+    epipolar: NDArray[np.float64] | None = None,
+    *,
+    size: int = 11,
+    max_iterations: int = 30,
+    tolerance: float = 0.01,
+    max_shift: float = 5.0,
+    max_scale: float = 3.0,
+    min_texture: float = 0.0,
+    line_sigma: float = 0.0,
+    shift_only_iterations: int = 1,
+    interpolation: str = "bicubic",
+    threads: int | None = None,
+) -> tuple[
+    NDArray[np.uint8],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.uint32],
+    NDArray[np.float64],
+]: ...

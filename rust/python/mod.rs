@@ -8,6 +8,7 @@ mod efg;
 mod elastic;
 mod errors;
 mod fit;
+mod lsm;
 mod mls;
 mod neighbors;
 mod polar;
@@ -62,6 +63,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     solve::register(m)?;
     camera::register(m)?;
     snake::register(m)?;
+    lsm::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

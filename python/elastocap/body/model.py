@@ -193,6 +193,10 @@ class BodyModel:
             raise InvalidInputError(f"cannot read body model {path}: {error}") from None
         return cls(description)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The skeleton in the core does not pickle: rebuild it from the description.
+        return (BodyModel, (self.to_dict(),))
+
     def save(self, path: str | Path) -> None:
         """Writes the description as indented JSON."""
         Path(path).write_text(json.dumps(self._description, indent=1))

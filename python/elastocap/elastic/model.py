@@ -62,6 +62,11 @@ def _read_only(array: Any) -> Any:
     return array
 
 
+def _rebuild_model(nodes: NDArray[np.float64], volumes: NDArray[np.float64], options: dict[str, Any]) -> ElasticModel:
+    """Unpickling: :meth:`ElasticModel.__reduce__`."""
+    return ElasticModel(nodes, volumes, **options)
+
+
 def _density_volumes(nodes: NDArray[np.float64], k: int, total: float) -> NDArray[np.float64]:
     """SPEC 4.1: ``V_p`` proportional to ``r_k^D`` (inverse local density), summing to
     ``total``."""
@@ -158,7 +163,7 @@ class ElasticModel:
             array, k, vols, float(youngs), float(poisson), plane, rotation, rotation_fit, float(stabilization)
         )
         self.stabilization = float(stabilization)
-        self.rotation = rotation
+        self.rotation, self.rotation_fit = rotation, rotation_fit
         self.k = k
         self.youngs, self.poisson, self.plane = float(youngs), float(poisson), plane
         self.surface_nodes = _read_only(
@@ -264,6 +269,16 @@ class ElasticModel:
             rotation_fit=rotation_fit,
             stabilization=stabilization,
         )
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The core object does not pickle; the model is rebuilt from what it was built from
+        # (deterministic), so it can travel to a Dask worker or a process pool.
+        options = dict(
+            k=self.k, youngs=self.youngs, poisson=self.poisson, rotation=self.rotation, plane=self.plane,
+            rotation_fit=self.rotation_fit, stabilization=self.stabilization,
+            surface_nodes=np.array(self.surface_nodes), surface_faces=np.array(self.surface_faces),
+        )
+        return (_rebuild_model, (np.array(self.nodes), np.array(self.volumes), options))
 
     # -- what the model is made of --------------------------------------------------------
 

@@ -50,6 +50,7 @@ from elastocap._core import ElastocapError, InvalidInputError
 from elastocap._io import save_bytes
 from elastocap.pipeline.capture import run_capture
 from elastocap.pipeline.options import CaptureOptions
+from elastocap.pipeline.report import write_take_index
 
 __all__ = ["BatchResult", "find_takes", "run_batch", "run_take"]
 
@@ -298,3 +299,4 @@ def _save(path: Path, result: BatchResult, takes: list[str], todo: list[str], st
         "cluster": cluster,
     }
     save_bytes(path, (json.dumps({"summary": result.summary, "takes": result.takes}, indent=2) + "\n").encode())
+    write_take_index(path.parent, result.takes)

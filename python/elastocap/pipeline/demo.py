@@ -176,7 +176,8 @@ def _body(out: Path, progress: bool) -> dict[str, Any]:
         "seconds_this_run": round(seconds, 2),
         "joint_angle_rms_deg": round(float(np.sqrt(np.mean(error**2))), 2),
         "leg_joint_angle_rms_deg": round(float(np.sqrt(np.mean(error[:, legs] ** 2))), 2),
-        "status": fit["status"],
+        # Share of the observations (mask rays) within reach of the fitted skin, worst frame.
+        "explained": round(min(q["explained"] for q in fit["quality"]), 3),
         "picture": str((body_out / "body_views.png").relative_to(out)),
     }
     report = out / "report.html"

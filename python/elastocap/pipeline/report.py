@@ -168,7 +168,7 @@ def add_body_section(page: Path, metrics: dict[str, Any]) -> Path:
         text = text[: text.index(_BODY_START)] + text[text.index(_BODY_END) + len(_BODY_END) :]
     rows = "".join(
         f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(metrics[k]))}</td></tr>"
-        for k in ("joint_angle_rms_deg", "leg_joint_angle_rms_deg", "status", "seconds_this_run")
+        for k in ("joint_angle_rms_deg", "leg_joint_angle_rms_deg", "explained", "seconds_this_run")
         if k in metrics
     )
     section = (
@@ -182,3 +182,37 @@ def add_body_section(page: Path, metrics: dict[str, Any]) -> Path:
     text = text.replace("</body></html>", section + "</body></html>")
     save_bytes(page, text.encode())
     return page
+
+
+def write_take_index(out: Path, takes: Mapping[str, Mapping[str, Any]]) -> Path:
+    """``out/index.html``: one row per take of a batch (its status, the reason it failed,
+    its time, a link to its ``report.html`` and its sequence strip), so a batch of many
+    takes is looked at from one page. ``takes``: ``OUT/batch.json``'s ``takes``."""
+    rows = []
+    for take, record in sorted(takes.items()):
+        folder = out / take
+        status = str(record.get("status", "not run"))
+        link = html.escape(take)
+        if (folder / "report.html").is_file():
+            link = f'<a href="{html.escape(take)}/report.html">{link}</a>'
+        strip = f'<img src="{html.escape(take)}/fit_strip.png">' if (folder / "fit_strip.png").is_file() else ""
+        seconds = record.get("seconds")
+        rows.append(
+            f"<tr class={html.escape(status)}><td>{link}</td><td>{html.escape(status)}</td>"
+            f"<td>{'' if seconds is None else f'{seconds:.1f} s'}</td>"
+            f"<td>{html.escape(str(record.get('reason', '')))}</td><td>{strip}</td></tr>"
+        )
+    failed = sum(1 for record in takes.values() if record.get("status") == "failed")
+    page = f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>elastocap batch</title>
+<style>body{{font-family:sans-serif;max-width:1500px;margin:2em auto}} img{{max-width:800px}}
+td{{padding:2px 12px;vertical-align:top}} tr.failed td{{color:#b00}}</style></head><body>
+<h1>elastocap batch: {len(takes)} take(s), {failed} failed</h1>
+<p>Details per take in <a href="batch.json">batch.json</a>.</p>
+<table><tr><th>take</th><th>status</th><th>time</th><th>reason</th><th>sequence</th></tr>
+{''.join(rows)}
+</table></body></html>
+"""
+    path = out / "index.html"
+    save_bytes(path, page.encode())
+    return path

@@ -1,5 +1,6 @@
 """Stereo: board calibration, rectification with elastocap's camera model (skew and
-distortion), SGBM disparity with a left-right check, and disparity -> world points and masks."""
+distortion), SGBM disparity with a left-right check, disparity -> world points and masks;
+least-squares matching and forward intersection (SPEC 7)."""
 
 from elastocap.stereo.board import BoardRenderer, CharucoTarget, Chessboard, random_board_poses
 from elastocap.stereo.calibration import CameraCalibration, UnderdeterminedCalibrationWarning, calibrate_camera
@@ -8,6 +9,8 @@ from elastocap.stereo.calibration_rig import RigCalibration, calibrate_rig, cali
 from elastocap.stereo.disparity import DisparityMap, DisparityWarning, compute_disparity, disparity_range
 from elastocap.stereo.disparity_stage import PairDisparity, disparity_mask, disparity_to_points, pair_disparity, write_disparity
 from elastocap.stereo.rectify import RectifiedPair, rectify_pair
+from elastocap.stereo.intersection import Intersection, intersect, match_observations
+from elastocap.stereo.matching import PARAMETERS, Matches, MatchStatus, match_patches, noise_level
 
 __all__ = [
     "BoardRenderer",
@@ -35,4 +38,12 @@ __all__ = [
     "random_board_poses",
     "rectify_pair",
     "write_disparity",
+    "Intersection",
+    "intersect",
+    "match_observations",
+    "PARAMETERS",
+    "MatchStatus",
+    "Matches",
+    "match_patches",
+    "noise_level",
 ]

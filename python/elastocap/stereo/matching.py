@@ -1,0 +1,361 @@
+"""Least-squares matching (Gruen 1985): sub-pixel, affine and radiometric correspondence of
+image patches in one or several search images, with a precision estimate for every match.
+
+The heavy loop runs in the Rust core (``elastocap._core.lsm_match_patches``), batched over
+points in parallel with the GIL released; this module validates the input, picks defaults
+from the data and wraps the arrays in :class:`Matches`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import IntEnum
+from typing import Any, NamedTuple
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap import _core
+from elastocap._core import InvalidInputError
+from elastocap._validate import as_count, as_float_array, as_positive
+
+__all__ = ["MatchStatus", "Matches", "PARAMETERS", "match_patches", "noise_level"]
+
+#: Parameters per search image in :attr:`Matches.covariance`, in this order.
+PARAMETERS = ("u", "v", "a11", "a12", "a21", "a22", "gain", "offset")
+
+# The default least texture, as a multiple of the template image's noise level: pure noise
+# has an RMS gradient of about 0.7 sigma along its weakest direction (central differences
+# of white noise), so 2 sigma leaves a margin and still lets through patches whose shift
+# is determined to about 0.1 px at size 11.
+TEXTURE_OVER_NOISE = 2.0
+
+
+class MatchStatus(IntEnum):
+    """Why a match ended (the codes of :attr:`Matches.status`)."""
+
+    #: The update of the matched centre fell below ``tolerance``.
+    CONVERGED = 0
+    #: The estimate ran away: it moved more than ``max_shift`` from its start, the affine
+    #: map's scale left ``[1 / max_scale, max_scale]`` (or it turned into a reflection),
+    #: the gain became non-positive, or a value became non-finite.
+    DIVERGED = 1
+    #: The template patch (with a one-pixel border for its gradients) or the warped search
+    #: patch reaches outside its image.
+    LEFT_IMAGE = 2
+    #: Too little texture: the template patch's RMS gradient along its weakest direction is
+    #: below ``min_texture``, or the normal equations are singular.
+    LOW_TEXTURE = 3
+    #: ``max_iterations`` ran out before convergence (the estimate and its covariance are
+    #: still reported).
+    MAX_ITERATIONS = 4
+
+
+class Matches(NamedTuple):
+    """Result of :func:`match_patches` for N points and S search images.
+
+    Attributes
+    ----------
+    status : (N, S) uint8
+        :class:`MatchStatus` codes per point and search image.
+    positions : (N, S, 2) float64
+        The matched centres ``(u, v)`` in each search image, pixels. For matches that did
+        not converge: the last estimate (or the start).
+    affine : (N, S, 2, 3) float64
+        The maps from template patch offsets to search pixels: offset ``(dx, dy)`` from the
+        template point goes to ``affine[..., :2] @ (dx, dy) + affine[..., 2]``, so the last
+        column equals ``positions``.
+    gain, offset : (N, S) float64
+        Radiometric parameters: ``template ≈ offset + gain * search`` (grey levels).
+    sigma0 : (N, S) float64
+        A posteriori standard deviation of unit weight: the RMS residual grey level with
+        the redundancy (pixels - 8, + 1 with a line constraint) as divisor. NaN without an
+        estimate.
+    covariance : (N, 8S, 8S) float64
+        Joint covariance of all search images' parameters, per point; search image ``s``
+        occupies rows and columns ``8s .. 8s + 8`` in the order of :data:`PARAMETERS`
+        (``u, v, a11, a12, a21, a22, gain, offset``). Blocks between search images are the
+        correlation the shared template induces. Rows and columns of matches without an
+        estimate are NaN.
+    correlation : (N, S) float64
+        Normalised cross-correlation of the template patch and the resampled search patch
+        at the final estimate.
+    iterations : (N, S) uint32
+        Gauss-Newton iterations run.
+    """
+
+    status: NDArray[np.uint8]
+    positions: NDArray[np.float64]
+    affine: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    offset: NDArray[np.float64]
+    sigma0: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    correlation: NDArray[np.float64]
+    iterations: NDArray[np.uint32]
+
+    @property
+    def converged(self) -> NDArray[np.bool_]:
+        """(N, S) bool: where the status is :attr:`MatchStatus.CONVERGED`."""
+        return np.asarray(self.status == MatchStatus.CONVERGED)
+
+    def position_covariance(self) -> NDArray[np.float64]:
+        """(N, 2S, 2S) float64: the joint covariance of the matched centres, search image
+        ``s`` at rows ``2s, 2s + 1`` (``u``, ``v``), pixels squared."""
+        n, width, _ = self.covariance.shape
+        rows = (np.arange(width // 8)[:, None] * 8 + np.arange(2)).ravel()
+        return np.ascontiguousarray(self.covariance[:, rows[:, None], rows[None, :]]).reshape(n, len(rows), len(rows))
+
+
+def match_patches(
+    template: Any,
+    points: Any,
+    search_images: Any,
+    *,
+    size: int = 11,
+    initial: Any = None,
+    epipolar: Any = None,
+    epipolar_sigma: float = 0.0,
+    max_iterations: int = 30,
+    tolerance: float = 0.01,
+    max_shift: float | None = None,
+    max_scale: float = 3.0,
+    min_texture: float | None = None,
+    interpolation: str = "bicubic",
+    threads: int | None = None,
+) -> Matches:
+    """Find the patch around each point of the template image in the search images by
+    least-squares matching.
+
+    Parameters
+    ----------
+    template : (H, W) array_like, uint8, uint16 or float
+        The template image (grey levels).
+    points : (N, 2) array_like of float
+        Patch centres ``(u, v)`` in the template image, pixels (column, row; origin at
+        the centre of the top-left pixel). Sub-pixel positions are resampled as the search
+        images are (``interpolation``).
+    search_images : (H_s, W_s) array_like, or a sequence of S of them
+        The images to search (grey levels, any of the template's dtypes; their sizes may
+        differ from the template's and from each other).
+    size : int, optional, keyword-only
+        Side of the square template patch, pixels; odd, 3 to 255. Default 11.
+    initial : array_like of float, optional, keyword-only
+        Where to start in each search image: ``(N, S, 2)`` centres ``(u, v)`` (the affine
+        part starts as the identity), or ``(N, S, 2, 3)`` affine maps as in
+        :attr:`Matches.affine`. With one search image ``(N, 2)`` and ``(N, 2, 3)`` are
+        accepted. Default: the template point itself in every search image.
+    epipolar : array_like of float, optional, keyword-only
+        ``(N, S, 3)`` (or ``(N, 3)`` with one search image) line coefficients
+        ``(a, b, c)``: the matched centre is held on ``a u + b v + c = 0`` in search
+        pixels (geometrically constrained matching). A row that is NaN or has
+        ``a = b = 0`` leaves that match free. The start is projected onto the line.
+    epipolar_sigma : float, optional, keyword-only
+        0 (default): the line is a hard constraint. Positive: a soft one, the distance to
+        the line being an observation with this standard deviation (pixels).
+    max_iterations : int, optional, keyword-only
+        Gauss-Newton iterations per search image. Default 30.
+    tolerance : float, optional, keyword-only
+        Convergence: the update of the matched centre is shorter than this, pixels (SPEC 7),
+        and no entry of the affine map's linear part changes by more than this (pixels per
+        pixel; a small centre update alone can come by chance while the shape is still off).
+        Default 0.01.
+    max_shift : float, optional, keyword-only
+        Diverged when the centre moves further than this from its start, pixels. Default
+        ``size / 2``.
+    max_scale : float, optional, keyword-only
+        Diverged when a singular value of the affine map (relative to its start) leaves
+        ``[1 / max_scale, max_scale]``. Default 3.
+    min_texture : float, optional, keyword-only
+        Least RMS gradient (grey levels per pixel) of the template patch along its
+        weakest direction; below it a point is :attr:`MatchStatus.LOW_TEXTURE`. Default:
+        twice the template image's noise level (Immerkær's estimator, a robust figure of
+        the image's white-noise standard deviation).
+    interpolation : {"bicubic", "bilinear"}, optional, keyword-only
+        Resampling of the search images (and of sub-pixel template points). ``"bilinear"``
+        is SPEC 7's; it damps and shifts the phase of texture near the Nyquist frequency,
+        which biases positions by ~0.02 px on sharp texture (benches/README.md), so the
+        default is ``"bicubic"`` (Keys' cubic convolution, a = -1/2; the patch must keep
+        one more pixel inside the image).
+    threads : int, optional, keyword-only
+        Worker threads (default: all cores, or ``RAYON_NUM_THREADS``).
+
+    Returns
+    -------
+    Matches
+        Status, positions, affine maps, gain and offset, sigma0, the joint covariance,
+        correlation and iterations per point and search image. A bad patch never raises:
+        it gets its :class:`MatchStatus`.
+
+    Raises
+    ------
+    InvalidInputError
+        An image that is not 2-D, is smaller than 2x2, holds NaN or infinity, or has an
+        unsupported dtype; points, starts or lines of the wrong shape or non-finite
+        points and starts; a start whose linear part has a non-positive determinant;
+        options out of range. The message names the argument.
+
+    Notes
+    -----
+    SPEC section 7, after Gruen (1985, the matching of the third paper,
+    ``papers/003_*.txt`` section 2): per search image the unknowns are the affine map
+    ``(A, b)`` (6) and gain ``r1`` and offset ``r0`` (2), minimising
+    ``sum_x (T(x) - r0 - r1 S(A x + b))^2`` over the template patch by Gauss-Newton with
+    bilinear (or bicubic) resampling of ``S``. The update is composed on the template side, whose
+    gradients stand in for the resampled search patch's (they agree where the patches
+    match), so the geometric part of the normal equations is computed once per point.
+    The first iteration solves for shift, gain and offset only. The epipolar line is
+    the geometric constraint of Gruen & Baltsavias' multi-photo geometrically constrained
+    matching, here one line per search image.
+
+    The covariance is ``sigma0^2 Q`` per search image (``Q`` the inverse normal matrix,
+    mapped to the parameters above). Between search images ``s != t`` it is
+    ``sigma_T^2 Q_s G_s^T G_t Q_t``: the template's noise (variance ``sigma_T^2``,
+    estimated from how the residuals of different search images co-vary) enters every
+    search image's estimate. Bilinear resampling damps the search patch's contrast by
+    about ``omega^2 / 12`` at angular frequency ``omega`` (rad/px), which the gain absorbs,
+    and biases positions on textures with much energy near the Nyquist frequency.
+    """
+    template_image = _image("template", template)
+    searches = _search_images(search_images)
+    points_array = as_float_array("points", points)
+    if points_array.ndim != 2 or points_array.shape[1] != 2:
+        raise InvalidInputError(f"points must have shape (N, 2), got {points_array.shape}")
+    n, s = points_array.shape[0], len(searches)
+    starts = _starts(initial, points_array, s)
+    lines = None if epipolar is None else _lines(epipolar, n, s)
+    size = as_count("size", size, minimum=3)
+    if size % 2 == 0 or size > 255:
+        raise InvalidInputError(f"size must be an odd integer from 3 to 255, got {size}")
+    sigma = float(epipolar_sigma)
+    if not (np.isfinite(sigma) and sigma >= 0):
+        raise InvalidInputError(f"epipolar_sigma must be a finite number >= 0, got {epipolar_sigma!r}")
+    if min_texture is None:
+        min_texture = TEXTURE_OVER_NOISE * noise_level(template_image)
+    texture = float(min_texture)
+    if not (np.isfinite(texture) and texture >= 0):
+        raise InvalidInputError(f"min_texture must be a finite number >= 0, got {min_texture!r}")
+    if threads is not None:
+        threads = as_count("threads", threads)
+    status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_patches(
+        template_image,
+        points_array,
+        searches,
+        starts,
+        lines,
+        size=size,
+        max_iterations=as_count("max_iterations", max_iterations),
+        tolerance=as_positive("tolerance", tolerance),
+        max_shift=as_positive("max_shift", size / 2 if max_shift is None else max_shift),
+        max_scale=as_positive("max_scale", max_scale),
+        min_texture=texture,
+        line_sigma=sigma,
+        interpolation=interpolation,
+        threads=threads,
+    )
+    return Matches(
+        status=status,
+        positions=affine[..., 2].copy(),
+        affine=affine,
+        gain=radiometry[..., 0].copy(),
+        offset=radiometry[..., 1].copy(),
+        sigma0=sigma0,
+        covariance=covariance,
+        correlation=correlation,
+        iterations=iterations,
+    )
+
+
+def noise_level(image: Any) -> float:
+    """Standard deviation of an image's white noise, grey levels (Immerkær 1996).
+
+    Parameters
+    ----------
+    image : (H, W) array_like of real numbers, at least 3x3
+
+    Returns
+    -------
+    float
+        ``sqrt(pi / 2) / (6 (W - 2) (H - 2)) * sum |I * N|`` with ``N`` the difference of
+        two Laplacians ``[[1, -2, 1], [-2, 4, -2], [1, -2, 1]]``, which cancels smooth
+        image structure and keeps the noise; edges inflate it somewhat.
+    """
+    grey = _image("image", image)
+    if min(grey.shape) < 3:
+        raise InvalidInputError(f"image must be at least 3x3 for a noise estimate, got {grey.shape}")
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    response = cv2.filter2D(grey, cv2.CV_32F, kernel, borderType=cv2.BORDER_ISOLATED)[1:-1, 1:-1]
+    h, w = grey.shape
+    return float(np.sqrt(np.pi / 2) * np.abs(response, dtype=np.float64).sum() / (6 * (w - 2) * (h - 2)))
+
+
+# ------------------------------------------------------------------------------------------
+# validation
+# ------------------------------------------------------------------------------------------
+
+
+def _image(name: str, value: Any) -> NDArray[np.float32]:
+    """A grey image as C-contiguous float32, checked: 2-D, at least 2x2, real, finite."""
+    array = np.asarray(value)
+    if array.dtype.kind not in "fiu" or array.dtype.kind == "b":
+        raise InvalidInputError(f"{name} must hold grey levels (uint8, uint16 or float), got dtype {array.dtype}")
+    if array.ndim != 2:
+        raise InvalidInputError(
+            f"{name} must be a 2-D (H, W) grey image, got shape {array.shape}"
+            + (" (convert colour images to grey first)" if array.ndim == 3 else "")
+        )
+    if array.shape[0] < 2 or array.shape[1] < 2:
+        raise InvalidInputError(f"{name} must be at least 2x2 pixels, got shape {array.shape}")
+    image = np.ascontiguousarray(array, dtype=np.float32)
+    if array.dtype.kind == "f" and not np.isfinite(image).all():
+        raise InvalidInputError(f"{name} holds NaN or infinity (or values beyond float32)")
+    return image
+
+
+def _search_images(value: Any) -> list[NDArray[np.float32]]:
+    if isinstance(value, np.ndarray) and value.ndim == 2:
+        return [_image("search_images", value)]
+    if isinstance(value, np.ndarray) and value.ndim == 3:
+        items: Sequence[Any] = list(value)
+    elif isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
+        items = value
+    else:
+        raise InvalidInputError(
+            f"search_images must be an (H, W) image or a sequence of them, got {type(value).__name__}"
+        )
+    if len(items) == 0:
+        raise InvalidInputError("search_images is empty: at least one search image is needed")
+    return [_image(f"search_images[{i}]", item) for i, item in enumerate(items)]
+
+
+def _starts(initial: Any, points: NDArray[np.float64], s: int) -> NDArray[np.float64]:
+    n = len(points)
+    identity = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    if initial is None:
+        maps = np.broadcast_to(identity, (n, s, 2, 3)).copy()
+        maps[..., 2] = points[:, None, :]
+        return maps.reshape(n, s, 6)
+    start = as_float_array("initial", initial)
+    if s == 1 and start.shape in ((n, 2), (n, 2, 3)):
+        start = start[:, None]
+    if start.shape == (n, s, 2):
+        maps = np.broadcast_to(identity, (n, s, 2, 3)).copy()
+        maps[..., 2] = start
+    elif start.shape == (n, s, 2, 3):
+        maps = start
+    else:
+        raise InvalidInputError(
+            f"initial must have shape ({n}, {s}, 2) (centres) or ({n}, {s}, 2, 3) (affine maps), "
+            f"got {start.shape}"
+        )
+    return np.ascontiguousarray(maps.reshape(n, s, 6))
+
+
+def _lines(epipolar: Any, n: int, s: int) -> NDArray[np.float64]:
+    lines = as_float_array("epipolar", epipolar)
+    if s == 1 and lines.shape == (n, 3):
+        lines = lines[:, None]
+    if lines.shape != (n, s, 3):
+        raise InvalidInputError(f"epipolar must have shape ({n}, {s}, 3), got {lines.shape}")
+    return np.ascontiguousarray(lines)

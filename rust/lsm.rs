@@ -1,0 +1,222 @@
+//! Least-squares matching (Gruen 1985; SPEC 7): a template patch around a point of the
+//! template image is found in one or several search images by Gauss-Newton on
+//! $\sum_x (T(x) - r_0 - r_1 S(A x + b))^2$, with an affine map $(A, b)$ (6 unknowns), gain
+//! $r_1$ and offset $r_0$ per search image, bilinear resampling, and optionally the
+//! matched centre $b$ held on a line (the epipolar line of the point: multi-photo
+//! geometrically constrained matching, Gruen & Baltsavias 1988) as a hard or soft
+//! constraint. It stops when the centre's update is below `tolerance` (0.01 px).
+//!
+//! Every match reports a [`Status`], $\sigma_0$, the normalised cross-correlation, the
+//! iterations, and the joint covariance of all search images' parameters (with the cross
+//! terms the shared template induces, for forward intersection). A bad patch never makes
+//! the batch fail: it gets its status.
+//!
+//! Submodules: `sample` (template patch and gradients), `resample` (bilinear and bicubic
+//! resampling), `normal` (normal equations from patch sums), `gauss_newton` (one search
+//! image), `multi` (all search images of a point, joint
+//! covariance), `dense` (8x8 Cholesky), `types` (options, status, outputs).
+
+mod dense;
+mod gauss_newton;
+mod multi;
+mod normal;
+mod resample;
+mod sample;
+#[cfg(test)]
+mod tests;
+mod types;
+
+pub use types::{ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS};
+
+use rayon::prelude::*;
+
+use crate::error::{check_finite, Error, Result};
+use multi::{match_point, PointOutput, Scratch};
+
+/// Matches the template patch around each of `points` into every search image, in
+/// parallel over points.
+///
+/// `starts[p * S + s]` is the start map of point `p` in search image `s` (row-major 2x3,
+/// see [`MatchOutput`]); `lines`, when given, holds `[a, b, c]` per point and search image
+/// with the matched centre on `a u + b v + c = 0` (a row that is not finite or has
+/// `a = b = 0` leaves that match unconstrained). Results go to `out`, indexed the same way.
+///
+/// # Errors
+/// [`Error::InvalidOption`] for options out of range, [`Error::Empty`] for no search
+/// images, [`Error::WrongLength`] for an image whose data does not match its size or is
+/// smaller than 2x2, [`Error::LengthMismatch`] for starts or lines
+/// of the wrong length, [`Error::NonFinite`] for a non-finite point or start, and
+/// [`Error::InvalidOption`] for a start map whose linear part has no positive determinant,
+/// and [`Error::OutputSize`] for output buffers of the wrong length.
+pub fn match_patches(
+    template: &ImageView<'_>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    options: &MatchOptions,
+    out: MatchOutput<'_>,
+) -> Result<()> {
+    validate(template, points, searches, starts, lines, options, &out)?;
+    let s = searches.len();
+    let block = PARAMETERS * PARAMETERS * s * s;
+    out.status
+        .par_chunks_mut(s)
+        .zip(out.affine.par_chunks_mut(s))
+        .zip(out.radiometry.par_chunks_mut(s))
+        .zip(out.sigma0.par_chunks_mut(s))
+        .zip(out.correlation.par_chunks_mut(s))
+        .zip(out.iterations.par_chunks_mut(s))
+        .zip(out.covariance.par_chunks_mut(block))
+        .enumerate()
+        .for_each_init(
+            Scratch::default,
+            |scratch,
+             (
+                p,
+                ((((((status, affine), radiometry), sigma0), correlation), iterations), covariance),
+            )| {
+                match_point(
+                    template,
+                    points[p],
+                    searches,
+                    &starts[p * s..(p + 1) * s],
+                    lines.map(|l| &l[p * s..(p + 1) * s]),
+                    options,
+                    scratch,
+                    PointOutput {
+                        status,
+                        affine,
+                        radiometry,
+                        sigma0,
+                        correlation,
+                        iterations,
+                        covariance,
+                    },
+                );
+            },
+        );
+    Ok(())
+}
+
+fn validate(
+    template: &ImageView<'_>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    options: &MatchOptions,
+    out: &MatchOutput<'_>,
+) -> Result<()> {
+    let option = |argument, value: f64, ok: bool, expected| {
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::InvalidOption {
+                argument,
+                value,
+                expected,
+            })
+        }
+    };
+    let size = options.size;
+    option(
+        "size",
+        size as f64,
+        size >= 3 && size % 2 == 1 && size <= 255,
+        "an odd integer from 3 to 255",
+    )?;
+    option(
+        "max_iterations",
+        options.max_iterations as f64,
+        options.max_iterations >= 1,
+        "at least 1",
+    )?;
+    for (argument, value) in [
+        ("tolerance", options.tolerance),
+        ("max_shift", options.max_shift),
+    ] {
+        option(
+            argument,
+            value,
+            value > 0.0 && value.is_finite(),
+            "a positive finite number",
+        )?;
+    }
+    option(
+        "max_scale",
+        options.max_scale,
+        options.max_scale > 1.0 && options.max_scale.is_finite(),
+        "a finite number above 1",
+    )?;
+    for (argument, value) in [
+        ("min_texture", options.min_texture),
+        ("line_sigma", options.line_sigma),
+    ] {
+        option(
+            argument,
+            value,
+            value >= 0.0 && value.is_finite(),
+            "a finite number >= 0",
+        )?;
+    }
+    if searches.is_empty() {
+        return Err(Error::Empty {
+            argument: "search_images",
+            needed: 1,
+        });
+    }
+    for (argument, image) in std::iter::once(("template", template))
+        .chain(searches.iter().map(|image| ("search_images", image)))
+    {
+        let expected = image.width.saturating_mul(image.height);
+        if image.width < 2 || image.height < 2 || image.data.len() != expected {
+            return Err(Error::WrongLength {
+                argument,
+                expected: expected.max(4),
+                got: image.data.len(),
+            });
+        }
+    }
+    let pairs = points.len() * searches.len();
+    if starts.len() != pairs {
+        return Err(Error::LengthMismatch {
+            argument: "initial",
+            expected: pairs,
+            got: starts.len(),
+        });
+    }
+    if let Some(lines) = lines {
+        if lines.len() != pairs {
+            return Err(Error::LengthMismatch {
+                argument: "epipolar",
+                expected: pairs,
+                got: lines.len(),
+            });
+        }
+    }
+    check_finite("points", points)?;
+    check_finite("initial", starts)?;
+    if let Some(m) = starts.iter().find(|m| !(m[0] * m[4] - m[1] * m[3] > 0.0)) {
+        return Err(Error::InvalidOption {
+            argument: "initial",
+            value: m[0] * m[4] - m[1] * m[3],
+            expected: "affine maps whose linear part has a positive determinant",
+        });
+    }
+    let block = PARAMETERS * PARAMETERS * searches.len() * searches.len();
+    for (expected, got) in [
+        (pairs, out.status.len()),
+        (pairs, out.affine.len()),
+        (pairs, out.radiometry.len()),
+        (pairs, out.sigma0.len()),
+        (pairs, out.correlation.len()),
+        (pairs, out.iterations.len()),
+        (points.len() * block, out.covariance.len()),
+    ] {
+        if expected != got {
+            return Err(Error::OutputSize { expected, got });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,137 @@
+//! Small dense symmetric positive definite systems (up to 8 unknowns): Cholesky, solves
+//! and inverses on fixed-size arrays, so an iteration allocates nothing.
+
+/// Largest system handled.
+pub(crate) const MAX: usize = 8;
+
+/// A symmetric positive definite matrix of order `m <= MAX` factorised as `L L^T`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Cholesky {
+    l: [[f64; MAX]; MAX],
+    m: usize,
+}
+
+impl Cholesky {
+    /// Factorises the leading `m x m` block of `a`; `None` when a pivot is not positive
+    /// relative to the diagonal (numerically singular: `pivot <= 1e-12 * a_ii`).
+    pub fn new(a: &[[f64; MAX]; MAX], m: usize) -> Option<Self> {
+        let mut l = [[0.0; MAX]; MAX];
+        for j in 0..m {
+            let mut d = a[j][j];
+            for k in 0..j {
+                d -= l[j][k] * l[j][k];
+            }
+            // Written so that NaN fails too.
+            if !(d > 1e-12 * a[j][j].abs()) || !d.is_finite() {
+                return None;
+            }
+            let d = d.sqrt();
+            l[j][j] = d;
+            for i in j + 1..m {
+                let mut s = a[i][j];
+                for k in 0..j {
+                    s -= l[i][k] * l[j][k];
+                }
+                l[i][j] = s / d;
+            }
+        }
+        Some(Self { l, m })
+    }
+
+    /// `A^-1 b` for the first `m` entries of `b`.
+    pub fn solve(&self, b: &[f64; MAX]) -> [f64; MAX] {
+        let (l, m) = (&self.l, self.m);
+        let mut x = *b;
+        for i in 0..m {
+            let mut s = x[i];
+            for k in 0..i {
+                s -= l[i][k] * x[k];
+            }
+            x[i] = s / l[i][i];
+        }
+        for i in (0..m).rev() {
+            let mut s = x[i];
+            for k in i + 1..m {
+                s -= l[k][i] * x[k];
+            }
+            x[i] = s / l[i][i];
+        }
+        x
+    }
+
+    /// `A^-1` (the leading `m x m` block; the rest zero).
+    pub fn inverse(&self) -> [[f64; MAX]; MAX] {
+        let mut inv = [[0.0; MAX]; MAX];
+        for j in 0..self.m {
+            let mut e = [0.0; MAX];
+            e[j] = 1.0;
+            let column = self.solve(&e);
+            for i in 0..self.m {
+                inv[i][j] = column[i];
+            }
+        }
+        inv
+    }
+}
+
+/// `a b` for 8x8 matrices.
+pub(crate) fn product(a: &[[f64; MAX]; MAX], b: &[[f64; MAX]; MAX]) -> [[f64; MAX]; MAX] {
+    let mut c = [[0.0; MAX]; MAX];
+    for i in 0..MAX {
+        for k in 0..MAX {
+            let aik = a[i][k];
+            if aik != 0.0 {
+                for j in 0..MAX {
+                    c[i][j] += aik * b[k][j];
+                }
+            }
+        }
+    }
+    c
+}
+
+/// `a b^T` for 8x8 matrices.
+pub(crate) fn product_transposed(
+    a: &[[f64; MAX]; MAX],
+    b: &[[f64; MAX]; MAX],
+) -> [[f64; MAX]; MAX] {
+    let mut c = [[0.0; MAX]; MAX];
+    for i in 0..MAX {
+        for j in 0..MAX {
+            c[i][j] = (0..MAX).map(|k| a[i][k] * b[j][k]).sum();
+        }
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solves_and_inverts_a_spd_matrix() {
+        let mut a = [[0.0; MAX]; MAX];
+        for i in 0..MAX {
+            for j in 0..MAX {
+                a[i][j] = 1.0 / (1.0 + i as f64 + j as f64) + if i == j { 1.0 } else { 0.0 };
+            }
+        }
+        let chol = Cholesky::new(&a, MAX).unwrap();
+        let inv = chol.inverse();
+        let identity = product(&a, &inv);
+        for i in 0..MAX {
+            for j in 0..MAX {
+                let expected = if i == j { 1.0 } else { 0.0 };
+                assert!((identity[i][j] - expected).abs() < 1e-12);
+            }
+        }
+        let mut singular = a;
+        singular[3] = singular[2];
+        for row in singular.iter_mut() {
+            row[3] = row[2];
+        }
+        assert!(Cholesky::new(&singular, MAX).is_none());
+        let nan = [[f64::NAN; MAX]; MAX];
+        assert!(Cholesky::new(&nan, MAX).is_none());
+    }
+}

@@ -1,0 +1,408 @@
+//! Gauss-Newton for one search image (SPEC 7): minimise
+//! $\sum_x (T(x) - r_0 - r_1 S(A x + b))^2$ over the affine map $(A, b)$, gain $r_1$ and
+//! offset $r_0$, optionally with the matched centre $b$ on a line.
+//!
+//! The update is composed on the template side: $A x + b \to A((I + D) x + d) + b$. Its
+//! Jacobian $r_1 \nabla S^\top A\,[x, 1]$ equals $\nabla T^\top [x, 1]$ where the match
+//! fits (the patches agree up to gain and offset), so the template's gradients stand in for
+//! the resampled search patch's: the geometric 6x6 block of the normal equations is then
+//! constant, and an iteration costs one bilinear resampling and nine dot products. The
+//! residual is exact, so a fit that matches is still a fixed point.
+
+use super::dense::{Cholesky, MAX};
+use super::normal::Sums;
+use super::resample::sample_search;
+use super::sample::{dot, TemplatePatch};
+use super::types::{ImageView, MatchOptions, Status};
+
+/// Unknowns per search image: `[d_u, d_v, D11, D12, D21, D22, gain, offset]`.
+const U: usize = MAX;
+/// The unknowns of the shift-only stage.
+const SHIFT_ONLY: [usize; 4] = [0, 1, 6, 7];
+const ALL: [usize; 8] = [0, 1, 2, 3, 4, 5, 6, 7];
+
+/// The estimate: affine map `[a11, a12, a21, a22]`, centre `b`, gain, offset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct State {
+    pub a: [f64; 4],
+    pub b: [f64; 2],
+    pub gain: f64,
+    pub offset: f64,
+}
+
+impl State {
+    /// From a row-major 2x3 map `[a11, a12, u, a21, a22, v]`, gain 1 and offset 0.
+    pub fn from_affine(m: [f64; 6]) -> Self {
+        Self {
+            a: [m[0], m[1], m[3], m[4]],
+            b: [m[2], m[5]],
+            gain: 1.0,
+            offset: 0.0,
+        }
+    }
+
+    /// The row-major 2x3 map.
+    pub fn affine(&self) -> [f64; 6] {
+        [
+            self.a[0], self.a[1], self.b[0], self.a[2], self.a[3], self.b[1],
+        ]
+    }
+
+    /// Applies a step `[d_u, d_v, D11, D12, D21, D22, gain, offset]`; returns the length
+    /// of the centre's move, search pixels, and the largest change of an entry of the
+    /// linear part `A` (search pixels per template pixel).
+    fn apply(&mut self, step: &[f64; U]) -> (f64, f64) {
+        let [a11, a12, a21, a22] = self.a;
+        let [du, dv, d11, d12, d21, d22, dgain, doffset] = *step;
+        let shift = [a11 * du + a12 * dv, a21 * du + a22 * dv];
+        self.b = [self.b[0] + shift[0], self.b[1] + shift[1]];
+        let a = [
+            a11 * (1.0 + d11) + a12 * d21,
+            a11 * d12 + a12 * (1.0 + d22),
+            a21 * (1.0 + d11) + a22 * d21,
+            a21 * d12 + a22 * (1.0 + d22),
+        ];
+        let linear = (0..4).map(|i| (a[i] - self.a[i]).abs()).fold(0.0, f64::max);
+        self.a = a;
+        self.gain += dgain;
+        self.offset += doffset;
+        (shift[0].hypot(shift[1]), linear)
+    }
+}
+
+/// A line `normal . y + distance = 0` in search pixels, `|normal| = 1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Line {
+    pub normal: [f64; 2],
+    pub distance: f64,
+}
+
+impl Line {
+    /// From `a u + b v + c = 0`; `None` when not finite or `(a, b) = 0` (no constraint).
+    pub fn new(coefficients: [f64; 3]) -> Option<Self> {
+        let [a, b, c] = coefficients;
+        let norm = a.hypot(b);
+        (norm > 0.0 && norm.is_finite() && c.is_finite()).then(|| Self {
+            normal: [a / norm, b / norm],
+            distance: c / norm,
+        })
+    }
+
+    fn signed_distance(&self, y: [f64; 2]) -> f64 {
+        self.normal[0] * y[0] + self.normal[1] * y[1] + self.distance
+    }
+
+    /// The constraint on a step, `c . step = h`, that puts the new centre on the line.
+    fn on_step(&self, state: &State) -> ([f64; U], f64) {
+        let [a11, a12, a21, a22] = state.a;
+        let [la, lb] = self.normal;
+        let mut c = [0.0; U];
+        c[0] = a11 * la + a21 * lb;
+        c[1] = a12 * la + a22 * lb;
+        (c, -self.signed_distance(state.b))
+    }
+}
+
+/// The result of matching one search image.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Outcome {
+    pub status: Status,
+    pub state: State,
+    pub iterations: u32,
+    pub sigma0: f64,
+    pub correlation: f64,
+    /// `(G^T G)^-1` (constrained where a line applies), in step coordinates.
+    pub cofactor: [[f64; U]; U],
+    /// The sums at the final state (the cross-image covariance needs them).
+    pub sums: Sums,
+}
+
+impl Outcome {
+    fn failed(status: Status, state: State, iterations: u32) -> Self {
+        Self {
+            status,
+            state,
+            iterations,
+            sigma0: f64::NAN,
+            correlation: f64::NAN,
+            cofactor: [[f64::NAN; U]; U],
+            sums: Sums::default(),
+        }
+    }
+}
+
+/// How the line enters a step: hard (exactly on it) or soft (weight `w` on the
+/// pseudo-observation of the distance).
+#[derive(Debug, Clone, Copy)]
+enum Constraint {
+    Hard([f64; U], f64),
+    Soft([f64; U], f64, f64),
+}
+
+/// Solves the normal equations restricted to `free`, with the line's constraint;
+/// `None` when singular.
+fn solve(
+    normal: &[[f64; U]; U],
+    gradient: &[f64; U],
+    free: &[usize],
+    constraint: Option<Constraint>,
+) -> Option<[f64; U]> {
+    let m = free.len();
+    let mut a = [[0.0; U]; U];
+    let mut r = [0.0; U];
+    let mut c = [0.0; U];
+    for (i, &fi) in free.iter().enumerate() {
+        r[i] = gradient[fi];
+        for (j, &fj) in free.iter().enumerate() {
+            a[i][j] = normal[fi][fj];
+        }
+    }
+    let mut hard = None;
+    match constraint {
+        Some(Constraint::Soft(cf, h, w)) => {
+            for (i, &fi) in free.iter().enumerate() {
+                r[i] += w * cf[fi] * h;
+                for (j, &fj) in free.iter().enumerate() {
+                    a[i][j] += w * cf[fi] * cf[fj];
+                }
+            }
+        }
+        Some(Constraint::Hard(cf, h)) => {
+            for (i, &fi) in free.iter().enumerate() {
+                c[i] = cf[fi];
+            }
+            hard = Some(h);
+        }
+        None => {}
+    }
+    let chol = Cholesky::new(&a, m)?;
+    let mut x = chol.solve(&r);
+    if let Some(h) = hard {
+        let y = chol.solve(&c);
+        let cy: f64 = (0..m).map(|i| c[i] * y[i]).sum();
+        let cx: f64 = (0..m).map(|i| c[i] * x[i]).sum();
+        if !(cy > 0.0) {
+            return None;
+        }
+        let t = (h - cx) / cy;
+        for i in 0..m {
+            x[i] += t * y[i];
+        }
+    }
+    let mut step = [0.0; U];
+    for (i, &fi) in free.iter().enumerate() {
+        step[fi] = x[i];
+    }
+    Some(step)
+}
+
+/// Whether the map `a` has run away from `start`: a reflection, or a singular value of
+/// `a start^-1` outside `[1 / max_scale, max_scale]`.
+fn degenerate(a: [f64; 4], start: [f64; 4], max_scale: f64) -> bool {
+    let det0 = start[0] * start[3] - start[1] * start[2];
+    let inv = [
+        start[3] / det0,
+        -start[1] / det0,
+        -start[2] / det0,
+        start[0] / det0,
+    ];
+    let m = [
+        a[0] * inv[0] + a[1] * inv[2],
+        a[0] * inv[1] + a[1] * inv[3],
+        a[2] * inv[0] + a[3] * inv[2],
+        a[2] * inv[1] + a[3] * inv[3],
+    ];
+    let e = 0.5 * (m[0] + m[3]);
+    let f = 0.5 * (m[0] - m[3]);
+    let g = 0.5 * (m[2] + m[1]);
+    let h = 0.5 * (m[2] - m[1]);
+    let q = e.hypot(h);
+    let r = f.hypot(g);
+    let (largest, smallest) = (q + r, q - r);
+    // Written so that NaN counts as degenerate.
+    !(smallest > 1.0 / max_scale && largest < max_scale)
+}
+
+/// Matches the template patch into one search image from `start` (row-major 2x3 map).
+/// `samples` and `residuals` are scratch of the patch's length; on return `residuals`
+/// holds `T - offset - gain S` at the final state when the outcome has an estimate.
+pub(crate) fn match_image(
+    patch: &TemplatePatch,
+    image: &ImageView<'_>,
+    start: [f64; 6],
+    line: Option<Line>,
+    options: &MatchOptions,
+    samples: &mut [f32],
+    residuals: &mut [f32],
+) -> Outcome {
+    let mut state = State::from_affine(start);
+    let start_a = state.a;
+    if let Some(line) = line {
+        let d = line.signed_distance(state.b);
+        state.b = [
+            state.b[0] - d * line.normal[0],
+            state.b[1] - d * line.normal[1],
+        ];
+    }
+    let start_b = state.b;
+    let n = patch.len() as f64;
+    let hard = options.line_sigma == 0.0;
+    let mut shift_only = options.shift_only_iterations > 0;
+    let mut status = Status::MaxIterations;
+    let mut iterations = 0u32;
+    for it in 0..options.max_iterations {
+        if shift_only && it >= options.shift_only_iterations {
+            shift_only = false;
+        }
+        if !sample_search(
+            image,
+            state.a,
+            state.b,
+            patch,
+            options.interpolation,
+            samples,
+        ) {
+            return Outcome::failed(Status::LeftImage, state, iterations);
+        }
+        let sums = Sums::new(patch, samples);
+        let normal = sums.normal(patch);
+        let gradient = sums.gradient(patch, &state);
+        let free: &[usize] = if shift_only { &SHIFT_ONLY } else { &ALL };
+        let constraint = line.map(|line| {
+            let (c, h) = line.on_step(&state);
+            if hard {
+                Constraint::Hard(c, h)
+            } else {
+                let variance = sums.residual_square(patch, &state) / (n - free.len() as f64);
+                let w = variance.max(0.0) / (options.line_sigma * options.line_sigma);
+                Constraint::Soft(c, h, w)
+            }
+        });
+        let Some(step) = solve(&normal, &gradient, free, constraint) else {
+            return Outcome::failed(Status::LowTexture, state, iterations);
+        };
+        let (shift, linear) = state.apply(&step);
+        iterations = it as u32 + 1;
+        let moved = (state.b[0] - start_b[0]).hypot(state.b[1] - start_b[1]);
+        if !(moved <= options.max_shift)
+            || !(state.gain > 0.0)
+            || !state.offset.is_finite()
+            || degenerate(state.a, start_a, options.max_scale)
+        {
+            return Outcome::failed(Status::Diverged, state, iterations);
+        }
+        // The centre's update alone (SPEC 7) can be small by chance while the shape is
+        // still far off (a first full step after the shift-only ones): the linear part
+        // must have settled too, to the same tolerance per template pixel.
+        if shift < options.tolerance && !(linear >= options.tolerance) {
+            if shift_only {
+                shift_only = false;
+            } else {
+                status = Status::Converged;
+                break;
+            }
+        }
+    }
+    finish(
+        patch, image, state, line, options, status, iterations, samples, residuals,
+    )
+}
+
+/// Precision and fit quality at the final state.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    patch: &TemplatePatch,
+    image: &ImageView<'_>,
+    state: State,
+    line: Option<Line>,
+    options: &MatchOptions,
+    status: Status,
+    iterations: u32,
+    samples: &mut [f32],
+    residuals: &mut [f32],
+) -> Outcome {
+    if !sample_search(
+        image,
+        state.a,
+        state.b,
+        patch,
+        options.interpolation,
+        samples,
+    ) {
+        return Outcome::failed(Status::LeftImage, state, iterations);
+    }
+    let sums = Sums::new(patch, samples);
+    let n = patch.len();
+    // Residuals, and the correlation from centred values: small numbers, so single
+    // precision sums lose nothing that matters.
+    let (gain, offset) = (state.gain as f32, state.offset as f32);
+    for ((e, &s), &t) in residuals.iter_mut().zip(samples.iter()).zip(&patch.value) {
+        *e = t - offset - gain * s;
+    }
+    let square = dot(residuals, residuals);
+    let (mean_t, mean_s) = (
+        (patch.value_sum / n as f64) as f32,
+        (sums.search / n as f64) as f32,
+    );
+    let mut lanes = [[0.0f32; 8]; 3];
+    let (cs, rs) = samples.as_chunks::<8>();
+    let (ct, rt) = patch.value.as_chunks::<8>();
+    for (s, t) in cs.iter().zip(ct) {
+        for l in 0..8 {
+            let (s, t) = (s[l] - mean_s, t[l] - mean_t);
+            lanes[0][l] += s * t;
+            lanes[1][l] += s * s;
+            lanes[2][l] += t * t;
+        }
+    }
+    let [mut st, mut ss, mut tt] = lanes.map(|lane| lane.iter().map(|&x| x as f64).sum::<f64>());
+    for (&s, &t) in rs.iter().zip(rt) {
+        let (s, t) = ((s - mean_s) as f64, (t - mean_t) as f64);
+        st += s * t;
+        ss += s * s;
+        tt += t * t;
+    }
+    let correlation = st / (ss * tt).sqrt();
+    let mut normal = sums.normal(patch);
+    let mut redundancy = n as f64 - U as f64;
+    let mut pseudo = 0.0;
+    let mut hard_c = None;
+    if let Some(line) = line {
+        redundancy += 1.0;
+        let (c, _) = line.on_step(&state);
+        if options.line_sigma == 0.0 {
+            hard_c = Some(c);
+        } else {
+            let w = square / (n as f64 - U as f64) / (options.line_sigma * options.line_sigma);
+            let d = line.signed_distance(state.b);
+            pseudo = w * d * d;
+            for i in 0..U {
+                for j in 0..U {
+                    normal[i][j] += w * c[i] * c[j];
+                }
+            }
+        }
+    }
+    let Some(chol) = Cholesky::new(&normal, U) else {
+        return Outcome::failed(Status::LowTexture, state, iterations);
+    };
+    let mut cofactor = chol.inverse();
+    if let Some(c) = hard_c {
+        let y = chol.solve(&c);
+        let cy: f64 = (0..U).map(|i| c[i] * y[i]).sum();
+        for i in 0..U {
+            for j in 0..U {
+                cofactor[i][j] -= y[i] * y[j] / cy;
+            }
+        }
+    }
+    Outcome {
+        status,
+        state,
+        iterations,
+        sigma0: ((square + pseudo) / redundancy).sqrt(),
+        correlation,
+        cofactor,
+        sums,
+    }
+}

@@ -1,0 +1,72 @@
+//! The normal equations of one search image from sums over the patch: the template's
+//! (fixed per point) and the resampled search patch's (per iteration).
+
+use super::dense::MAX;
+use super::gauss_newton::State;
+use super::sample::{dot, sum, TemplatePatch};
+
+const U: usize = MAX;
+
+/// The per-iteration sums over the resampled search patch `S`: `sum g S` (6 geometric
+/// columns), `sum S`, `sum S^2`, `sum S T`.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Sums {
+    pub geo_search: [f64; 6],
+    pub search: f64,
+    pub search_square: f64,
+    pub search_value: f64,
+}
+
+impl Sums {
+    pub fn new(patch: &TemplatePatch, samples: &[f32]) -> Self {
+        let n = patch.len();
+        let mut geo_search = [0.0; 6];
+        for (k, g) in geo_search.iter_mut().enumerate() {
+            *g = dot(&patch.geo[k * n..(k + 1) * n], samples);
+        }
+        Self {
+            geo_search,
+            search: sum(samples),
+            search_square: dot(samples, samples),
+            search_value: dot(samples, &patch.value),
+        }
+    }
+
+    /// The normal matrix `G^T G`, rows of `G` = `[g (6), S, 1]`.
+    pub fn normal(&self, patch: &TemplatePatch) -> [[f64; U]; U] {
+        let mut m = [[0.0; U]; U];
+        for k in 0..6 {
+            m[k][..6].copy_from_slice(&patch.geo_normal[k * 6..k * 6 + 6]);
+            m[k][6] = self.geo_search[k];
+            m[k][7] = patch.geo_sum[k];
+            m[6][k] = self.geo_search[k];
+            m[7][k] = patch.geo_sum[k];
+        }
+        m[6][6] = self.search_square;
+        m[6][7] = self.search;
+        m[7][6] = self.search;
+        m[7][7] = patch.len() as f64;
+        m
+    }
+
+    /// `G^T e` with the residual `e = T - offset - gain S`.
+    pub fn gradient(&self, patch: &TemplatePatch, state: &State) -> [f64; U] {
+        let (g, o) = (state.gain, state.offset);
+        let mut r = [0.0; U];
+        for k in 0..6 {
+            r[k] = patch.geo_value[k] - o * patch.geo_sum[k] - g * self.geo_search[k];
+        }
+        r[6] = self.search_value - o * self.search - g * self.search_square;
+        r[7] = patch.value_sum - o * patch.len() as f64 - g * self.search;
+        r
+    }
+
+    /// `e^T e` from the sums (for weights only: it cancels digits).
+    pub fn residual_square(&self, patch: &TemplatePatch, state: &State) -> f64 {
+        let (g, o, n) = (state.gain, state.offset, patch.len() as f64);
+        patch.value_square - 2.0 * o * patch.value_sum - 2.0 * g * self.search_value
+            + n * o * o
+            + 2.0 * o * g * self.search
+            + g * g * self.search_square
+    }
+}

@@ -1,0 +1,206 @@
+//! The template patch: grey values and gradients, sampled once per point, and the sums
+//! over it that every iteration reuses; single-precision dot products.
+//!
+//! Pixel `(u, v)` = (column, row), pixel centres at integers.
+
+use super::resample::{bicubic, bilinear, inside};
+use super::types::{ImageView, Interpolation};
+
+/// The template patch of one point: grey values and central-difference gradients on the
+/// `size x size` grid of offsets `(dx, dy)`, `dx, dy in -h..=h`, plus the sums that make
+/// the geometric part of the normal equations constant over the iterations.
+#[derive(Debug, Clone)]
+pub(crate) struct TemplatePatch {
+    /// Side of the patch.
+    pub size: usize,
+    /// Offsets of each patch pixel from the centre, columns and rows (zero-padded to a
+    /// multiple of eight).
+    pub dx: Vec<f32>,
+    /// See `dx`.
+    pub dy: Vec<f32>,
+    /// Grey values.
+    pub value: Vec<f32>,
+    /// The six geometric Jacobian columns per pixel, `[gx, gy, gx dx, gx dy, gy dx, gy dy]`,
+    /// stored column after column (`geo[k * n + i]`).
+    pub geo: Vec<f32>,
+    /// `sum g g^T` over the patch (6x6, row-major, f64).
+    pub geo_normal: [f64; 36],
+    /// `sum g`.
+    pub geo_sum: [f64; 6],
+    /// `sum g T`.
+    pub geo_value: [f64; 6],
+    /// `sum T`.
+    pub value_sum: f64,
+    /// `sum T^2`.
+    pub value_square: f64,
+    /// Grid of `(size + 2)^2` samples for the gradients (scratch).
+    border: Vec<f32>,
+}
+
+impl Default for TemplatePatch {
+    fn default() -> Self {
+        Self {
+            size: 0,
+            dx: Vec::new(),
+            dy: Vec::new(),
+            value: Vec::new(),
+            geo: Vec::new(),
+            geo_normal: [0.0; 36],
+            geo_sum: [0.0; 6],
+            geo_value: [0.0; 6],
+            value_sum: 0.0,
+            value_square: 0.0,
+            border: Vec::new(),
+        }
+    }
+}
+
+impl TemplatePatch {
+    /// Number of pixels.
+    pub fn len(&self) -> usize {
+        self.size * self.size
+    }
+
+    /// Samples the patch around `centre`; false when it (with the one-pixel border the
+    /// gradients need) does not lie inside the image.
+    pub fn sample(
+        &mut self,
+        image: &ImageView<'_>,
+        centre: [f64; 2],
+        size: usize,
+        interpolation: Interpolation,
+    ) -> bool {
+        let h = (size / 2) as f64;
+        let reach = h + 1.0;
+        if !inside(image, centre, [[reach, 0.0], [0.0, reach]], interpolation) {
+            return false;
+        }
+        if self.size != size {
+            self.resize(size);
+        }
+        let n = size * size;
+        let m = size + 2;
+        let base = [centre[0].floor(), centre[1].floor()];
+        let frac = [(centre[0] - base[0]) as f32, (centre[1] - base[1]) as f32];
+        let reach = size / 2 + 1;
+        if frac == [0.0, 0.0] {
+            // A pixel centre: the samples are the pixels themselves.
+            let (u0, v0) = (base[0] as usize - reach, base[1] as usize - reach);
+            for r in 0..m {
+                let row = (v0 + r) * image.width + u0;
+                self.border[r * m..(r + 1) * m].copy_from_slice(&image.data[row..row + m]);
+            }
+        } else {
+            for r in 0..m {
+                for c in 0..m {
+                    let offset = [
+                        frac[0] + (c as f32 - reach as f32),
+                        frac[1] + (r as f32 - reach as f32),
+                    ];
+                    self.border[r * m + c] = match interpolation {
+                        Interpolation::Bilinear => bilinear(image, base, offset),
+                        Interpolation::Bicubic => bicubic(image, base, offset),
+                    };
+                }
+            }
+        }
+        let (mut sum_value, mut sum_square) = (0.0f64, 0.0f64);
+        for r in 0..size {
+            for c in 0..size {
+                let i = r * size + c;
+                let at = |rr: usize, cc: usize| self.border[rr * m + cc];
+                let t = at(r + 1, c + 1);
+                let gx = 0.5 * (at(r + 1, c + 2) - at(r + 1, c));
+                let gy = 0.5 * (at(r + 2, c + 1) - at(r, c + 1));
+                let (dx, dy) = (self.dx[i], self.dy[i]);
+                self.value[i] = t;
+                let row = [gx, gy, gx * dx, gx * dy, gy * dx, gy * dy];
+                for (k, g) in row.into_iter().enumerate() {
+                    self.geo[k * n + i] = g;
+                }
+                sum_value += t as f64;
+                sum_square += (t as f64) * (t as f64);
+            }
+        }
+        self.value_sum = sum_value;
+        self.value_square = sum_square;
+        self.geo_normal = [0.0; 36];
+        self.geo_sum = [0.0; 6];
+        self.geo_value = [0.0; 6];
+        for k in 0..6 {
+            let gk = &self.geo[k * n..(k + 1) * n];
+            self.geo_sum[k] = sum(gk);
+            self.geo_value[k] = dot(gk, &self.value);
+            for l in k..6 {
+                let s = dot(gk, &self.geo[l * n..(l + 1) * n]);
+                self.geo_normal[k * 6 + l] = s;
+                self.geo_normal[l * 6 + k] = s;
+            }
+        }
+        true
+    }
+
+    /// Root mean square gradient along the patch's weakest direction: the square root of
+    /// the smaller eigenvalue of the mean structure tensor `mean(grad T grad T^T)`.
+    pub fn weakest_gradient(&self) -> f64 {
+        let n = self.len() as f64;
+        let (a, b, c) = (
+            self.geo_normal[0] / n,
+            self.geo_normal[1] / n,
+            self.geo_normal[7] / n,
+        );
+        let mean = 0.5 * (a + c);
+        let spread = (0.25 * (a - c) * (a - c) + b * b).sqrt();
+        (mean - spread).max(0.0).sqrt()
+    }
+
+    fn resize(&mut self, size: usize) {
+        let n = size * size;
+        let h = (size / 2) as f32;
+        self.size = size;
+        // Padded with zero offsets to whole groups of eight, so that the resampling
+        // computes positions eight lanes at a time without a remainder loop.
+        let padded = n.div_ceil(8) * 8;
+        let offset = |i: usize, along: fn(usize, usize) -> usize| {
+            if i < n {
+                along(i, size) as f32 - h
+            } else {
+                0.0
+            }
+        };
+        self.dx = (0..padded).map(|i| offset(i, |i, s| i % s)).collect();
+        self.dy = (0..padded).map(|i| offset(i, |i, s| i / s)).collect();
+        self.value = vec![0.0; n];
+        self.geo = vec![0.0; 6 * n];
+        self.border = vec![0.0; (size + 2) * (size + 2)];
+    }
+}
+
+/// `sum a_i b_i` in eight `f32` lanes (so that it vectorises), then `f64`: over a patch
+/// of at most 255^2 pixels, about 1e-6 relative.
+#[inline]
+pub(crate) fn dot(a: &[f32], b: &[f32]) -> f64 {
+    let mut lanes = [0.0f32; 8];
+    let (ca, ra) = a.as_chunks::<8>();
+    let (cb, rb) = b.as_chunks::<8>();
+    for (x, y) in ca.iter().zip(cb) {
+        for l in 0..8 {
+            lanes[l] += x[l] * y[l];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(&x, &y)| x as f64 * y as f64).sum();
+    lanes.iter().map(|&l| l as f64).sum::<f64>() + tail
+}
+
+/// `sum a_i` in eight `f32` lanes, then `f64`.
+#[inline]
+pub(crate) fn sum(a: &[f32]) -> f64 {
+    let mut lanes = [0.0f32; 8];
+    let (chunks, rest) = a.as_chunks::<8>();
+    for x in chunks {
+        for l in 0..8 {
+            lanes[l] += x[l];
+        }
+    }
+    lanes.iter().map(|&l| l as f64).sum::<f64>() + rest.iter().map(|&x| x as f64).sum::<f64>()
+}

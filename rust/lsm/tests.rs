@@ -1,0 +1,355 @@
+//! Recovery of known warps on procedural textures, statuses of bad patches, constraints.
+
+use super::*;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A band-limited procedural texture: a sum of sinusoids with wavelengths of 8 to 30 px.
+struct Texture {
+    waves: Vec<([f64; 2], f64, f64)>,
+}
+
+impl Texture {
+    fn new(rng: &mut ChaCha8Rng) -> Self {
+        let waves = (0..12)
+            .map(|_| {
+                let angle = rng.random_range(0.0..std::f64::consts::TAU);
+                let frequency = rng.random_range(0.2..0.8);
+                (
+                    [frequency * angle.cos(), frequency * angle.sin()],
+                    rng.random_range(0.0..std::f64::consts::TAU),
+                    rng.random_range(5.0..15.0),
+                )
+            })
+            .collect();
+        Self { waves }
+    }
+
+    fn at(&self, u: f64, v: f64) -> f64 {
+        128.0
+            + self
+                .waves
+                .iter()
+                .map(|(w, phase, amplitude)| amplitude * (w[0] * u + w[1] * v + phase).sin())
+                .sum::<f64>()
+    }
+}
+
+/// Template `f`, search `gain f(M^-1 (y - b) + p) + offset` with noise; the true map sends
+/// template offsets `x` from `p` to `M x + b`.
+struct Scene {
+    template: Vec<f32>,
+    search: Vec<f32>,
+    width: usize,
+    height: usize,
+}
+
+fn noise(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
+    // Box-Muller.
+    let (a, b): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random_range(0.0..1.0));
+    sigma * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+}
+
+#[allow(clippy::too_many_arguments)]
+fn scene(
+    texture: &Texture,
+    p: [f64; 2],
+    m: [f64; 4],
+    b: [f64; 2],
+    gain: f64,
+    offset: f64,
+    sigma: f64,
+    rng: &mut ChaCha8Rng,
+) -> Scene {
+    let (width, height) = (64, 64);
+    let det = m[0] * m[3] - m[1] * m[2];
+    let inv = [m[3] / det, -m[1] / det, -m[2] / det, m[0] / det];
+    let mut template = vec![0.0; width * height];
+    let mut search = vec![0.0; width * height];
+    for r in 0..height {
+        for c in 0..width {
+            let (u, v) = (c as f64, r as f64);
+            template[r * width + c] = (texture.at(u, v) + noise(rng, sigma)) as f32;
+            let (du, dv) = (u - b[0], v - b[1]);
+            let x = [
+                inv[0] * du + inv[1] * dv + p[0],
+                inv[2] * du + inv[3] * dv + p[1],
+            ];
+            search[r * width + c] =
+                (gain * texture.at(x[0], x[1]) + offset + noise(rng, sigma)) as f32;
+        }
+    }
+    Scene {
+        template,
+        search,
+        width,
+        height,
+    }
+}
+
+struct Matched {
+    status: Vec<u8>,
+    affine: Vec<[f64; 6]>,
+    radiometry: Vec<[f64; 2]>,
+    sigma0: Vec<f64>,
+    correlation: Vec<f64>,
+    iterations: Vec<u32>,
+    covariance: Vec<f64>,
+}
+
+fn run(
+    template: &ImageView<'_>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    options: &MatchOptions,
+) -> Result<Matched> {
+    let pairs = points.len() * searches.len();
+    let mut m = Matched {
+        status: vec![0; pairs],
+        affine: vec![[0.0; 6]; pairs],
+        radiometry: vec![[0.0; 2]; pairs],
+        sigma0: vec![0.0; pairs],
+        correlation: vec![0.0; pairs],
+        iterations: vec![0; pairs],
+        covariance: vec![0.0; pairs * searches.len() * 64],
+    };
+    match_patches(
+        template,
+        points,
+        searches,
+        starts,
+        lines,
+        options,
+        MatchOutput {
+            status: &mut m.status,
+            affine: &mut m.affine,
+            radiometry: &mut m.radiometry,
+            sigma0: &mut m.sigma0,
+            correlation: &mut m.correlation,
+            iterations: &mut m.iterations,
+            covariance: &mut m.covariance,
+        },
+    )?;
+    Ok(m)
+}
+
+fn rotation_scale(angle_deg: f64, scale: f64, shear: f64) -> [f64; 4] {
+    let (s, c) = angle_deg.to_radians().sin_cos();
+    // R * diag(scale) * [[1, shear], [0, 1]]
+    [
+        c * scale,
+        c * scale * shear - s * scale,
+        s * scale,
+        s * scale * shear + c * scale,
+    ]
+}
+
+#[test]
+fn recovers_affine_warp_gain_and_offset_without_noise() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let texture = Texture::new(&mut rng);
+    let p = [30.0, 31.0];
+    let m = rotation_scale(12.0, 1.15, 0.15);
+    let b = [33.3, 28.7];
+    let sc = scene(&texture, p, m, b, 1.25, 15.0, 0.0, &mut rng);
+    let template = ImageView {
+        data: &sc.template,
+        width: sc.width,
+        height: sc.height,
+    };
+    let search = ImageView {
+        data: &sc.search,
+        width: sc.width,
+        height: sc.height,
+    };
+    let options = MatchOptions {
+        size: 15,
+        ..Default::default()
+    };
+    let start = [1.0, 0.0, b[0] + 1.5, 0.0, 1.0, b[1] - 1.2];
+    let out = run(&template, &[p], &[search], &[start], None, &options).unwrap();
+    assert_eq!(out.status[0], Status::Converged as u8, "{:?}", out.affine);
+    let a = out.affine[0];
+    let err = (a[2] - b[0]).hypot(a[5] - b[1]);
+    assert!(err < 0.02, "centre error {err}");
+    for (got, want) in [a[0], a[1], a[3], a[4]].iter().zip(m) {
+        assert!((got - want).abs() < 0.01, "affine {a:?} vs {m:?}");
+    }
+    let [gain, offset] = out.radiometry[0];
+    // Bilinear resampling damps the search patch's contrast by about omega^2 / 12 at
+    // angular frequency omega (rad/px): up to ~4% here, which the gain absorbs.
+    assert!((gain / (1.0 / 1.25) - 1.0).abs() < 0.04, "gain {gain}");
+    // The means still match: 128 = offset + gain (1.25 * 128 + 15).
+    assert!(
+        (offset + gain * (1.25 * 128.0 + 15.0) - 128.0).abs() < 0.5,
+        "offset {offset}"
+    );
+    assert!(out.correlation[0] > 0.999);
+    assert!(out.iterations[0] > 1 && out.iterations[0] < 30);
+}
+
+#[test]
+fn flat_and_outside_patches_report_their_status() {
+    let width = 40;
+    let flat = vec![100.0f32; width * width];
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let texture = Texture::new(&mut rng);
+    let textured: Vec<f32> = (0..width * width)
+        .map(|i| texture.at((i % width) as f64, (i / width) as f64) as f32)
+        .collect();
+    let view = |data| ImageView {
+        data,
+        width,
+        height: width,
+    };
+    let options = MatchOptions {
+        min_texture: 0.5,
+        ..Default::default()
+    };
+    let identity = |u: f64, v: f64| [1.0, 0.0, u, 0.0, 1.0, v];
+    // Flat template: too little texture.
+    let out = run(
+        &view(&flat),
+        &[[20.0, 20.0]],
+        &[view(&textured)],
+        &[identity(20.0, 20.0)],
+        None,
+        &options,
+    )
+    .unwrap();
+    assert_eq!(out.status[0], Status::LowTexture as u8);
+    assert!(out.covariance.iter().all(|c| c.is_nan()));
+    // Template patch over the border; search start over the border.
+    let out = run(
+        &view(&textured),
+        &[[3.0, 20.0], [20.0, 20.0]],
+        &[view(&textured)],
+        &[identity(3.0, 20.0), identity(36.0, 20.0)],
+        None,
+        &options,
+    )
+    .unwrap();
+    assert_eq!(out.status, vec![Status::LeftImage as u8; 2]);
+    // A textured template against a flat search image: singular or runaway, never a panic.
+    let out = run(
+        &view(&textured),
+        &[[20.0, 20.0]],
+        &[view(&flat)],
+        &[identity(20.0, 20.0)],
+        None,
+        &options,
+    )
+    .unwrap();
+    assert_ne!(out.status[0], Status::Converged as u8);
+}
+
+#[test]
+fn hard_line_keeps_the_centre_on_it() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let texture = Texture::new(&mut rng);
+    let p = [32.0, 32.0];
+    let m = rotation_scale(-8.0, 0.9, -0.1);
+    let b = [31.4, 33.6];
+    let sc = scene(&texture, p, m, b, 0.8, -10.0, 2.0, &mut rng);
+    let template = ImageView {
+        data: &sc.template,
+        width: sc.width,
+        height: sc.height,
+    };
+    let search = ImageView {
+        data: &sc.search,
+        width: sc.width,
+        height: sc.height,
+    };
+    // A line through the true centre, slightly off horizontal.
+    let normal: [f64; 2] = [0.1, 1.0];
+    let line = [normal[0], normal[1], -(normal[0] * b[0] + normal[1] * b[1])];
+    let start = [1.0, 0.0, b[0] - 1.5, 0.0, 1.0, b[1] + 1.0];
+    for sigma in [0.0, 0.05] {
+        let options = MatchOptions {
+            size: 13,
+            line_sigma: sigma,
+            ..Default::default()
+        };
+        let out = run(
+            &template,
+            &[p],
+            &[search],
+            &[start],
+            Some(&[line]),
+            &options,
+        )
+        .unwrap();
+        assert_eq!(out.status[0], Status::Converged as u8);
+        let a = out.affine[0];
+        let distance = (line[0] * a[2] + line[1] * a[5] + line[2]) / normal[0].hypot(normal[1]);
+        if sigma == 0.0 {
+            assert!(distance.abs() < 1e-9, "distance {distance}");
+            // The covariance is singular across the line: var of the normal component ~ 0.
+            let c = &out.covariance;
+            let n = [
+                normal[0] / normal[0].hypot(normal[1]),
+                normal[1] / normal[0].hypot(normal[1]),
+            ];
+            let across = n[0] * n[0] * c[0] + 2.0 * n[0] * n[1] * c[1] + n[1] * n[1] * c[9];
+            assert!(
+                across.abs() < 1e-12 * (c[0] + c[9]),
+                "variance across the line {across}"
+            );
+        } else {
+            assert!(distance.abs() < 0.2, "distance {distance}");
+        }
+        assert!((a[2] - b[0]).hypot(a[5] - b[1]) < 0.1);
+    }
+}
+
+#[test]
+fn rejects_bad_arguments() {
+    let data = vec![0.0f32; 100];
+    let image = ImageView {
+        data: &data,
+        width: 10,
+        height: 10,
+    };
+    let identity = [1.0, 0.0, 5.0, 0.0, 1.0, 5.0];
+    let even = MatchOptions {
+        size: 10,
+        ..Default::default()
+    };
+    assert!(matches!(
+        run(&image, &[[5.0, 5.0]], &[image], &[identity], None, &even),
+        Err(Error::InvalidOption {
+            argument: "size",
+            ..
+        })
+    ));
+    let options = MatchOptions::default();
+    assert!(matches!(
+        run(&image, &[[5.0, 5.0]], &[], &[], None, &options),
+        Err(Error::Empty { .. })
+    ));
+    assert!(matches!(
+        run(
+            &image,
+            &[[f64::NAN, 5.0]],
+            &[image],
+            &[identity],
+            None,
+            &options
+        ),
+        Err(Error::NonFinite {
+            argument: "points",
+            ..
+        })
+    ));
+    let short = ImageView {
+        data: &data[..50],
+        width: 10,
+        height: 10,
+    };
+    assert!(run(&image, &[[5.0, 5.0]], &[short], &[identity], None, &options).is_err());
+    let flipped = [-1.0, 0.0, 5.0, 0.0, 1.0, 5.0];
+    assert!(run(&image, &[[5.0, 5.0]], &[image], &[flipped], None, &options).is_err());
+}

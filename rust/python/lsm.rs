@@ -1,0 +1,165 @@
+//! Binding of least-squares matching.
+
+use numpy::{
+    PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
+use pyo3::prelude::*;
+
+use super::{c_slice, invalid_input, rows};
+use crate::lsm::{match_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS};
+
+type Matches<'py> = (
+    Bound<'py, PyArray2<u8>>,
+    Bound<'py, PyArray4<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<u32>>,
+    Bound<'py, PyArray3<f64>>,
+);
+
+fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
+    let shape = image.shape();
+    Ok(ImageView {
+        data: c_slice(image, argument)?,
+        width: shape[1],
+        height: shape[0],
+    })
+}
+
+/// `(status (N, S) uint8, affine (N, S, 2, 3), radiometry (N, S, 2) [gain, offset],
+/// sigma0 (N, S), correlation (N, S), iterations (N, S) uint32, covariance (N, 8S, 8S))`.
+/// Images are C-contiguous float32; `initial` is `(N, S, 6)` row-major 2x3 maps;
+/// `epipolar` `(N, S, 3)` lines. `threads` runs the batch on its own pool of that size.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (template, points, search_images, initial, epipolar=None, *, size=11,
+    max_iterations=30, tolerance=0.01, max_shift=5.0, max_scale=3.0, min_texture=0.0,
+    line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None))]
+fn lsm_match_patches<'py>(
+    py: Python<'py>,
+    template: PyReadonlyArray2<'py, f32>,
+    points: PyReadonlyArray2<'py, f64>,
+    search_images: Vec<PyReadonlyArray2<'py, f32>>,
+    initial: PyReadonlyArray3<'py, f64>,
+    epipolar: Option<PyReadonlyArray3<'py, f64>>,
+    size: usize,
+    max_iterations: usize,
+    tolerance: f64,
+    max_shift: f64,
+    max_scale: f64,
+    min_texture: f64,
+    line_sigma: f64,
+    shift_only_iterations: usize,
+    interpolation: &str,
+    threads: Option<usize>,
+) -> PyResult<Matches<'py>> {
+    let template_view = view(&template, "template")?;
+    let points_rows = rows::<2>(&points, "points")?;
+    let searches = search_images
+        .iter()
+        .map(|image| view(image, "search_images"))
+        .collect::<PyResult<Vec<_>>>()?;
+    let (n, s) = (points_rows.len(), searches.len());
+    if initial.shape() != [n, s, 6] {
+        return Err(invalid_input(format!(
+            "initial must have shape ({n}, {s}, 6), got {:?}",
+            initial.shape()
+        )));
+    }
+    let starts = c_slice(&initial, "initial")?.as_chunks::<6>().0;
+    let lines = match &epipolar {
+        Some(lines) => {
+            if lines.shape() != [n, s, 3] {
+                return Err(invalid_input(format!(
+                    "epipolar must have shape ({n}, {s}, 3), got {:?}",
+                    lines.shape()
+                )));
+            }
+            Some(c_slice(lines, "epipolar")?.as_chunks::<3>().0)
+        }
+        None => None,
+    };
+    if threads == Some(0) {
+        return Err(invalid_input("threads must be at least 1".into()));
+    }
+    let interpolation = match interpolation {
+        "bilinear" => Interpolation::Bilinear,
+        "bicubic" => Interpolation::Bicubic,
+        other => {
+            return Err(invalid_input(format!(
+                "interpolation must be 'bilinear' or 'bicubic', got {other:?}"
+            )))
+        }
+    };
+    let options = MatchOptions {
+        size,
+        max_iterations,
+        tolerance,
+        max_shift,
+        max_scale,
+        min_texture,
+        line_sigma,
+        shift_only_iterations,
+        interpolation,
+    };
+    let width = PARAMETERS * s;
+    let status = PyArray2::<u8>::zeros(py, [n, s], false);
+    let affine = PyArray4::<f64>::zeros(py, [n, s, 2, 3], false);
+    let radiometry = PyArray3::<f64>::zeros(py, [n, s, 2], false);
+    let sigma0 = PyArray2::<f64>::zeros(py, [n, s], false);
+    let correlation = PyArray2::<f64>::zeros(py, [n, s], false);
+    let iterations = PyArray2::<u32>::zeros(py, [n, s], false);
+    let covariance = PyArray3::<f64>::zeros(py, [n, width, width], false);
+    {
+        let mut status_w = status.readwrite();
+        let mut affine_w = affine.readwrite();
+        let mut radiometry_w = radiometry.readwrite();
+        let mut sigma0_w = sigma0.readwrite();
+        let mut correlation_w = correlation.readwrite();
+        let mut iterations_w = iterations.readwrite();
+        let mut covariance_w = covariance.readwrite();
+        let out = MatchOutput {
+            status: status_w.as_slice_mut()?,
+            affine: affine_w.as_slice_mut()?.as_chunks_mut::<6>().0,
+            radiometry: radiometry_w.as_slice_mut()?.as_chunks_mut::<2>().0,
+            sigma0: sigma0_w.as_slice_mut()?,
+            correlation: correlation_w.as_slice_mut()?,
+            iterations: iterations_w.as_slice_mut()?,
+            covariance: covariance_w.as_slice_mut()?,
+        };
+        let run = || {
+            match_patches(
+                &template_view,
+                points_rows,
+                &searches,
+                starts,
+                lines,
+                &options,
+                out,
+            )
+        };
+        py.detach(|| match threads {
+            Some(threads) => match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+                Ok(pool) => Ok(pool.install(run)),
+                Err(e) => Err(e.to_string()),
+            },
+            None => Ok(run()),
+        })
+        .map_err(pyo3::exceptions::PyRuntimeError::new_err)??;
+    }
+    Ok((
+        status,
+        affine,
+        radiometry,
+        sigma0,
+        correlation,
+        iterations,
+        covariance,
+    ))
+}
+
+pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(lsm_match_patches, m)?)
+}
