@@ -15,6 +15,7 @@ pub mod grid_sample;
 pub mod linalg;
 pub mod lm;
 pub mod lsm;
+pub mod mesh;
 pub mod mls;
 pub mod polar;
 pub mod sdf;

@@ -16,6 +16,7 @@ MOVED_MODULES = {
     "elastocap.camera": "elastocap.cameras",
     "elastocap.neighbors": "elastocap.geometry.neighbors",
     "elastocap.polar": "elastocap.geometry.polar",
+    "elastocap.mesh_distance": "elastocap.geometry.mesh_distance",
     "elastocap.grid": "elastocap.hull.grid",
     "elastocap.sdf": "elastocap.hull.sdf",
     "elastocap.mls": "elastocap.elastic.mls",

@@ -9,6 +9,7 @@ mod elastic;
 mod errors;
 mod fit;
 mod lsm;
+mod mesh;
 mod mls;
 mod neighbors;
 mod polar;
@@ -64,6 +65,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     camera::register(m)?;
     snake::register(m)?;
     lsm::register(m)?;
+    mesh::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

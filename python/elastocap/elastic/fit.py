@@ -23,10 +23,10 @@ from numpy.typing import NDArray
 
 import elastocap._core as _core
 from elastocap._core import InvalidInputError
-from elastocap.hull.voxelize import solid_voxels
 from elastocap.elastic.model import ElasticModel
-from elastocap.hull.grid import Grid
+from elastocap.geometry.mesh_distance import TriangleMesh
 from elastocap.hull.carve import Hull
+from elastocap.hull.grid import Grid
 from elastocap.hull.sdf import SDF
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
@@ -78,7 +78,7 @@ class SequenceFit:
 
 def target_field(target: Any) -> SDF:
     """The signed distance field of a target: an :class:`SDF`, a :class:`Hull`, or a closed
-    trimesh (voxelised at 1/100 of its largest extent). Non-finite values (an empty or full
+    trimesh (its exact signed distance sampled every 1/100 of its largest extent). Non-finite values (an empty or full
     grid) are an error."""
     if isinstance(target, SDF):
         sdf = target
@@ -92,7 +92,11 @@ def target_field(target: Any) -> SDF:
         lo, hi = target.bounds
         h = float(np.max(hi - lo)) / 100
         grid = Grid(lo - 5 * h, h, tuple(int(v) for v in np.ceil((hi - lo) / h).astype(int) + 11))
-        sdf = SDF.from_occupancy(solid_voxels(target, grid), grid)
+        faces = np.asarray(target.faces)
+        # Exact signed distances at the voxel centres (no voxelisation error); signs need
+        # outward triangles, so an inside-out mesh is read the other way round.
+        index = TriangleMesh(target.vertices, faces if target.volume > 0 else faces[:, ::-1])
+        sdf = SDF(index.distances(grid.centers().reshape(-1, 3), signed=True).reshape(grid.shape), grid)
     else:
         raise InvalidInputError(f"a target must be an SDF, a Hull or a trimesh.Trimesh, got {type(target).__name__}")
     if not np.all(np.isfinite(sdf.values)):

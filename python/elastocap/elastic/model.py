@@ -225,7 +225,7 @@ class ElasticModel:
         found = sample_mesh(mesh, count, seed)
         return cls._from_node_set(
             found,
-            abs(float(mesh.volume)),
+            found.volume,
             k=k,
             youngs=youngs,
             poisson=poisson,

@@ -1,11 +1,12 @@
 """Node placement for element-free models (SPEC 4.1): surface nodes on a remeshed surface,
 interior nodes on a jittered grid, spacing chosen from a requested node count.
 
-3-D: the closed mesh is voxelised (:mod:`elastocap.hull.voxelize`) at a quarter of the node
-spacing ``h`` and turned into an exact signed distance field; the surface is re-extracted by
-marching cubes with steps of ``h`` (vertices about ``h`` apart) and its vertices are pulled
-onto the zero level; interior nodes are the points of a jittered grid of spacing ``h`` at
-least ``h / 2`` inside. 2-D: a mask's contours resampled every ``h`` and a jittered grid.
+3-D: the exact signed distance to the closed mesh (:class:`elastocap.geometry.mesh_distance.TriangleMesh`,
+parry's BVH) is sampled on a grid of spacing ``h``; the surface is re-extracted by marching
+cubes (vertices about ``h`` apart) and its vertices are moved to their closest points on the
+mesh; interior nodes are the points of a jittered grid of spacing ``h`` whose signed distance
+is below ``-h / 2``. Only points are queried, about 3 / h^3 per unit volume, never a voxel
+grid finer than ``h``. 2-D: a mask's contours resampled every ``h`` and a jittered grid.
 A jittered grid rather than uniform random points: SPEC 4.1 measured that random clouds
 give soft near-zero-energy modes and grids do not.
 """
@@ -23,12 +24,13 @@ from scipy import ndimage
 from skimage import measure
 
 from elastocap._core import InvalidInputError
-from elastocap.hull.voxelize import solid_voxels
-from elastocap.hull.grid import Grid
-from elastocap.hull.sdf import SDF
+from elastocap.geometry.mesh_distance import TriangleMesh
 
-# Voxels per node spacing for the distance field behind the sampling.
-SUBDIVISION = 4
+# Offset of the grid behind marching cubes below the mesh's bounding box, in units of h:
+# more than a cell and no simple fraction of one.
+GRID_SHIFT = 1.2345
+# Smallest |signed distance| a marching-cubes corner is given, in units of h.
+CORNER_CLEARANCE = 0.125
 # Jitter of the interior grid, a fraction of h each way.
 JITTER = 0.2
 # Rounds of re-estimating h from the measured node count (a secant step on log count vs
@@ -44,54 +46,89 @@ class NodeSet:
     n_surface: int
     faces: NDArray[np.int64]
     spacing: float
+    # Volume (3-D) or area (2-D) of the solid the nodes fill, world units.
+    volume: float
 
 
-def check_mesh(mesh: object) -> trimesh.Trimesh:
-    """The mesh if it is a closed, finite, non-degenerate triangle mesh; else a clear error."""
+def check_mesh(mesh: object) -> tuple[trimesh.Trimesh, TriangleMesh]:
+    """The mesh, and its index for exact queries with outward triangles, if it is a closed,
+    consistently oriented, finite triangle mesh enclosing a volume; else a clear error."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
         raise InvalidInputError("mesh has no faces")
     if not np.all(np.isfinite(mesh.vertices)):
         raise InvalidInputError("mesh has non-finite vertices (NaN or infinity)")
-    if not mesh.is_watertight:
+    faces = np.asarray(mesh.faces)
+    index = TriangleMesh(mesh.vertices, faces)
+    if not index.is_closed:
         raise InvalidInputError(
-            "mesh is not watertight (it has open edges or non-manifold edges); "
-            "close it first, e.g. with trimesh.repair.fill_holes"
+            "mesh is not watertight and consistently oriented (it has open or non-manifold "
+            "edges, or neighbouring faces wound against each other); close it first, e.g. with "
+            "trimesh.repair.fill_holes and trimesh.repair.fix_winding"
         )
-    volume = abs(float(mesh.volume))
-    extent = float(np.max(mesh.extents))
-    if not volume > 1e-9 * extent**3:
-        raise InvalidInputError(f"mesh encloses no volume (volume {volume:g} for extent {extent:g})")
-    return mesh
+    volume = index.volume
+    extent = float(np.max(np.ptp(mesh.vertices, axis=0)))
+    if not abs(volume) > 1e-9 * extent**3:
+        raise InvalidInputError(f"mesh encloses no volume (volume {abs(volume):g} for extent {extent:g})")
+    if volume < 0:  # signs need outward triangles: an inside-out mesh is read the other way round
+        index = TriangleMesh(mesh.vertices, faces[:, ::-1])
+    return mesh, index
 
 
-def _sample_mesh_at(mesh: trimesh.Trimesh, h: float, rng: np.random.Generator) -> NodeSet:
-    pitch = h / SUBDIVISION
+def _lattice(lower: NDArray[np.float64], upper: NDArray[np.float64], h: float) -> NDArray[np.float64]:
+    """``(N, 3)``: the points ``lower + h (i, j, k)`` up to ``upper``, C order."""
+    axes = [np.arange(lower[a], upper[a], h) for a in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _sample_mesh_at(index: TriangleMesh, mesh: trimesh.Trimesh, h: float, rng: np.random.Generator) -> NodeSet:
     lo, hi = mesh.bounds
-    pad = 2 * SUBDIVISION * pitch
-    shape = tuple(int(v) for v in np.ceil((hi - lo + 2 * pad) / pitch).astype(int) + 1)
-    grid = Grid(lo - pad, pitch, shape)
-    sdf = SDF.from_occupancy(solid_voxels(mesh, grid), grid)
-    values = np.where(np.isfinite(sdf.values), sdf.values, pad)
-    vertices, faces, _, _ = measure.marching_cubes(values, level=0.0, spacing=(pitch,) * 3, step_size=SUBDIVISION)
-    surface = trimesh.Trimesh(sdf.closest_points(vertices + grid.origin), faces, process=True)
+    # One cell beyond the mesh each way, so that marching cubes closes the surface; shifted
+    # off the bounding box, so that the flat faces of boxes and marching-cubes meshes do not
+    # lie on grid planes (corners at distance 0 give marching cubes coinciding vertices).
+    origin = lo - h * GRID_SHIFT
+    shape = tuple(int(v) for v in np.floor((hi - lo) / h + GRID_SHIFT).astype(int) + 3)
+    corners = _lattice(origin, origin + (np.array(shape) - 0.5) * h, h)
+    # Every corner of a cell the surface crosses is within sqrt(3) h of it: farther values
+    # only need their sign, which spares searching deep inside the solid.
+    values = index.distances(corners, signed=True, max_distance=2 * h).reshape(shape)
+    # A corner almost on the surface puts the vertices of all its edges next to it: nodes
+    # a thousandth of h apart, which leave the stiffness near-zero-energy modes. Held at
+    # least CORNER_CLEARANCE h off the zero level (the voxelised field this replaced never
+    # came nearer than h / 8), the vertices stay apart; they are projected onto the mesh next.
+    values = np.where(values < 0, np.minimum(values, -CORNER_CLEARANCE * h), np.maximum(values, CORNER_CLEARANCE * h))
+    vertices, faces, _, _ = measure.marching_cubes(values, level=0.0, spacing=(h,) * 3)
+    surface = trimesh.Trimesh(index.closest_points(vertices + origin).points, faces, process=True)
     surface.remove_unreferenced_vertices()
     if surface.volume < 0:  # outward normals whatever marching cubes' convention
         surface.invert()
-    axes = [np.arange(lo[a] + h / 2, hi[a], h) for a in range(3)]
-    lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    lattice = _lattice(lo + h / 2, hi, h)
     lattice = lattice + rng.uniform(-JITTER, JITTER, lattice.shape) * h
-    interior = lattice[sdf.sample(lattice) < -h / 2]
+    interior = lattice[index.distances(lattice, signed=True, max_distance=h) < -h / 2]
     nodes = np.ascontiguousarray(np.vstack([surface.vertices, interior]))
-    return NodeSet(nodes, len(surface.vertices), np.asarray(surface.faces, dtype=np.int64), h)
+    return NodeSet(nodes, len(surface.vertices), np.asarray(surface.faces, dtype=np.int64), h, index.volume)
 
 
 def sample_mesh(mesh: trimesh.Trimesh, n_nodes: int, seed: int) -> NodeSet:
     """About ``n_nodes`` nodes for the closed ``mesh`` (within a few percent)."""
-    mesh = check_mesh(mesh)
-    h = (abs(float(mesh.volume)) / n_nodes) ** (1 / 3)
-    return _search_spacing(lambda h: _sample_mesh_at(mesh, h, np.random.default_rng(seed)), h, n_nodes, 3.0)
+    mesh, index = check_mesh(mesh)
+    h, exponent = _first_spacing(index.volume, index.area, n_nodes)
+    return _search_spacing(lambda h: _sample_mesh_at(index, mesh, h, np.random.default_rng(seed)), h, n_nodes, exponent)
+
+
+def _first_spacing(volume: float, area: float, n_nodes: int) -> tuple[float, float]:
+    """The spacing ``h`` that the count model ``V / h^3 + A / h^2 = n`` predicts, and the
+    model's ``-d log n / d log h`` there.
+
+    Interior nodes fill the volume deeper than ``h / 2``, about ``(V - A h / 2) / h^3``;
+    marching cubes puts about ``1.5 A / h^2`` vertices on the surface (one per crossed grid
+    edge: ``|n_x| + |n_y| + |n_z|`` per ``h^2``, 1.5 on average over directions). Thin
+    shapes, whose nodes are mostly on the surface, then start within a few percent of the
+    count instead of a factor of two, which saves a round of sampling."""
+    roots = np.roots([volume, area, 0.0, -float(n_nodes)])
+    x = float(max(r.real for r in roots if abs(r.imag) < 1e-9 * abs(r) and r.real > 0))
+    return 1.0 / x, (3 * volume * x**3 + 2 * area * x**2) / n_nodes
 
 
 def _search_spacing(sample: Any, h: float, n_nodes: int, exponent: float) -> NodeSet:
@@ -140,7 +177,7 @@ def _sample_mask_at(mask: NDArray[np.bool_], h: float, rng: np.random.Generator)
     cols = np.clip(np.round(lattice[:, 0]).astype(int), 0, mask.shape[1] - 1)
     interior = lattice[depth[rows, cols] > h / 2 + 0.5]
     nodes = np.ascontiguousarray(np.vstack([boundary, interior]))
-    return NodeSet(nodes, len(boundary), np.vstack(edges).astype(np.int64), h)
+    return NodeSet(nodes, len(boundary), np.vstack(edges).astype(np.int64), h, float(mask.sum()))
 
 
 def sample_mask(mask: NDArray[np.bool_], n_nodes: int, seed: int) -> NodeSet:

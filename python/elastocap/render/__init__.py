@@ -1,7 +1,7 @@
 """Drawing meshes into cameras: projection, silhouettes, shaded images, the rasteriser.
 
 A low layer (cameras and numpy only), used by pictures, reports, stages and algorithms
-(the voxeliser) alike; the synthetic captures draw their scenes with it.
+(the model-based silhouettes) alike; the synthetic captures draw their scenes with it.
 """
 
 from elastocap.render.mesh import project_mesh, render_image, render_mesh, render_silhouette

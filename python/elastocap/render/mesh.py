@@ -2,7 +2,7 @@
 over a given background, on the rasteriser of :mod:`elastocap.render.raster`.
 
 A low layer (cameras and numpy only): result pictures, reports, the body stage, the
-voxeliser and the synthetic captures all draw with it.
+model-based silhouettes and the synthetic captures all draw with it.
 """
 
 from __future__ import annotations
