@@ -19,6 +19,7 @@
 mod assemble;
 mod associate;
 pub mod contact;
+pub mod coverage;
 mod solve;
 mod stop;
 pub mod surface;
@@ -30,6 +31,7 @@ use crate::grid_sample::Field;
 use assemble::assemble;
 use associate::associate_surface;
 use contact::{contact_terms, find_contacts, Contact};
+use coverage::{coverage_term, TargetSamples};
 use stop::StopRule;
 pub use workspace::FitWorkspace;
 
@@ -65,6 +67,17 @@ pub struct FitOptions {
     /// Precondition the assembled system with block Jacobi plus the rigid modes of node
     /// aggregates ([`TwoLevel`]) instead of block Jacobi alone.
     pub coarse: bool,
+    /// Weight of the coverage term relative to the surface term ([`coverage`], SPEC 5.1);
+    /// 0 turns it off. Acts only when the frame's [`FrameTargets`] carry samples.
+    pub coverage: f64,
+}
+
+/// What a frame is fitted to besides its signed distance field: the data of SPEC 5.1's
+/// terms, each optional.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FrameTargets<'a, const D: usize> {
+    /// Samples of the target surface, for the coverage term.
+    pub samples: Option<&'a TargetSamples<D>>,
 }
 
 impl Default for FitOptions {
@@ -84,6 +97,7 @@ impl Default for FitOptions {
             matrix_free: false,
             coarse: true,
             hold_contacts: false,
+            coverage: 2.0,
         }
     }
 }
@@ -111,6 +125,11 @@ pub struct FrameMetrics {
     pub solver_converged: bool,
     /// Wall-clock seconds spent assembling the system and in the linear solves.
     pub solver_seconds: f64,
+    /// Target samples no model surface node explains (coverage, at the returned positions;
+    /// 0 without samples).
+    pub unexplained: usize,
+    /// Target samples (coverage; 0 without samples).
+    pub samples: usize,
 }
 
 impl FitOptions {
@@ -123,6 +142,7 @@ impl FitOptions {
         for (argument, value) in [
             ("stiffness", self.stiffness),
             ("contact", self.contact),
+            ("coverage", self.coverage),
             ("stop_fraction", self.stop_fraction),
             ("solver_tolerance", self.solver_tolerance),
         ] {
@@ -152,6 +172,28 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
     start: &[[f64; D]],
     options: &FitOptions,
 ) -> Result<(Vec<[f64; D]>, FrameMetrics)> {
+    fit_frame_with(
+        model,
+        workspace,
+        target,
+        &FrameTargets::default(),
+        start,
+        options,
+    )
+}
+
+/// [`fit_frame`] with the data of SPEC 5.1's terms in `targets`.
+///
+/// # Errors
+/// As [`fit_frame`].
+pub fn fit_frame_with<const D: usize, F: Field<D>>(
+    model: &ElasticModel<D>,
+    workspace: &mut FitWorkspace<D>,
+    target: &F,
+    targets: &FrameTargets<'_, D>,
+    start: &[[f64; D]],
+    options: &FitOptions,
+) -> Result<(Vec<[f64; D]>, FrameMetrics)> {
     model.check_positions(start)?;
     options.check()?;
     let (_, mu) = model.lame();
@@ -169,7 +211,14 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
         metrics.invalidated = surface.invalidated;
         let (contacts, penetrating) =
             contact_terms(workspace, &surface, options.self_intersection, &held);
-        if stop.should_stop(surface.distance_term(), penetrating) {
+        let coverage = coverage_term(
+            workspace,
+            &surface,
+            targets.samples,
+            options.coverage,
+            options.invalidate,
+        );
+        if stop.should_stop(surface.distance_term() + coverage.energy, penetrating) {
             break;
         }
         if options.hold_contacts {
@@ -182,6 +231,7 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
             &rotations,
             &surface,
             &contacts,
+            &coverage.pulls,
             alpha,
             options.contact,
         )?;
@@ -201,6 +251,12 @@ pub fn fit_frame<const D: usize, F: Field<D>>(
         metrics.solver_seconds += clock.elapsed().as_secs_f64();
     }
     measure(model, workspace, target, &x, &mut metrics)?;
+    if let Some(samples) = targets.samples {
+        let surface = associate_surface(workspace, target, &x, false);
+        let found = coverage_term(workspace, &surface, Some(samples), 1.0, false);
+        metrics.unexplained = found.unexplained;
+        metrics.samples = samples.len();
+    }
     Ok((x, metrics))
 }
 

@@ -210,6 +210,7 @@ class FitCore:
         matrix_free: bool = False,
         coarse: bool = True,
         hold_contacts: bool = False,
+        coverage: float = 2.0,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
 
 @final

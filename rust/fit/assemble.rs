@@ -5,6 +5,7 @@
 
 use super::associate::SurfaceTerms;
 use super::contact::Contact;
+use super::coverage::Pull;
 use super::workspace::FitWorkspace;
 use crate::efg::Block;
 use crate::elastic::ElasticModel;
@@ -46,7 +47,8 @@ impl<const D: usize> FitSystem<D> {
 }
 
 /// The system of one iteration: elasticity with `rotations` scaled by `alpha`, the surface
-/// associations and the `contacts` with weight `contact` ($\gamma$).
+/// associations, the `contacts` with weight `contact` ($\gamma$) and the `pulls` of
+/// SPEC 5.1's terms (their weights included).
 ///
 /// # Errors
 /// As [`ElasticModel::rhs`].
@@ -56,6 +58,7 @@ pub(super) fn assemble<const D: usize>(
     rotations: &[Block<D>],
     surface: &SurfaceTerms<D>,
     contacts: &[Contact<D>],
+    pulls: &[Pull<D>],
     alpha: f64,
     contact: f64,
 ) -> Result<FitSystem<D>> {
@@ -65,6 +68,9 @@ pub(super) fn assemble<const D: usize>(
     }
     for c in contacts {
         system.pull(workspace.surface[c.node], &c.weight, &c.target, contact);
+    }
+    for p in pulls {
+        system.pull(workspace.surface[p.node], &p.weight, &p.target, 1.0);
     }
     Ok(system)
 }

@@ -9,7 +9,8 @@ use pyo3::types::PyDict;
 
 use super::elastic::ElasticCore;
 use super::{c_slice, invalid_input, rows};
-use crate::fit::{fit_frame, FitOptions, FitWorkspace, FrameMetrics};
+use crate::fit::coverage::TargetSamples;
+use crate::fit::{fit_frame_with, FitOptions, FitWorkspace, FrameMetrics, FrameTargets};
 use crate::grid_sample::GridField;
 
 enum Workspace {
@@ -36,6 +37,8 @@ fn metrics_dict<'py>(py: Python<'py>, m: &FrameMetrics) -> PyResult<Bound<'py, P
     metrics.set_item("solver_iterations", m.solver_iterations)?;
     metrics.set_item("solver_converged", m.solver_converged)?;
     metrics.set_item("solver_seconds", m.solver_seconds)?;
+    metrics.set_item("unexplained", m.unexplained)?;
+    metrics.set_item("samples", m.samples)?;
     Ok(metrics)
 }
 
@@ -100,7 +103,7 @@ impl FitCore {
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
         solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true,
-        hold_contacts = false))]
+        hold_contacts = false, coverage = 2.0))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -120,14 +123,12 @@ impl FitCore {
         matrix_free: bool,
         coarse: bool,
         hold_contacts: bool,
+        coverage: f64,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let shape = values.shape();
-        let field = GridField::new(
-            c_slice(&values, "values")?,
-            [shape[0], shape[1], shape[2]],
-            origin,
-            spacing,
-        )?;
+        let grid = [shape[0], shape[1], shape[2]];
+        let flat = c_slice(&values, "values")?;
+        let field = GridField::new(flat, grid, origin, spacing)?;
         let options = FitOptions {
             stiffness,
             contact,
@@ -140,6 +141,7 @@ impl FitCore {
             matrix_free,
             coarse,
             hold_contacts,
+            coverage,
         };
         let mut workspace = self
             .workspace
@@ -149,7 +151,15 @@ impl FitCore {
         let (positions, m) = match (&mut *workspace, core.spatial(), core.planar()) {
             (Workspace::Spatial(w), Some(model), _) => {
                 let start = rows::<3>(&start, "start")?;
-                let (x, m) = py.detach(|| fit_frame(model, w, &field, start, &options))?;
+                let (x, m) = py.detach(|| {
+                    let samples = (coverage > 0.0)
+                        .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
+                        .transpose()?;
+                    let targets = FrameTargets {
+                        samples: samples.as_ref(),
+                    };
+                    fit_frame_with(model, w, &field, &targets, start, &options)
+                })?;
                 (positions_out(py, x), m)
             }
             (Workspace::Planar(w), _, Some(model)) => {
@@ -159,7 +169,15 @@ impl FitCore {
                     )));
                 }
                 let start = rows::<2>(&start, "start")?;
-                let (x, m) = py.detach(|| fit_frame(model, w, &field, start, &options))?;
+                let (x, m) = py.detach(|| {
+                    let samples = (coverage > 0.0)
+                        .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
+                        .transpose()?;
+                    let targets = FrameTargets {
+                        samples: samples.as_ref(),
+                    };
+                    fit_frame_with(model, w, &field, &targets, start, &options)
+                })?;
                 (positions_out(py, x), m)
             }
             _ => unreachable!("the workspace matches the model's dimension"),

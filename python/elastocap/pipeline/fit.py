@@ -3,8 +3,11 @@ model of the rest frame's hull -> every frame fitted -> files.
 
 Writes ``OUT/model/rest.npz`` (nodes, volumes, neighbours, surface nodes and faces, rest
 frame, options), ``OUT/fit/<frame:06d>.ply`` (the fitted surface: the same vertices and
-faces every frame) and ``.npz`` (node positions and the frame's metrics), and
-``OUT/metrics.json``. Every write is atomic and each frame is written as soon as it is
+faces every frame) and ``.npz`` (node positions, the frame's metrics and the reprojection
+IoU per camera), and ``OUT/metrics.json``. The reprojection IoU (the fitted surface's
+silhouette against each mask, :mod:`elastocap.pipeline.reprojection`) is the failure
+signal that needs no ground truth: frames where a camera's IoU drops are listed in
+``metrics.json`` (``summary.iou_drops``) and named in a :class:`ReprojectionWarning`. Every write is atomic and each frame is written as soon as it is
 fitted, so an interrupted run resumes without refitting finished frames (they are read
 back and their neighbours start from them).
 """
@@ -12,6 +15,7 @@ back and their neighbours start from them).
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -25,6 +29,7 @@ from elastocap.capture.folder import Capture
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
 from elastocap.pipeline.hull import load_hull, run_hull_stage
+from elastocap.pipeline.reprojection import CORE_IOU_FLOOR, ReprojectionWarning, iou_drops, reprojection_iou
 
 __all__ = ["load_model", "run_fit_stage"]
 
@@ -70,6 +75,7 @@ def run_fit_stage(
     rotation: str = "warped",
     stiffness: float = 1.0,
     resolution: int = 128,
+    reprojection: bool = True,
     progress: bool = True,
 ) -> SequenceFit:
     """Fit every frame of a capture; returns the fit (finished frames read back).
@@ -89,6 +95,10 @@ def run_fit_stage(
         As in :func:`~elastocap.elastic.fit.fit_sequence`.
     resolution : int
         Voxels along the longest side of each hull.
+    reprojection : bool
+        Measure each fitted frame's silhouette against the masks (IoU per camera, in the
+        frame's ``.npz`` and ``metrics.json``) and warn (:class:`ReprojectionWarning`)
+        naming the frames where a camera's IoU drops.
     progress : bool
         Show progress bars.
     """
@@ -130,13 +140,19 @@ def run_fit_stage(
                     f"the model in {_model_path(out)}: remove it (or the output folder) to refit"
                 )
             done[frame] = positions
-            done_metrics[frame] = {key: value.item() for key, value in data.items() if key != "positions" and value.size == 1}
+            done_metrics[frame] = {key: value.item() for key, value in data.items() if value.ndim == 0}
     bar = tqdm(total=len(frames), initial=len(done), desc="fit", unit="frame", disable=not progress)
 
     def write(fit: FrameFit) -> None:
         ply, npz = _fit_files(out, fit.frame)
-        save_npz(npz, positions=fit.positions, **{key: np.asarray(value) for key, value in fit.metrics.items()})
-        save_mesh(ply, model.surface_at(fit.positions))
+        surface = model.surface_at(fit.positions)
+        figures = {key: np.asarray(value) for key, value in fit.metrics.items()}
+        if reprojection:
+            found = reprojection_iou(surface, cap.rig, cap.masks(fit.frame))
+            figures["reprojection_iou"] = np.array([found[name].iou for name in cap.rig.names])
+            figures["reprojection_core_iou"] = np.array([found[name].core_iou for name in cap.rig.names])
+        save_npz(npz, positions=fit.positions, **figures)
+        save_mesh(ply, surface)
         bar.update(1)
 
     targets = _LazyHulls(out, frames)
@@ -146,7 +162,15 @@ def run_fit_stage(
     # figures are in their files, so a resumed run reports what an uninterrupted one does.
     for frame, metrics in done_metrics.items():
         result.fits[frame].metrics.update(metrics)
-    _write_metrics(out, result)
+    drops = _write_metrics(out, result, cap.rig.names)
+    if drops:
+        listed = "; ".join(f"frame {frame}: {', '.join(names)}" for frame, names in drops.items())
+        warnings.warn(
+            f"the fitted surface's silhouette drops away from the masks (core reprojection IoU below "
+            f"{CORE_IOU_FLOOR}) in {len(drops)} frame(s), a limb lost most likely: {listed}",
+            ReprojectionWarning,
+            stacklevel=2,
+        )
     return result
 
 
@@ -168,12 +192,18 @@ class _LazyHulls(Mapping[int, Any]):
         return load_hull(self._out, frame)
 
 
-def _write_metrics(out: Path, result: SequenceFit) -> None:
+def _write_metrics(out: Path, result: SequenceFit, cameras: list[str]) -> dict[int, list[str]]:
+    """``OUT/metrics.json`` from the frames' files; returns the frames whose reprojection
+    IoU drops (:func:`iou_drops`)."""
     per_frame = []
+    cores: dict[int, dict[str, float]] = {}
     for frame in result.frames:
         _, npz = _fit_files(out, frame)
         data = load_npz(npz)
-        figures = {key: value.item() for key, value in data.items() if key != "positions" and value.size == 1}
+        figures: dict[str, Any] = {key: value.item() for key, value in data.items() if value.ndim == 0}
+        if "reprojection_core_iou" in data and len(data["reprojection_core_iou"]) == len(cameras):
+            figures["reprojection_iou"] = dict(zip(cameras, data["reprojection_iou"].tolist()))
+            cores[frame] = figures["reprojection_core_iou"] = dict(zip(cameras, data["reprojection_core_iou"].tolist()))
         per_frame.append({"frame": frame, **figures})
     summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame}
     for key in ("mean_distance", "max_distance", "volume_ratio", "seconds", "iterations", "penetrating"):
@@ -182,5 +212,13 @@ def _write_metrics(out: Path, result: SequenceFit) -> None:
             summary[f"{key}_mean"] = float(np.mean(values))
             summary[f"{key}_max"] = float(np.max(values))
             summary[f"{key}_min"] = float(np.min(values))
+    drops = iou_drops(cores)
+    if cores:
+        for key in ("reprojection_iou", "reprojection_core_iou"):
+            values = [x for f in per_frame if key in f for x in f[key].values()]
+            summary[f"{key}_min"] = float(np.min(values))
+            summary[f"{key}_median"] = float(np.median(values))
+        summary["iou_drops"] = {str(frame): names for frame, names in drops.items()}
     text = json.dumps({"summary": summary, "frames": per_frame}, indent=2)
     save_bytes(out / "metrics.json", text.encode())
+    return drops

@@ -7,6 +7,7 @@ Plots are drawn with OpenCV (already a dependency) rather than matplotlib.
 from __future__ import annotations
 
 import html
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -101,7 +102,11 @@ def write_fit_report(
         title="volume per frame",
         y_label="ratio",
     )
-    save_png(out / "fit_plots.png", np.concatenate([error_plot, volume_plot], axis=0))
+    plots = [error_plot, volume_plot]
+    iou_plot, warning = _reprojection(out, x)
+    if iou_plot is not None:
+        plots.append(iou_plot)
+    save_png(out / "fit_plots.png", np.concatenate(plots, axis=0))
     rows = "".join(
         f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(f'{v:.4g}' if isinstance(v, float) else str(v))}</td></tr>"
         for k, v in (summary or {}).items()
@@ -112,15 +117,43 @@ def write_fit_report(
 td{{padding:2px 12px}}</style></head><body>
 <h1>elastocap: elastic model fitted through {len(fitted)} frames</h1>
 <table>{rows}</table>
+{warning}
 <h2>Fitted surfaces over the camera images</h2><img src="fit_views.png">
 <h2>The sequence from {html.escape(name)}</h2><img src="fit_strip.png">
-<h2>Error and volume per frame</h2><img src="fit_plots.png">
+<h2>Error, volume and reprojection IoU per frame</h2><img src="fit_plots.png">
 <h2>Visual hull of the first frame</h2><img src="hull_views.png">
 </body></html>
 """
     path = out / "report.html"
     save_bytes(path, page.encode())
     return path
+
+
+def _reprojection(out: Path, frames: list[int]) -> tuple[NDArray[np.uint8] | None, str]:
+    """The plot of the worst camera's reprojection IoU per frame and the page's warning
+    naming the frames where a camera's core IoU drops, from ``out/metrics.json`` (the fit
+    stage's); ``(None, "")`` without those figures."""
+    path = out / "metrics.json"
+    if not path.exists():
+        return None, ""
+    metrics = json.loads(path.read_text())
+    rows = {row["frame"]: row for row in metrics.get("frames", []) if "reprojection_core_iou" in row}
+    if not rows or not all(f in rows for f in frames):
+        return None, ""
+    series = {
+        f"{label}, worst camera": [min(rows[f][key].values()) for f in frames]
+        for label, key in (("IoU", "reprojection_iou"), ("core IoU", "reprojection_core_iou"))
+    }
+    plot = line_plot(frames, series, title="fitted silhouette vs. masks (no ground truth needed)", y_label="IoU")
+    drops = metrics.get("summary", {}).get("iou_drops", {})
+    if not drops:
+        return plot, "<p>Reprojection: every camera's core IoU is above its floor in every frame.</p>"
+    listed = "; ".join(f"frame {html.escape(frame)}: {html.escape(', '.join(names))}" for frame, names in drops.items())
+    warning = (
+        '<p style="color:#b00"><b>Warning:</b> the fitted silhouette drops away from the masks in '
+        f"{len(drops)} frame(s), a limb lost most likely (core reprojection IoU below its floor): {listed}</p>"
+    )
+    return plot, warning
 
 
 _BODY_START, _BODY_END = "<!-- body -->", "<!-- /body -->"

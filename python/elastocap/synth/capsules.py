@@ -21,10 +21,15 @@ from skimage import measure
 
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
+from elastocap.synth.fast_motion import FAST_MOTION_KEYS, draw_fast_motion, fast_joint_angles
 
-__all__ = ["CONTACT_DEPTH", "FIGURE_FORMAT", "PARTS", "Capsules", "CapsuleFigure"]
+__all__ = ["CONTACT_DEPTH", "FIGURE_FORMAT", "MOTIONS", "PARTS", "Capsules", "CapsuleFigure"]
 
 FIGURE_FORMAT = "elastocap.synth.figure/1"
+
+# The figure's motions: walking in place with a clap (the default), or a fast arm swing and
+# leg kick (:mod:`elastocap.synth.fast_motion`).
+MOTIONS = ("walk", "fast")
 
 # The body parts, in the order their capsules are blended (the smooth union is a left fold,
 # so the order is part of the definition of the surface).
@@ -104,6 +109,11 @@ class CapsuleFigure:
         Non-negative. Draws the proportions (lengths and girths within a few percent of a 1.71 m adult),
         the swing amplitudes, the starting phase and direction of the turn, and the
         surface pattern. The same seed gives the same figure, bit for bit.
+    motion : {"walk", "fast"}, default "walk", keyword-only
+        ``"walk"``: walking in place with large arm and leg swings, turning, clapping once
+        per cycle (below). ``"fast"``: standing, one arm swinging through a large arc
+        across the chest and one leg kicking, the hand and foot moving 10 to 35 cm per
+        frame (:mod:`elastocap.synth.fast_motion`).
     parameters : mapping of str to float, optional
         All parameters explicitly (as :meth:`to_dict` writes them), instead of drawing them
         from ``seed``; used to rebuild a figure from ``figure.json``.
@@ -111,6 +121,7 @@ class CapsuleFigure:
     Attributes
     ----------
     seed : int
+    motion : str
     parameters : mapping of str to float
         Read-only: lengths and radii in metres, angles in degrees, times in frames.
 
@@ -138,12 +149,15 @@ class CapsuleFigure:
     :data:`CONTACT_DEPTH`.
     """
 
-    def __init__(self, seed: int = 0, *, parameters: Mapping[str, float] | None = None) -> None:
+    def __init__(self, seed: int = 0, *, motion: str = "walk", parameters: Mapping[str, float] | None = None) -> None:
         self.seed = as_count("seed", seed, minimum=0)
+        if motion not in MOTIONS:
+            raise InvalidInputError(f"motion must be one of {MOTIONS}, got {motion!r}")
+        self.motion = motion
         if parameters is None:
-            parameters = _draw_parameters(self.seed)
+            parameters = _draw_parameters(self.seed, motion)
         else:
-            expected, given = set(_parameter_names()), set(parameters)
+            expected, given = set(_parameter_names(motion)), set(parameters)
             if given != expected:
                 raise InvalidInputError(
                     f"parameters: missing {sorted(expected - given)}, unknown {sorted(given - expected)}"
@@ -163,7 +177,7 @@ class CapsuleFigure:
         Returns
         -------
         dict
-            ``format``, ``seed``, ``up_axis`` ("y"), ``units`` ("metres"), ``parts`` (in
+            ``format``, ``seed``, ``motion``, ``up_axis`` ("y"), ``units`` ("metres"), ``parts`` (in
             blending order), ``parameters`` (lengths in metres, angles in degrees,
             durations in frames), and the capsules of frame 0 for a quick look.
         """
@@ -171,6 +185,7 @@ class CapsuleFigure:
         return {
             "format": FIGURE_FORMAT,
             "seed": self.seed,
+            "motion": self.motion,
             "up_axis": "y",
             "units": "metres",
             "parts": list(PARTS),
@@ -186,17 +201,20 @@ class CapsuleFigure:
         """The figure :meth:`to_dict` (or ``ground_truth/figure.json``) describes."""
         if data.get("format") != FIGURE_FORMAT:
             raise InvalidInputError(f"not a figure description: format {data.get('format')!r}, expected {FIGURE_FORMAT!r}")
-        return cls(int(data["seed"]), parameters=data["parameters"])
+        # Descriptions written before the fast motion existed are walks.
+        return cls(int(data["seed"]), motion=str(data.get("motion", "walk")), parameters=data["parameters"])
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CapsuleFigure):
             return NotImplemented
-        return self.seed == other.seed and dict(self.parameters) == dict(other.parameters)
+        return (self.seed == other.seed and self.motion == other.motion
+                and dict(self.parameters) == dict(other.parameters))
 
     __hash__ = None  # type: ignore[assignment]
 
     def __repr__(self) -> str:
-        return f"CapsuleFigure(seed={self.seed}, height={self.parameters['scale'] * 1.71:.3f} m)"
+        motion = "" if self.motion == "walk" else f", motion={self.motion!r}"
+        return f"CapsuleFigure(seed={self.seed}{motion}, height={self.parameters['scale'] * 1.71:.3f} m)"
 
     # -- pose -----------------------------------------------------------------------------
 
@@ -208,10 +226,12 @@ class CapsuleFigure:
     def joint_angles(self, frame: int) -> dict[str, float]:
         """The joint angles at ``frame``, degrees (keys ``<joint>_<l|r>``: ``arm_flex``
         forward, ``arm_abduction`` outward, ``arm_inward`` horizontal adduction,
-        ``elbow``, ``hip_flex`` forward, ``knee``), and ``clap`` (the blend weight of the
-        clap, 0 to 1)."""
+        ``elbow``, ``hip_flex`` forward, ``knee``; the fast motion also ``hip_inward``,
+        horizontal adduction), and ``clap`` (the blend weight of the clap, 0 to 1)."""
         p = self.parameters
         n = _frame(frame)
+        if self.motion == "fast":
+            return fast_joint_angles(p, n)
         cycle = p["cycle_frames"]
         s = 2 * math.pi * (n + p["phase_frames"]) / cycle
         sin_s, cos_s = math.sin(s), math.cos(s)
@@ -386,11 +406,16 @@ class CapsuleFigure:
 _CHUNK = 1 << 16
 
 
-def _draw_parameters(seed: int) -> dict[str, float]:
+def _draw_parameters(seed: int, motion: str = "walk") -> dict[str, float]:
     rng = np.random.default_rng([seed, 0x5F1])
     scale = float(rng.uniform(0.95, 1.05))
     girth = float(rng.uniform(0.92, 1.08))
     p = {name: value * scale * (girth if name in _RADII else 1.0) for name, value in _REST.items()}
+    if motion == "fast":
+        # Same proportions as the walk of this seed; the motion from a stream of its own.
+        p.update(scale=scale, girth=girth, blend=0.03)
+        p.update(draw_fast_motion(np.random.default_rng([seed, 0xFA5])))
+        return p
     cycle = 30
     p.update(
         scale=scale,
@@ -420,9 +445,11 @@ def _draw_parameters(seed: int) -> dict[str, float]:
     return p
 
 
-@lru_cache(maxsize=1)
-def _parameter_names() -> tuple[str, ...]:
-    return tuple(_draw_parameters(0))
+@lru_cache(maxsize=len(MOTIONS))
+def _parameter_names(motion: str = "walk") -> tuple[str, ...]:
+    names = tuple(_draw_parameters(0, motion))
+    assert motion != "fast" or set(FAST_MOTION_KEYS) <= set(names)
+    return names
 
 
 def _pattern_phases(seed: int) -> NDArray[np.float64]:
@@ -493,7 +520,9 @@ def _pose(p: Mapping[str, float], angles: Mapping[str, float], yaw: float) -> Ca
             p["hand_radius"], fore)
     for side, sign in (("l", 1.0), ("r", -1.0)):
         flex, knee = math.radians(angles[f"hip_flex_{side}"]), math.radians(angles[f"knee_{side}"])
-        splay = _rz(sign * math.radians(p["leg_abduction"]))
+        # A leg crossing in front of the other (the fast motion's kick) turns inward about y.
+        inward = math.radians(angles.get(f"hip_inward_{side}", 0.0))
+        splay = _ry(-sign * inward) @ _rz(sign * math.radians(p["leg_abduction"]))
         hip = np.array([sign * p["hip_half_width"], p["hip_height"], 0.0])
         thigh = splay @ _rx(-flex)
         knee_at = hip + thigh @ down * p["thigh_length"]

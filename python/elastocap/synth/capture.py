@@ -237,6 +237,7 @@ def write_synthetic_capture(
     workers: int | None = None,
     progress: bool = True,
     figure: str = "capsules",
+    motion: str = "walk",
 ) -> Path:
     """Write a synthetic capture folder with its ground truth.
 
@@ -267,6 +268,10 @@ def write_synthetic_capture(
         4% of unit and a smooth motion drawn from ``seed``), ground truth in
         ``ground_truth/body.json`` (model description, shape, per-frame states in the
         body stage's z-up frame), so that ``elastocap body`` can be scored.
+    motion : {"walk", "fast"}, default "walk", keyword-only
+        The capsule figure's motion (:class:`CapsuleFigure`): walking with a clap, or a
+        fast arm swing across the chest and a leg kick (hand and foot 10 to 35 cm per
+        frame), the elastic fit's hard case. The body figure only walks.
 
     Returns
     -------
@@ -303,7 +308,9 @@ def write_synthetic_capture(
     walker: Any
     kind: type[Any]
     if figure == "capsules":
-        walker, kind, description = CapsuleFigure(seed), CapsuleFigure, root / "ground_truth" / "figure.json"
+        walker, kind, description = CapsuleFigure(seed, motion=motion), CapsuleFigure, root / "ground_truth" / "figure.json"
+    elif figure == "body" and motion != "walk":
+        raise InvalidInputError(f"motion={motion!r} is a motion of the capsule figure; the body figure only walks")
     elif figure == "body":
         from elastocap.synth.body import BodyFigure
 
