@@ -143,7 +143,12 @@ fn poly_mul(a: &[f64], b: &[f64]) -> Vec<f64> {
 /// Smallest positive real root of a polynomial (ascending coefficients), from the
 /// eigenvalues of its companion matrix (what numpy's `polyroots` does); `inf` if none.
 fn smallest_positive_root(ascending: &[f64]) -> f64 {
-    let degree = match ascending.iter().rposition(|&c| c != 0.0) {
+    // Leading terms below a rounding error of the largest only place roots where
+    // |s| > eps^(-1/degree) (r > 400 for a cubic), far beyond any lens, and scale the
+    // companion matrix by 1 / lead until its eigenvalues are noise: leave them out.
+    let largest = ascending.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
+    let negligible = f64::EPSILON * largest;
+    let degree = match ascending.iter().rposition(|&c| c.abs() > negligible) {
         Some(d) if d >= 1 => d,
         _ => return f64::INFINITY,
     };

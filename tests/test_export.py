@@ -98,9 +98,13 @@ def test_glb_reproduces_every_fitted_frame_at_its_time(fitted, tmp_path):
     # Normals per target: the frame's own area-weighted vertex normals, from trimesh's faces.
     for k, frame in enumerate(sequence.frames):
         mesh = trimesh.Trimesh(_truth(fitted, frame), sequence.faces, process=False)
-        summed = trimesh.geometry.mean_vertex_normals(len(mesh.vertices), mesh.faces, mesh.face_normals * mesh.area_faces[:, None])
-        reference = summed / np.linalg.norm(summed, axis=1, keepdims=True)
-        np.testing.assert_allclose(normals[k], reference, atol=1e-6)
+        summed = mesh.faces_sparse @ (mesh.face_normals * mesh.area_faces[:, None])
+        length = np.linalg.norm(summed, axis=1)
+        # A vertex whose faces' normals cancel (two faces back to back: a fin the remeshed
+        # surface can have at 200 nodes) has no normal; rounding gives trimesh a direction.
+        defined = length > 1e-9 * mesh.area_faces.max()
+        assert defined.mean() > 0.97
+        np.testing.assert_allclose(normals[k][defined], summed[defined] / length[defined, None], atol=1e-6)
     assert document.meshes[0].extras["targetNames"] == [f"frame_{f:06d}" for f in sequence.frames]
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import elastocap
@@ -57,6 +57,9 @@ def test_python_and_rust_projections_equal_opencv(length):
     coefficients=st.lists(st.floats(-0.2, 0.2), min_size=12, max_size=12),
     seed=st.integers(0, 2**31),
 )
+# Found by hypothesis: k5, k6 of 1e-100 and 1e-38 made the core's companion matrix noise and
+# its fold radius a spurious tiny root, so every point was refused.
+@example(coefficients=[0.0] * 6 + [-3.92791981116489e-100 / 0.5, 1.1754943508222875e-38 / 0.2] + [0.0] * 4, seed=0)
 def test_random_full_models_match_opencv(coefficients, seed):
     dist = np.array(coefficients) * np.array([1, 0.5, 0.01, 0.01, 0.2, 1, 0.5, 0.2, 0.01, 0.01, 0.01, 0.01])
     camera = Camera("c", K, dist, np.eye(3), [0.0, 0.0, 3.0], 640, 480)

@@ -124,7 +124,12 @@ def fold_radius(dist: NDArray[np.float64]) -> float:
 
 
 def _smallest_positive_root(ascending: NDArray[np.float64]) -> float:
-    coefficients = np.trim_zeros(np.asarray(ascending, dtype=np.float64), "b")
+    coefficients = np.asarray(ascending, dtype=np.float64)
+    # Leading terms below a rounding error of the largest only place roots where
+    # |s| > eps^(-1/degree) (r > 400 for a cubic), far beyond any lens, and scale the
+    # companion matrix until its eigenvalues are noise: leave them out (as the core does).
+    kept = np.flatnonzero(np.abs(coefficients) > np.finfo(np.float64).eps * np.abs(coefficients).max(initial=0.0))
+    coefficients = coefficients[: kept[-1] + 1] if kept.size else coefficients[:0]
     if coefficients.size <= 1:
         return float("inf")
     roots = P.polyroots(coefficients)
