@@ -29,6 +29,7 @@ from elastocap.hull.carve import Hull, visual_hull
 from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.render.mesh import render_silhouette
 from elastocap.silhouettes.background import clean_mask
+from elastocap.silhouettes.band import refine_in_band
 from elastocap.silhouettes.gradient import filtered_gradient
 from elastocap.silhouettes.snake import snake_silhouette
 
@@ -44,6 +45,9 @@ TRACKER_DEFAULTS = {"inside_per_mask": 0, "sigma_ray": 0.3}
 #: Pixels: the second contour starts from the first one where it lies within this of the
 #: fitted model's silhouette, and from the model's silhouette shrunk by it elsewhere.
 MODEL_MARGIN = 6
+#: Options of :func:`~elastocap.silhouettes.band.refine_in_band`, the colour cut after each
+#: contour (tuned on seeds 0-1).
+BAND_DEFAULTS: dict[str, Any] = {}
 
 #: Voxels along the longest side of the hull that locates the subject on the first frame.
 AGREEMENT_RESOLUTION = 64
@@ -106,6 +110,10 @@ class SilhouetteTracker:
         See :data:`MODEL_MARGIN`: the model corrects the first contour where it strays
         (into clutter, or away from a limb) rather than replacing it, since the body model
         is not the subject's exact shape.
+    band : dict or bool, keyword-only
+        Options of :func:`~elastocap.silhouettes.band.refine_in_band`, which refines each
+        contour by colour inside the band stereo allows; False: contours only (the
+        paper's method).
     """
 
     def __init__(
@@ -117,6 +125,7 @@ class SilhouetteTracker:
         gradient: Mapping[str, Any] | None = None,
         tracker: Mapping[str, Any] | None = None,
         model_margin: int = MODEL_MARGIN,
+        band: Mapping[str, Any] | None | bool = True,
     ) -> None:
         if not isinstance(rig, Rig):
             raise InvalidInputError(f"rig must be an elastocap.Rig, got {type(rig).__name__}")
@@ -125,6 +134,7 @@ class SilhouetteTracker:
         self.snake_options = {**SNAKE_DEFAULTS, **(snake or {})}
         self.gradient_options = dict(gradient or {})
         self.model_margin = int(model_margin)
+        self.band_options = None if band is False else {**BAND_DEFAULTS, **(band if isinstance(band, Mapping) else {})}
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
         self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
         self.previous: dict[str, NDArray[np.bool_]] | None = None
@@ -132,7 +142,7 @@ class SilhouetteTracker:
         self.first_pass: dict[str, NDArray[np.bool_]] = {}
         self.model_masks: dict[str, NDArray[np.bool_]] = {}
         #: Seconds spent so far in the snakes, the body fit and the rest.
-        self.timings = {"snakes": 0.0, "body": 0.0, "other": 0.0}
+        self.timings = {"snakes": 0.0, "band": 0.0, "body": 0.0, "other": 0.0}
 
     def _snake(self, attraction: NDArray[np.float64], init: NDArray[np.bool_]) -> NDArray[np.bool_]:
         if not init.any() or not attraction.any():
@@ -142,6 +152,14 @@ class SilhouetteTracker:
         self.timings["snakes"] += time.perf_counter() - started
         # A contour that collapsed is reported by the snake; the start is kept instead.
         return init if mask is None else mask
+
+    def _refine(self, image: Any, contour: NDArray[np.bool_], disparity: Any) -> NDArray[np.bool_]:
+        if self.band_options is None or not contour.any():
+            return contour
+        started = time.perf_counter()
+        mask = refine_in_band(np.asarray(image), contour, disparity, **self.band_options)
+        self.timings["band"] += time.perf_counter() - started
+        return mask if mask.any() else contour
 
     def _second_start(self, first: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
         import cv2
@@ -197,7 +215,7 @@ class SilhouetteTracker:
             start = agreed_silhouettes(self.rig, disparity)
         else:
             start = self.previous
-        first = {n: self._snake(attraction[n], start[n]) for n in names}
+        first = {n: self._refine(images[n], self._snake(attraction[n], start[n]), disparity.get(n)) for n in names}
         world = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 3)
         observed = BodyObservations(
             masks=[first[n] if first[n].any() else None for n in names],
@@ -210,7 +228,7 @@ class SilhouetteTracker:
         mesh = self.model.skin_mesh(state, spacing=0.015)
         mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
         projected = {c.name: render_silhouette(mesh, c) for c in self.rig.cameras}
-        final = {n: self._snake(attraction[n], self._second_start(first[n], projected[n])) for n in names}
+        final = {n: self._refine(images[n], self._snake(attraction[n], self._second_start(first[n], projected[n])), disparity.get(n)) for n in names}
         self.first_pass, self.model_masks, self.previous = first, projected, final
         return final
 
