@@ -38,10 +38,11 @@ __all__ = ["SilhouetteTracker", "agreed_silhouettes", "extract_silhouettes"]
 #: Snake options for silhouettes (tuned on seed 1 of the clutter scene): a soft contour
 #: that follows limbs, pulled hard by the filtered edges.
 SNAKE_DEFAULTS = {"alpha": 0.01, "beta": 0.02, "kappa": 10.0, "max_iterations": 150}
-#: Body tracker options in the loop (seed 1): the first contours are noisy, so they are
-#: weighted less than clean masks and give outline rays only (one-sided rays through a wrong
-#: silhouette pull limbs into the clutter).
-TRACKER_DEFAULTS = {"inside_per_mask": 0, "sigma_ray": 0.3}
+#: Body tracker options in the loop: the tracker's own (one-sided rays inside and outside
+#: each silhouette, sigma_ray 0.1) now that a colour cut follows each contour (seed 1, 12
+#: frames: median IoU 0.948 -> 0.962 against outline rays only with sigma_ray 0.3, which
+#: suited the noisier contours before the cut).
+TRACKER_DEFAULTS: dict[str, Any] = {}
 #: Pixels: the second contour starts from the first one where it lies within this of the
 #: fitted model's silhouette, and from the model's silhouette shrunk by it elsewhere.
 MODEL_MARGIN = 6
