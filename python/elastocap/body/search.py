@@ -59,7 +59,7 @@ def search_pose(
        turn (front and back look alike), fitted 30 iterations on more observations; the
        best by ``score`` is fitted fully.
     3. Restarts, while observations stay unexplained: each limb alone from a few swings,
-       straight and bent; the legs swapped and restarted together from each stride.
+       straight and bent (an arm's raise kept, then zeroed), untwisted; the legs swapped and restarted together from each stride.
        A restart is kept when it explains the observations better.
     """
     names = model.motion_names
@@ -112,10 +112,15 @@ def search_pose(
     for side in ("l", "r"):
         for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
             for angle in swings:
-                for bend in (0.0, 0.5):
+                for bend, keep_raise in ((0.0, True), (0.0, False), (0.5, True), (0.5, False)) if root == "upperarm" else ((0.0, False), (0.5, False)):
                     if best[0][1] >= WELL_EXPLAINED:
                         return best[1]
                     angles: dict[str, float] = {f"{side}_{root}.{k}": (angle if k == 0 else 0.0) for k in range(3)}
+                    if keep_raise:
+                        # The arm's raise (second angle) is what the silhouettes pin down
+                        # best; zeroed, a 30-iteration fit from the other swings and
+                        # twists settles with the twist at a bound (synth seed 3).
+                        angles.pop(f"{side}_{root}.1", None)
                     name = f"{side}_{distal}.0"
                     if name in names:
                         i = names.index(name)
