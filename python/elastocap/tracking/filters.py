@@ -16,6 +16,9 @@ from elastocap.tracking.flags import TrackFlag
 
 __all__ = ["pixel_size", "trajectory_flags"]
 
+# Neighbouring trajectories count within this distance, pixel equivalents.
+_REACH = 40.0
+
 
 def pixel_size(cameras: Sequence[Camera], points: NDArray[np.float64], used: NDArray[np.bool_]) -> NDArray[np.float64]:
     """(N,) world size of a pixel at each point: depth / focal length, the mean over the
@@ -59,9 +62,19 @@ def trajectory_flags(
     k = min(neighbours, moving.size - 1)
     if k >= 3:
         tree = cKDTree(current[moving])
-        _, near = tree.query(current[moving], k=k + 1)
-        local = np.median(velocity[moving][near[:, 1:]], axis=1)
-        deviation = np.linalg.norm(velocity[moving] - local, axis=1) / pixel[moving]
-        odd = moving[deviation > uniformity]
+        distance, near = tree.query(current[moving], k=k + 1)
+        # Neighbours only within a reach of the point (another limb nearby moves otherwise),
+        # and the threshold widened by how much the neighbours disagree among themselves
+        # (a turning or deforming surface has a velocity gradient).
+        reach = _REACH * pixel[moving]
+        close = distance[:, 1:] <= reach[:, None]
+        v = velocity[moving][near[:, 1:]]
+        v = np.where(close[..., None], v, np.nan)
+        with np.errstate(all="ignore"):
+            local = np.nanmedian(v, axis=1) if close.any() else np.full((moving.size, 3), np.nan)
+            spread = np.nanmedian(np.linalg.norm(v - local[:, None], axis=2), axis=1) / pixel[moving]
+            deviation = np.linalg.norm(velocity[moving] - local, axis=1) / pixel[moving]
+        enough = close.sum(axis=1) >= 3
+        odd = moving[enough & (deviation > uniformity + 3.0 * np.nan_to_num(spread))]
         flags[odd[flags[odd] == 0]] = TrackFlag.NONUNIFORM
     return flags

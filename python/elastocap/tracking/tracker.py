@@ -59,8 +59,8 @@ def track_points(
     out: str | Path | None = None,
     spacing: int = 10,
     size: int = 11,
-    radius: int = 4,
-    min_correlation: float = 0.8,
+    radius: int = 6,
+    min_correlation: float = 0.75,
     forward_backward: float = 0.3,
     max_residual: float = 1.5,
     min_views: int = 2,
@@ -89,9 +89,9 @@ def track_points(
         per camera (and at least one per mask region).
     size : int, default 11, keyword-only
         Side of the matched patches, pixels (odd).
-    radius : int, default 4, keyword-only
+    radius : int, default 6, keyword-only
         Half-side of the NCC search box around the linear prediction, pixels.
-    min_correlation : float, default 0.8, keyword-only
+    min_correlation : float, default 0.75, keyword-only
         Least correlation of the box search, of each least-squares match and of the seeds.
     forward_backward : float, default 0.3, keyword-only
         Largest miss of the forward-backward check, pixels.
@@ -253,25 +253,50 @@ class _Tracker:
         x[traj > 0] = np.nan
         xcov[traj > 0] = np.nan
         tracked = np.isfinite(x).all(axis=1)
-        uv = np.where((used & tracked[:, None])[..., None], uv, np.nan)
+        # A point down to one view (occluded in the others) keeps it for a frame: its 3-D
+        # position predicted from the last two is where the others are searched again.
+        views = np.isfinite(uv[..., 0])
+        single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.isfinite(self.x_last).all(axis=1)
+        keep = (used & tracked[:, None]) | (views & single[:, None])
+        uv = np.where(keep[..., None], uv, np.nan)
         flags = _point_flags(flags2d, self.uv, traj, tracked, alive, self.point_flags)
+        anchor = np.where(tracked[:, None], x, np.where(np.isfinite(self.x_before), 2 * self.x_last - self.x_before, self.x_last))
+        anchor[~(tracked | single)] = np.nan
+        found = tracked | single
 
         # Lost views re-acquired by spatial matching from the view of best correlation.
-        if n and tracked.any():
-            targets = project_all(self.cameras, x, margin=self.size)
+        if n and found.any():
+            targets = project_all(self.cameras, anchor, margin=self.size)
             for k in range(c):
                 iu = np.clip(np.round(np.nan_to_num(targets[:, k, 0])).astype(int), 0, masks[k].shape[1] - 1)
                 iv = np.clip(np.round(np.nan_to_num(targets[:, k, 1])).astype(int), 0, masks[k].shape[0] - 1)
-                wanted = tracked & ~np.isfinite(uv[:, k, 0]) & masks[k][iv, iu]
+                wanted = found & ~np.isfinite(uv[:, k, 0]) & masks[k][iv, iu]
                 targets[~wanted, k] = np.nan
-            reference = np.argmax(np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0), axis=1)
+            score = np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0)
+            reference = np.argmax(score, axis=1)
             rows = np.flatnonzero(np.isfinite(targets).all(axis=2).any(axis=1))
             if rows.size:
-                matched, _ = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
-                                           size=self.size, min_correlation=self.min_correlation,
-                                           tolerance=self.o["max_residual"], min_texture=float(min(self.texture)),
-                                           cameras=self.cameras, points=x[rows], normals=facing_normals(self.cameras, x[rows], used[rows]))
+                matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
+                                              size=self.size, min_correlation=self.min_correlation,
+                                              tolerance=self.o["max_residual"] + 2.0 * single[rows],
+                                              min_texture=float(min(self.texture)), cameras=self.cameras,
+                                              points=anchor[rows], normals=facing_normals(self.cameras, anchor[rows], np.isfinite(uv[rows, :, 0])))
                 uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
+                cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
+                # Points that were down to one view and got others back: intersect now.
+                back = rows[single[rows] & (np.isfinite(uv[rows, :, 0]).sum(axis=1) >= 2)]
+                if back.size:
+                    bx, bcov, bused, _ = intersect_views(self.cameras, uv[back], cov2d[back],
+                                                         max_residual=self.o["max_residual"], floor=_FLOOR)
+                    ok = np.isfinite(bx).all(axis=1)
+                    x[back[ok]], xcov[back[ok]], flags[back[ok]] = bx[ok], bcov[ok], TrackFlag.TRACKED
+                    uv[back] = np.where((bused & ok[:, None])[..., None], uv[back], np.nan)
+        lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
+        uv[lone & ~single] = np.nan
+        # A single view that found no partner is given up.
+        uv[single & ~np.isfinite(x).all(axis=1) & lone] = np.nan
+        # Keep the prediction of a point that waits on one view (its next frame predicts on).
+        x_state = np.where((single & ~np.isfinite(x).all(axis=1))[:, None], anchor, x)
 
         # New points where the textured masks have none.
         if reseed:
@@ -296,7 +321,9 @@ class _Tracker:
                 self.x_before = np.concatenate([self.x_before, np.full((m, 3), np.nan)])
         total = len(uv)
         self.uv_last, self.uv = self.uv, uv
-        self.x_before, self.x_last = self.x_last, x
+        if len(x_state) < len(x):
+            x_state = np.concatenate([x_state, x[len(x_state):]])
+        self.x_before, self.x_last = self.x_last, x_state
         self.point_flags = flags
         self.grey = grey
         return {

@@ -77,7 +77,7 @@ def spatial_match(
     normals: NDArray[np.float64] | None = None,
     size: int,
     min_correlation: float,
-    tolerance: float,
+    tolerance: float | NDArray[np.float64],
     min_texture: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Match each point's patch in its reference camera into the cameras where ``targets``
@@ -90,6 +90,7 @@ def spatial_match(
     uv = np.full((n, c, 2), np.nan)
     cov = np.full((n, c, 2, 2), np.nan)
     wanted = np.isfinite(targets).all(axis=2)
+    tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
     for r in range(c):
         for k in range(c):
             rows = np.flatnonzero((reference == r) & wanted[:, k])
@@ -108,7 +109,7 @@ def spatial_match(
                               size=size, min_texture=min_texture, max_iterations=20)
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
-                    & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tolerance))
+                    & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tol[rows]))
             uv[rows[good], k] = pos[good]
             cov[rows[good], k] = m.position_covariance()[good]
     return uv, cov
