@@ -6,6 +6,7 @@ projections of the track and of that carried truth position."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -81,7 +82,8 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
                 a = cam.project(carried[t, rows])[0]
                 b = cam.project(np.nan_to_num(tracks.positions[t, rows]))[0]
                 errs[k] = np.where(seen[k] & tracked[t, rows], np.linalg.norm(a - b, axis=1), np.nan)
-            with np.errstate(all="ignore"):
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
                 error[t, rows] = np.where(np.isfinite(errs).any(axis=0), np.nanmax(errs, axis=0), np.nan)
     squares = np.where(np.isfinite(error), error**2, 0.0)
     counts = np.isfinite(error).sum(axis=0)

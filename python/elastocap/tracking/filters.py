@@ -5,6 +5,7 @@ one setting fits any rig scale."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -70,8 +71,9 @@ def trajectory_flags(
         close = distance[:, 1:] <= reach[:, None]
         v = velocity[moving][near[:, 1:]]
         v = np.where(close[..., None], v, np.nan)
-        with np.errstate(all="ignore"):
-            local = np.nanmedian(v, axis=1) if close.any() else np.full((moving.size, 3), np.nan)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            local = np.nanmedian(v, axis=1)
             spread = np.nanmedian(np.linalg.norm(v - local[:, None], axis=2), axis=1) / pixel[moving]
             deviation = np.linalg.norm(velocity[moving] - local, axis=1) / pixel[moving]
         enough = close.sum(axis=1) >= 3
