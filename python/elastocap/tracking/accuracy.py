@@ -22,16 +22,19 @@ __all__ = ["TrackAccuracy", "track_accuracy"]
 
 
 class TrackAccuracy(NamedTuple):
-    """Per track: ``rms`` (N,) RMS image error over its tracked frames and cameras where the
-    truth is visible, pixels; ``through`` (N,) tracked on every frame after its seeding
-    where its truth is visible in at least two cameras; ``expected`` (F, N) those frames;
-    ``error`` (F, N) the largest image error over the visible cameras per frame (NaN where
-    not tracked or not visible), pixels."""
+    """Per track: ``rms`` (N,) RMS image error over its tracked frames and the cameras that
+    hold it where the truth is visible, pixels; ``through`` (N,) tracked on every frame
+    after its seeding where its truth is visible in at least two cameras; ``expected``
+    (F, N) those frames; ``error`` (F, N) the largest image error per frame (NaN where not
+    tracked), pixels; ``error3d`` (F, N) the 3-D distance to the truth in pixel
+    equivalents (over the pixel footprint at the truth's depth, mean over the cameras that
+    see it)."""
 
     rms: NDArray[np.float64]
     through: NDArray[np.bool_]
     expected: NDArray[np.bool_]
     error: NDArray[np.float64]
+    error3d: NDArray[np.float64]
 
 
 def _kabsch(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -57,6 +60,7 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     carried = np.full((f, n, 3), np.nan)
     expected = np.zeros((f, n), bool)
     error = np.full((f, n), np.nan)
+    error3d = np.full((f, n), np.nan)
     m = truth.shape[1]
     part_ = np.zeros(m, np.int64) if part is None else np.asarray(part)
     for s in np.unique(first[first >= 0]):
@@ -78,10 +82,20 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
             seen = visible[t][:, near].all(axis=2)  # (C, rows)
             expected[t, rows] = seen.sum(axis=0) >= 2
             errs = np.full((len(cameras), rows.size), np.nan)
+            footprint = np.zeros(rows.size)
             for k, cam in enumerate(cameras):
                 a = cam.project(carried[t, rows])[0]
-                b = cam.project(np.nan_to_num(tracks.positions[t, rows]))[0]
-                errs[k] = np.where(seen[k] & tracked[t, rows], np.linalg.norm(a - b, axis=1), np.nan)
+                if tracks.views is not None:
+                    b = tracks.views[t, rows, k]
+                    held = np.isfinite(b).all(axis=1)
+                else:
+                    b = cam.project(np.nan_to_num(tracks.positions[t, rows]))[0]
+                    held = np.ones(rows.size, bool)
+                errs[k] = np.where(seen[k] & held & tracked[t, rows], np.linalg.norm(a - np.nan_to_num(b), axis=1), np.nan)
+                footprint += np.where(seen[k], cam.to_camera(carried[t, rows])[:, 2] / cam.K[0, 0], 0.0)
+            with np.errstate(all="ignore"):
+                footprint /= seen.sum(axis=0)
+                error3d[t, rows] = np.where(tracked[t, rows], np.linalg.norm(tracks.positions[t, rows] - carried[t, rows], axis=1) / footprint, np.nan)
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 error[t, rows] = np.where(np.isfinite(errs).any(axis=0), np.nanmax(errs, axis=0), np.nan)
@@ -90,4 +104,4 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     with np.errstate(all="ignore"):
         rms = np.where(counts > 0, np.sqrt(squares.sum(axis=0) / counts), np.nan)
     through = ~(expected & ~tracked).any(axis=0) & (first >= 0)
-    return TrackAccuracy(rms=rms, through=through, expected=expected, error=error)
+    return TrackAccuracy(rms=rms, through=through, expected=expected, error=error, error3d=error3d)

@@ -24,8 +24,8 @@ __all__ = ["seed_candidates", "seed_points"]
 # Depth samples along a seed's ray: enough that neighbouring samples project within about a
 # pixel of each other in a partner camera across the hull's depth.
 _DEPTHS = 96
-# Candidates within this many samples of the best belong to its peak; the best must beat
-# all others by this much correlation.
+# Local maxima within this many samples of the best belong to its peak; the best must beat
+# every other local maximum by this much correlation.
 _PEAK_WIDTH = 3
 _UNIQUENESS = 0.1
 _COARSE = 240
@@ -78,8 +78,9 @@ def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
 def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
     """Whether points lie inside every other camera's mask where they project into its
-    image, and are seen by at least two of them (the visual hull; space that one camera
-    alone sees is not bounded by it)."""
+    image, and are seen by at least half of them (the visual hull; space that few cameras
+    see is not bounded by it: right in front of a camera of a ring, the cameras across see
+    the space behind the subject and count it inside)."""
     inside = np.isfinite(flat).all(axis=1)
     x = np.nan_to_num(flat)
     seen_by = np.zeros(len(x), int)
@@ -92,7 +93,7 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
         iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
         inside &= ~seen | mask[iv, iu]
         seen_by += seen
-    return inside & (seen_by >= 2)
+    return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
 
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
@@ -154,8 +155,10 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             peak = scores[np.arange(len(todo)), best]
             # A repeated texture along the line makes a false match as likely as the true
             # one: the best peak must stand out from every candidate away from it.
+            padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
+            local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
             away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
-            second = np.where(away, scores, -np.inf).max(axis=1)
+            second = np.where(local & away, scores, -np.inf).max(axis=1)
             good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
             rows, best = todo[good], best[good]
             if rows.size == 0:

@@ -23,6 +23,7 @@ from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.capture import Capture
 from elastocap.stereo.matching import noise_level
+from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.seeding import seed_points
@@ -34,6 +35,11 @@ __all__ = ["track_points"]
 # The matcher's covariance holds the noise of one match, not the drift of a chain of
 # them: each view gets this standard deviation (pixels) on top in the intersection.
 _FLOOR = 0.1
+# Least RMS gradient of a patch along its weakest direction, in multiples of the image's
+# noise level (smooth printed textures are weak at 11 px).
+_TEXTURE_OVER_NOISE = 1.0
+# Largest correction of a frame-to-frame match by its anchor, pixels.
+_ANCHOR_REACH = 1.5
 
 
 def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
@@ -69,6 +75,7 @@ def track_points(
     max_acceleration: float = 12.0,
     uniformity: float = 4.0,
     neighbours: int = 8,
+    anchor: bool = True,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -109,6 +116,10 @@ def track_points(
         nearest tracked points, pixel equivalents per frame.
     neighbours : int, default 8, keyword-only
         Neighbouring trajectories of the uniformity filter.
+    anchor : bool, default True, keyword-only
+        Refine each frame-to-frame match against the view's first-appearance patch
+        (replaced when it stops matching), which stops the random-walk drift of chained
+        matches (:mod:`elastocap.tracking.anchors`).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
@@ -143,6 +154,7 @@ def track_points(
         max_acceleration=as_positive("max_acceleration", max_acceleration),
         uniformity=as_positive("uniformity", uniformity),
         neighbours=as_count("neighbours", neighbours, minimum=3),
+        anchor=bool(anchor),
     )
     tracker = _Tracker(capture, spacing, size, radius, float(min_correlation), options)
     records: list[dict[str, NDArray[np.generic]]] = []
@@ -154,13 +166,14 @@ def track_points(
         if out is not None:
             write_frame(out, chosen[i], record)
         else:
-            records.append({k: record[k] for k in ("ids", "positions", "covariances", "flags")})
+            records.append({k: record[k] for k in ("ids", "positions", "covariances", "flags", "uv")})
         if progress is not None:
             progress(chosen[i])
     if out is not None:
         tracks = load_tracks(out)
         keep = np.isin(tracks.frames, chosen)
-        return Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep])
+        return Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep],
+                      None if tracks.views is None else tracks.views[keep])
     return _assemble(np.array(chosen, np.int64), records)
 
 
@@ -170,13 +183,16 @@ def _assemble(frames: NDArray[np.int64], records: list[dict[str, NDArray[np.gene
     positions = np.full((f, n, 3), np.nan)
     covariances = np.full((f, n, 3, 3), np.nan)
     flags = np.full((f, n), TrackFlag.NOT_SEEDED, np.uint8)
+    c = records[0]["uv"].shape[1] if records else 0
+    views = np.full((f, n, c, 2), np.nan)
     for i, r in enumerate(records):
         m = len(r["ids"])
+        views[i, :m] = r["uv"]
         positions[i, :m] = r["positions"]
         covariances[i, :m] = r["covariances"]
         flags[i, :m] = r["flags"]
     ids = records[-1]["ids"].astype(np.int64) if records else np.zeros(0, np.int64)
-    return Tracks(frames=frames, ids=ids, positions=positions, covariances=covariances, flags=flags)
+    return Tracks(frames=frames, ids=ids, positions=positions, covariances=covariances, flags=flags, views=views)
 
 
 class _Tracker:
@@ -196,13 +212,14 @@ class _Tracker:
         self.x_before = np.zeros((0, 3))
         self.point_flags = np.zeros(0, np.uint8)
         self.grey: list[NDArray[np.float32]] | None = None
+        self.anchors = Anchors(c, size) if options["anchor"] else None
         self.texture: list[float] = []
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         grey = [_grey(self.capture.image(name, frame)) for name in self.names]
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
-            self.texture = [2.0 * noise_level(g) for g in grey]
+            self.texture = [_TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
         return grey, masks
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
@@ -226,6 +243,11 @@ class _Tracker:
             self.x_before[:m] = before["positions"]
         self.point_flags = last["flags"].astype(np.uint8)
         self.grey, _ = self._read(chosen[done - 1])
+        if self.anchors is not None and "anchor_frame" in last:
+            where_frames = last["anchor_frame"]
+            for source in np.unique(where_frames[where_frames >= 0]):
+                grey = self.grey if source == chosen[done - 1] else self._read(int(source))[0]
+                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source))
         return done
 
     def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
@@ -244,6 +266,10 @@ class _Tracker:
                 min_correlation=self.min_correlation, forward_backward=self.o["forward_backward"],
                 min_texture=float(min(self.texture)))
             uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
+            if self.anchors is not None:
+                uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=_ANCHOR_REACH,
+                                                 min_texture=float(min(self.texture)))
+                self.anchors.cut(grey, uv, stale, frame)
         x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=_FLOOR)
         flags2d[rejected] = TrackFlag.EPIPOLAR
         pixel = pixel_size(self.cameras, x, used)
@@ -320,6 +346,11 @@ class _Tracker:
                 self.x_last = np.concatenate([self.x_last, np.full((m, 3), np.nan)])
                 self.x_before = np.concatenate([self.x_before, np.full((m, 3), np.nan)])
         total = len(uv)
+        if self.anchors is not None:
+            views_now = np.isfinite(uv[..., 0])
+            self.anchors.grow(total)
+            self.anchors.drop(~views_now)
+            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame)
         self.uv_last, self.uv = self.uv, uv
         if len(x_state) < len(x):
             x_state = np.concatenate([x_state, x[len(x_state):]])
@@ -333,6 +364,10 @@ class _Tracker:
             "flags": flags,
             "uv": uv,
             "flags2d": flags2d,
+            **({} if self.anchors is None else {
+                "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
+                "anchor_uv": self.anchors.uv[:total],
+            }),
         }
 
 

@@ -34,6 +34,9 @@ class Tracks:
         NaN where not tracked.
     flags : (F, N) uint8
         :class:`TrackFlag` codes: 0 where tracked, else why not.
+    views : (F, N, C, 2) float64, optional
+        The 2-D positions ``(u, v)`` in each of the capture's C cameras (pixels; NaN where
+        the camera does not hold the point); None when not recorded.
     """
 
     frames: NDArray[np.int64]
@@ -41,6 +44,7 @@ class Tracks:
     positions: NDArray[np.float64]
     covariances: NDArray[np.float64]
     flags: NDArray[np.uint8]
+    views: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         f, n = len(self.frames), len(self.ids)
@@ -48,6 +52,8 @@ class Tracks:
             got = getattr(self, name).shape
             if got != shape:
                 raise InvalidInputError(f"Tracks.{name} must have shape {shape}, got {got}")
+        if self.views is not None and (self.views.ndim != 4 or self.views.shape[:2] != (f, n) or self.views.shape[3] != 2):
+            raise InvalidInputError(f"Tracks.views must have shape ({f}, {n}, C, 2), got {self.views.shape}")
         finite = np.isfinite(self.positions).all(axis=2)
         if (finite != (self.flags == TrackFlag.TRACKED)).any():
             raise InvalidInputError("Tracks.positions must be finite exactly where flags is TRACKED (0)")
@@ -128,10 +134,15 @@ def load_tracks(out: str | Path) -> Tracks:
     positions = np.full((f, n, 3), np.nan)
     covariances = np.full((f, n, 3, 3), np.nan)
     flags = np.full((f, n), TrackFlag.NOT_SEEDED, np.uint8)
+    with_views = all("uv" in d for d in frames)
+    c = frames[0]["uv"].shape[1] if with_views else 0
+    views = np.full((f, n, c, 2), np.nan) if with_views else None
     for i, data in enumerate(frames):
         cols = np.searchsorted(ids, data["ids"])
+        if views is not None:
+            views[i, cols] = data["uv"]
         positions[i, cols] = data["positions"]
         covariances[i, cols] = data["covariances"]
         flags[i, cols] = data["flags"]
     numbers = np.array([int(p.stem) for p in files], np.int64)
-    return Tracks(frames=numbers, ids=ids, positions=positions, covariances=covariances, flags=flags)
+    return Tracks(frames=numbers, ids=ids, positions=positions, covariances=covariances, flags=flags, views=views)
