@@ -28,7 +28,7 @@ _DEPTHS = 96
 # every other local maximum by this much correlation.
 _PEAK_WIDTH = 3
 _UNIQUENESS = 0.1
-_COARSE = 240
+_COARSE = 120
 
 
 def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
@@ -87,8 +87,8 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
     for other, mask in zip(cameras, masks):
         if other is cam:
             continue
-        uv, _ = other.project(x)
-        seen = other.visible(x)
+        uv, depth = other.project(x)
+        seen = (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < other.width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < other.height - 0.5)
         iu = np.clip(np.nan_to_num(uv[:, 0]), -1, other.width).round().astype(int).clip(0, other.width - 1)
         iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
         inside &= ~seen | mask[iv, iu]
