@@ -6,14 +6,14 @@
   comma-separated list of folders written by ``elastocap.synth.textured``): ours is
   ``track_points`` over the whole capture; the peer tracks the same points (the 2-D views of
   the points ours seeded on the first frame) through every camera with pyramidal
-  Lucas-Kanade (11x11 window, 3 levels), a forward-backward check at the same 0.3 px
+  Lucas-Kanade (15x15 window, 3 levels), a forward-backward check at the same 0.6 px
   tolerance, and the same forward intersection with the same blunder rejection, so that
   only the 2-D tracker differs. Both are measured against the ground-truth surface points
   (``elastocap.tracking.accuracy``): the share of points tracked through their visibility,
   the share with RMS image error <= 0.5 px, both together, and the share of kept 3-D
   positions farther than 5 px from the truth.
-- ``track_speed_1000x8`` (speed): one frame step of 1,000 points in each of 8 cameras of
-  1024x768 (``ELASTOCAP_TRACK_SPEED``, a textured capture at that size), images decoded
+- ``track_speed_1000x8`` (speed): one frame step (15x15 patches, box radius 6) of 1,000
+  points in each of 8 cameras of 1024x768 (``ELASTOCAP_TRACK_SPEED``, a textured capture at that size), images decoded
   beforehand; ours the Rust step (prediction, NCC box search, temporal LSM,
   forward-backward), the peer calcOpticalFlowPyrLK forward and backward on the same points;
   the decoding time of the 8 frames is reported apart (``decode_s``).
@@ -44,7 +44,7 @@ def _lk_tracks(capture: Any, uv0: np.ndarray, frames: list[int], tolerance: floa
     f, (n, c) = len(frames), uv0.shape[:2]
     out = np.full((f, n, c, 2), np.nan)
     out[0] = uv0
-    params = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+    params = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
     previous = [_grey(capture.image(name, frames[0])) for name in names]
     for i in range(1, f):
         current = [_grey(capture.image(name, frames[i])) for name in names]
@@ -84,7 +84,7 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
     born = np.flatnonzero(ours.flags[0] == TrackFlag.TRACKED)
     # The peer on the same points: their first-frame views.
     start = time.perf_counter()
-    views = _lk_tracks(capture, first["uv"][born], frames, 0.3)
+    views = _lk_tracks(capture, first["uv"][born], frames, 0.6)
     peer_s = time.perf_counter() - start
     f, n = len(frames), born.size
     positions = np.full((f, n, 3), np.nan)
@@ -116,7 +116,7 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
         "case": f"track_textured_{folder.name}",
         "n": int(n),
         "ours_s": round(ours_s, 3),
-        "peer": "cv2.calcOpticalFlowPyrLK + forward-backward (0.3 px), same intersection",
+        "peer": "cv2.calcOpticalFlowPyrLK 15x15 + forward-backward (0.6 px), same intersection",
         "peer_s": round(peer_s, 3),
         "ratio": round(peer_s / ours_s, 2),
         "repeats": 1,
@@ -146,10 +146,10 @@ def _speed_row(folder: Path, repeats: int) -> dict[str, Any]:
         pick = rng.choice(len(u), 1000, replace=len(u) < 1000)
         pts[k] = np.column_stack([u[pick], v[pick]]) + rng.uniform(-0.5, 0.5, (1000, 2))
     nan = np.full_like(pts, np.nan)
-    params = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+    params = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
 
     def ours() -> Any:
-        return _core.track_step(grey[0], grey[1], pts, nan)
+        return _core.track_step(grey[0], grey[1], pts, nan, size=15, radius=6, min_correlation=0.75, forward_backward=0.6)
 
     def peer() -> None:
         for k in range(len(names)):

@@ -64,10 +64,10 @@ def track_points(
     frames: Sequence[int] | None = None,
     out: str | Path | None = None,
     spacing: int = 10,
-    size: int = 11,
+    size: int = 15,
     radius: int = 6,
     min_correlation: float = 0.75,
-    forward_backward: float = 0.3,
+    forward_backward: float = 0.6,
     max_residual: float = 1.5,
     min_views: int = 2,
     reseed_every: int = 5,
@@ -94,14 +94,16 @@ def track_points(
     spacing : int, default 10, keyword-only
         Seed density: one point per ``spacing x spacing`` pixel cell of textured mask area
         per camera (and at least one per mask region).
-    size : int, default 11, keyword-only
-        Side of the matched patches, pixels (odd).
+    size : int, default 15, keyword-only
+        Side of the matched patches, pixels (odd): printed textures on clothes are smooth
+        at 11 px.
     radius : int, default 6, keyword-only
         Half-side of the NCC search box around the linear prediction, pixels.
     min_correlation : float, default 0.75, keyword-only
         Least correlation of the box search, of each least-squares match and of the seeds.
-    forward_backward : float, default 0.3, keyword-only
-        Largest miss of the forward-backward check, pixels.
+    forward_backward : float, default 0.6, keyword-only
+        Largest miss of the forward-backward check, pixels (the anchors keep the drift
+        that a looser check lets through from adding up).
     max_residual : float, default 1.5, keyword-only
         Largest reprojection residual of a view in the forward intersection, pixels.
     min_views : int, default 2, keyword-only
