@@ -38,6 +38,8 @@ _FLOOR = 0.1
 # Least RMS gradient of a patch along its weakest direction, in multiples of the image's
 # noise level (smooth printed textures are weak at 11 px).
 _TEXTURE_OVER_NOISE = 1.0
+# Least correlation of the box search's peak (a start for least-squares matching).
+_BOX_CORRELATION = 0.5
 # Largest correction of a frame-to-frame match by its anchor, pixels.
 _ANCHOR_REACH = 1.5
 
@@ -265,9 +267,14 @@ class _Tracker:
             pos, f2d, cv2d, cr = _core.track_step(
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
                 np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
-                min_correlation=self.min_correlation, forward_backward=self.o["forward_backward"],
+                min_correlation=min(self.min_correlation, _BOX_CORRELATION), forward_backward=self.o["forward_backward"],
                 min_texture=float(min(self.texture)))
             uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
+            # The box search only has to find the start (it does not model rotation or
+            # scale); the least-squares match, which does, must reach the threshold.
+            weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
+            flags2d[weak] = TrackFlag.LOW_CORRELATION
+            uv = np.where(weak[..., None], np.nan, uv)
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=_ANCHOR_REACH,
                                                  min_texture=float(min(self.texture)))
