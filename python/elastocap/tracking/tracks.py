@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import load_npz
 from elastocap.tracking.flags import TrackFlag
 
 __all__ = ["Tracks", "load_tracks", "frame_file", "write_frame", "read_frame"]
@@ -91,9 +92,8 @@ def write_frame(out: str | Path, frame: int, arrays: dict[str, NDArray[np.generi
 
 
 def read_frame(path: Path) -> dict[str, NDArray[np.generic]]:
-    """The arrays of one frame file."""
-    with np.load(path) as data:
-        return {key: data[key] for key in data.files}
+    """The arrays of one frame file, read as untrusted input (no pickles, sizes checked)."""
+    return load_npz(path, required=["ids", "positions", "covariances", "flags"])
 
 
 def load_tracks(out: str | Path) -> Tracks:
