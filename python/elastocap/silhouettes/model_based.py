@@ -4,7 +4,9 @@
 Per frame and camera: the previous frame's silhouette starts an active contour on the
 disparity-filtered gradient image; the body model is fitted to the stereo points and
 these silhouettes; the fitted model's silhouette starts a second contour, whose result is
-the frame's silhouette. The first frame starts from what the cameras agree on: the visual
+the frame's silhouette. Each contour is then cut by colour inside the band stereo allows
+(:func:`~elastocap.silhouettes.band.refine_in_band`): edges alone cut the concave parts of
+a person and stop on their texture. The first frame starts from what the cameras agree on: the visual
 hull of the disparity masks (one camera may disagree) inside the space every camera sees,
 projected back into each camera. No background plate, no hand-drawn mask.
 """
