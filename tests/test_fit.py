@@ -90,12 +90,12 @@ def _rigid_sequence(poisson: float = 0.3) -> tuple[ElasticModel, list[trimesh.Tr
     return model, targets
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 17 open: the coverage term strains the first rotated frame of an exact rigid target "
-    "(elastic energy 11% of a 5% stretch's against 3%; 0.1% without the term)",
-)
 def test_rigid_motion_stays_unstrained_with_the_coverage_term() -> None:
+    # The coverage term pulls a displaced start hard; its pulls vanish once the surface is in
+    # place. A frame's iteration stops on the whole objective (elastic energy included), so
+    # the strain the pulls left relaxes: measured 0.05% of a 5% stretch's energy on the first
+    # rotated frame (11% when the iteration stopped on the data terms alone, after 2
+    # iterations).
     model, targets = _rigid_sequence()
     fit = fit_sequence(model, targets)
     stretch = model.energy(model.nodes * 1.05)
