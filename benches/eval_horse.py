@@ -54,7 +54,7 @@ SAMPLES = 60_000
 # about two node spacings thick at 2,500 nodes and slide along themselves (mean drift 2.1-2.2%
 # of the diagonal); 6,000 nodes at stiffness 0.5 give 1.87% (4,000: 1.92-1.96%, 8,000: 1.93%).
 # Frozen (issue 17, item 7) so that figures compare across changes: 6,000 nodes asked
-# (5,871-5,873 built, by the node placement's version), stiffness 0.5.
+# (5,871-5,873 built before the exact node placement, 5,990 with it), stiffness 0.5.
 NODES = 6000
 STIFFNESS = 0.5
 # The coverage term's weight (issue 17): fit_sequence's default; 0 is the fit before it.
@@ -75,9 +75,10 @@ def horse_rig(vertices: np.ndarray, cameras: int = 8) -> elastocap.Rig:
     return ring_rig(cameras, look_at=(lower + upper) / 2, radius=4.0, height_above=1.0)
 
 
-def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolution: int) -> list[elastocap.Hull]:
+def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolution: int,
+          keep: list[list[np.ndarray]] | None = None) -> list[elastocap.Hull]:
     """One hull per frame from the exact silhouettes, all on one grid over the motion's
-    box (plus 4 voxels each side)."""
+    box (plus 4 voxels each side); each frame's masks appended to ``keep`` if given."""
     lower, upper = vertices.min(axis=(0, 1)), vertices.max(axis=(0, 1))
     pad = 4 * float((upper - lower).max()) / resolution
     grid = elastocap.Grid.around(lower - pad, upper + pad, resolution)
@@ -85,6 +86,8 @@ def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolutio
     for frame in vertices:
         mesh = trimesh.Trimesh(frame, faces, process=False)
         masks = [render_silhouette(mesh, camera) for camera in rig.cameras]
+        if keep is not None:
+            keep.append(masks)
         hulls.append(elastocap.visual_hull(masks, rig, grid))
     return hulls
 
@@ -138,7 +141,8 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
     diagonal = float(np.linalg.norm(np.ptp(vertices[rest_frame], axis=0)))
     rig = horse_rig(vertices)
     clock = time.perf_counter()
-    hulls = carve(vertices, faces, rig, resolution)
+    masks: list[list[np.ndarray]] = []
+    hulls = carve(vertices, faces, rig, resolution, keep=masks)
     hull_meshes = [h.mesh() for h in hulls]
     log(f"rendered and carved {frames} frames x {len(rig)} cameras in {time.perf_counter() - clock:.1f} s "
         f"(voxel {1000 * hulls[0].grid.spacing:.1f} mm)")
@@ -146,6 +150,8 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
     model = elastocap.ElasticModel.from_mesh(hull_meshes[rest_frame], n_nodes=nodes, k=20, rotation="warped")
     log(f"model: {model.n_nodes} nodes ({len(model.surface_nodes)} on the surface) in {time.perf_counter() - clock:.1f} s")
     extra = dict(options or {})
+    if extra.get("silhouette", 0) > 0:
+        extra.update(cameras=rig.cameras, masks=masks)
     fit = elastocap.fit_sequence(model, hulls, rest_frame=rest_frame, stiffness=stiffness, coverage=coverage, **extra)
     surface_faces = model.surface.faces
     ours = {f: fit.fits[f].positions[model.surface_nodes] for f in fit.frames}
@@ -193,7 +199,7 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
             })
     return {"setup": {"frames": frames, "rest_frame": rest_frame, "nodes": model.n_nodes,
                       "surface_nodes": len(model.surface_nodes), "k": model.k, "stiffness": stiffness,
-                      "coverage": coverage, "options": extra, "floor": floor, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
+                      "coverage": coverage, "options": {k: v for k, v in extra.items() if k not in ("cameras", "masks")}, "floor": floor, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
                       "bbox_diagonal_m": diagonal},
             "summary": summarise(per_frame, rest_frame), "frames": per_frame}
 
