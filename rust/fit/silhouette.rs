@@ -8,7 +8,8 @@
 //! outline; computed once per frame with OpenCV's distance transform). At an iterate, every
 //! surface node $x_p$ is projected into every camera, $q = \pi(x_p)$:
 //!
-//! - a node projecting outside the mask ($S(q) > $ [`OUTSIDE_PIXELS`]) is pushed in;
+//! - a node projecting outside the mask ($S(q) > $ [`OUTSIDE_PIXELS`]), by no more than its
+//!   support $d_p$ projected, is pushed in;
 //! - a *rim* node (its normal across the camera's ray, $|n_p \cdot r| < $ [`RIM_COSINE`],
 //!   and its projected normal along the mask's outward gradient) inside the mask but within
 //!   [`RIM_BAND_PIXELS`] of the outline is pulled out to it: the model's outline there lies
@@ -173,6 +174,15 @@ pub fn silhouette<const D: usize>(
                 }
                 let outward = [g[0] / norm, g[1] / norm];
                 let outside = s > OUTSIDE_PIXELS;
+                // A node farther outside than its projected support is not the outline's
+                // rounding but a part out of place: the nearest mask pixel may be another
+                // part's (a leg pushed into its neighbour's silhouette), and the surface
+                // and coverage terms, with their invalidation, move it (horse gallop without
+                // this bound: mean drift 1.81% -> 4.61% of the diagonal).
+                let reach = support[p] * dot(&j[0], &j[0]).max(dot(&j[1], &j[1])).sqrt();
+                if outside && s > reach {
+                    return None;
+                }
                 if !outside {
                     // The ray is J's null space: J's rows crossed.
                     let ray = unit(&[
