@@ -63,10 +63,10 @@ pub(super) fn solve<const D: usize>(
 ) -> Result<PcgStatus> {
     let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
     let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
-    // The second right-hand side is a correction's direction: three digits place the
-    // rank-one step well enough (it costs as many PCG iterations as the main solve at the
-    // main tolerance).
-    let also_tolerance = tolerance.max(ALSO_TOLERANCE);
+    // The second right-hand side is a correction's direction: three digits fewer than the
+    // main solve's, at most ALSO_TOLERANCE, place the rank-one step well enough (at the
+    // main tolerance it cost as many PCG iterations as the main solve).
+    let also_tolerance = (tolerance * 1e3).min(ALSO_TOLERANCE);
     let rhs = &system.rhs;
     let status = if options.matrix_free {
         let mut diagonal = model.diagonal_blocks(rotations)?;
