@@ -291,7 +291,7 @@ def fit_sequence(
                 start = 2 * start - result.fits[second].positions
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         views = None
-        if silhouette > 0 and masks is not None:
+        if silhouette > 0 and cameras is not None and masks is not None:
             views = silhouette_views(cameras, masks[frame])
         clock = time.perf_counter()
         positions, metrics = fitter.fit_frame(
