@@ -20,10 +20,10 @@ mod assemble;
 mod associate;
 pub mod contact;
 pub mod coverage;
+pub mod silhouette;
 mod solve;
 mod stop;
 pub mod surface;
-pub mod silhouette;
 pub mod volume;
 mod workspace;
 
@@ -34,8 +34,8 @@ use assemble::assemble;
 use associate::associate_surface;
 use contact::{contact_terms, find_contacts, Contact};
 use coverage::{coverage_term, TargetSamples};
-use stop::StopRule;
 use silhouette::{silhouette, SilhouetteView};
+use stop::StopRule;
 use volume::volume_term;
 pub use workspace::FitWorkspace;
 

@@ -94,7 +94,10 @@ impl SilhouetteView {
             if !(u >= 0.0 && v >= 0.0 && u <= (w - 1) as f64 && v <= (h - 1) as f64) {
                 return None;
             }
-            let (i, j) = ((u as usize).min(w.saturating_sub(2)), (v as usize).min(h.saturating_sub(2)));
+            let (i, j) = (
+                (u as usize).min(w.saturating_sub(2)),
+                (v as usize).min(h.saturating_sub(2)),
+            );
             let (fu, fv) = (u - i as f64, v - j as f64);
             let s = |c: usize, r: usize| self.signed[r.min(h - 1) * w + c.min(w - 1)];
             Some(

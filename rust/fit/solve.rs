@@ -133,9 +133,10 @@ pub(super) fn solve<const D: usize>(
                     .pcg
                     .solve(&workspace.system, coarse, rhs, &mut flat, tolerance, cap)?;
             if let Some((b, y)) = also.as_mut() {
-                let more = workspace
-                    .pcg
-                    .solve(&workspace.system, coarse, b, y, also_tolerance, cap)?;
+                let more =
+                    workspace
+                        .pcg
+                        .solve(&workspace.system, coarse, b, y, also_tolerance, cap)?;
                 status = merge(status, more);
             }
             status

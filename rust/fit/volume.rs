@@ -55,7 +55,10 @@ fn flat_dot(a: &[f64], b: &[f64]) -> f64 {
 /// [`enclosed_measure`]): a triangle $a \cdot (b \times c) / 6$ gives $b \times c / 6$ to
 /// $a$ (cyclically); an edge $(a_x b_y - a_y b_x) / 2$ gives $(b_y, -b_x) / 2$ to $a$ and
 /// $(-a_y, a_x) / 2$ to $b$.
-pub fn measure_gradient<const D: usize>(vertices: &[[f64; D]], faces: &[[u32; D]]) -> Vec<[f64; D]> {
+pub fn measure_gradient<const D: usize>(
+    vertices: &[[f64; D]],
+    faces: &[[u32; D]],
+) -> Vec<[f64; D]> {
     let mut out = vec![[0.0; D]; vertices.len()];
     for face in faces {
         let x = face.map(|i| vertices[i as usize]);

@@ -213,8 +213,9 @@ fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
         .enumerate()
         .map(|(index, (k, dist, r, t, signed))| {
             let nine = |v: &[f64], name: &str| -> PyResult<[f64; 9]> {
-                v.try_into()
-                    .map_err(|_| invalid_input(format!("views[{index}]: {name} must hold 9 values")))
+                v.try_into().map_err(|_| {
+                    invalid_input(format!("views[{index}]: {name} must hold 9 values"))
+                })
             };
             let t: [f64; 3] = t[..]
                 .try_into()
