@@ -213,7 +213,8 @@ def fit_sequence(
         surface is held at its rest value, a volume error of ``d`` times the rest surface's
         area costing as much as moving every surface node by ``d`` under a data term of
         this weight. A carved hull gains and loses phantom volume as limbs meet and part;
-        the body does not. Measured on the fast-motion capture (seed 1, 30 frames, 2,500
+        the body does not. 3-D models only (a 2-D silhouette's area changes with the pose).
+        Measured on the fast-motion capture (seed 1, 30 frames, 2,500
         nodes): volume 0.886-1.000 of rest without it, 0.976-1.007 at 1, 0.991-1.008 at 4.
     silhouette : float
         Weight of the silhouette term per surface node and camera (0 turns it off; needs
@@ -306,7 +307,8 @@ def fit_sequence(
             self_intersection=self_intersection,
             hold_contacts=hold_contacts,
             coverage=coverage,
-            volume=volume,
+            # A body keeps its volume; a 2-D silhouette does not keep its area.
+            volume=volume if model.dim == 3 else 0.0,
             silhouette=silhouette,
             views=views,
         )
