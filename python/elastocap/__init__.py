@@ -24,6 +24,7 @@ from elastocap.hull import SDF, Grid, Hull, signed_distance, visual_hull
 from elastocap.pipeline import load_hull, run_fit_stage, run_hull_stage
 from elastocap.silhouettes import clean_mask, refine_silhouette, segment_dark_background
 from elastocap.silhouettes import subtract_background, threshold_dark_background
+from elastocap.tracking import Tracks, load_tracks, track_points
 
 _moved.install()
 
@@ -54,12 +55,14 @@ __all__ = [
     "SequenceFit",
     "SpatialIndex",
     "StaticSolution",
+    "Tracks",
     "__version__",
     "clean_mask",
     "fit_body",
     "fit_sequence",
     "knn",
     "load_hull",
+    "load_tracks",
     "mls_shape_functions",
     "polar_rotation",
     "radius_neighbors",
@@ -71,5 +74,6 @@ __all__ = [
     "stiffness_matrix",
     "subtract_background",
     "threshold_dark_background",
+    "track_points",
     "visual_hull",
 ]
