@@ -6,7 +6,8 @@ bounding-box diagonal; the hull's own beside it), the fitted-to-hull ratio of th
 pooled distance, the coverage term's unexplained samples (%) and the volume ratio.
 
 Run: ``python benches/eval_fast_motion.py SEED FRAMES NODES RESOLUTION WIDTH HEIGHT
-'[{"coverage": 0.0}, {}]' [--poisson P]``; the capture and hulls are kept in
+'[{"coverage": 0.0}, {}, {"silhouette": 1.0}]' [--poisson P]`` (the silhouette term gets the
+capture's cameras and masks); the capture and hulls are kept in
 ``/tmp/elastocap_fast_<seed>_<frames>_<width>`` and reused.
 """
 
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from elastocap import ElasticModel, fit_sequence
+from elastocap.capture.folder import Capture
 from elastocap.elastic.measures import surface_error
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.synth import CapsuleFigure
@@ -47,9 +49,12 @@ def main() -> None:
     print(f"seed {args.seed}, {args.frames} frames, {model.n_nodes} nodes, poisson {model.poisson}, "
           f"hulls of {args.resolution} voxels, images {args.width}x{args.height}")
     print("hull lost %", " ".join(f"{100 * e.lost_limb_fraction:.1f}" for e in hull_errors))
+    capture = Capture.open(root)
+    masks = [[capture.masks(f)[name] for name in capture.rig.names] for f in frames]
     for options in args.options:
         clock = time.perf_counter()
-        fit = fit_sequence(model, hulls, **options)
+        views = {"cameras": capture.rig.cameras, "masks": masks} if options.get("silhouette", 0) > 0 else {}
+        fit = fit_sequence(model, hulls, **options, **views)
         seconds = (time.perf_counter() - clock) / args.frames
         errors = [surface_error(fit.surface(f), truths[f]) for f in frames]
         metrics = [fit.fits[f].metrics for f in frames]

@@ -53,6 +53,8 @@ SAMPLES = 60_000
 # The model's size and stiffness for the horse (benches/README.md, session 4): its legs are
 # about two node spacings thick at 2,500 nodes and slide along themselves (mean drift 2.1-2.2%
 # of the diagonal); 6,000 nodes at stiffness 0.5 give 1.87% (4,000: 1.92-1.96%, 8,000: 1.93%).
+# Frozen (issue 17, item 7) so that figures compare across changes: 6,000 nodes asked
+# (5,871-5,873 built before the exact node placement, 5,990 with it), stiffness 0.5.
 NODES = 6000
 STIFFNESS = 0.5
 # The coverage term's weight (issue 17): fit_sequence's default; 0 is the fit before it.
@@ -73,9 +75,10 @@ def horse_rig(vertices: np.ndarray, cameras: int = 8) -> elastocap.Rig:
     return ring_rig(cameras, look_at=(lower + upper) / 2, radius=4.0, height_above=1.0)
 
 
-def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolution: int) -> list[elastocap.Hull]:
+def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolution: int,
+          keep: list[list[np.ndarray]] | None = None) -> list[elastocap.Hull]:
     """One hull per frame from the exact silhouettes, all on one grid over the motion's
-    box (plus 4 voxels each side)."""
+    box (plus 4 voxels each side); each frame's masks appended to ``keep`` if given."""
     lower, upper = vertices.min(axis=(0, 1)), vertices.max(axis=(0, 1))
     pad = 4 * float((upper - lower).max()) / resolution
     grid = elastocap.Grid.around(lower - pad, upper + pad, resolution)
@@ -83,6 +86,8 @@ def carve(vertices: np.ndarray, faces: np.ndarray, rig: elastocap.Rig, resolutio
     for frame in vertices:
         mesh = trimesh.Trimesh(frame, faces, process=False)
         masks = [render_silhouette(mesh, camera) for camera in rig.cameras]
+        if keep is not None:
+            keep.append(masks)
         hulls.append(elastocap.visual_hull(masks, rig, grid))
     return hulls
 
@@ -126,8 +131,8 @@ def run_nricp(model: elastocap.ElasticModel, hull_meshes: list[trimesh.Trimesh],
 
 
 def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resolution: int = 128,
-             stiffness: float = STIFFNESS, coverage: float = COVERAGE, peer: bool = True,
-             log: Any = print) -> dict[str, Any]:
+             stiffness: float = STIFFNESS, coverage: float = COVERAGE, options: dict[str, Any] | None = None,
+             peer: bool = True, floor: bool = False, log: Any = print) -> dict[str, Any]:
     """Run the whole protocol on the first ``frames`` frames; returns the per-frame figures
     and the summary (see the module docstring)."""
     all_vertices, faces = load_horse()
@@ -136,16 +141,31 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
     diagonal = float(np.linalg.norm(np.ptp(vertices[rest_frame], axis=0)))
     rig = horse_rig(vertices)
     clock = time.perf_counter()
-    hulls = carve(vertices, faces, rig, resolution)
+    masks: list[list[np.ndarray]] = []
+    hulls = carve(vertices, faces, rig, resolution, keep=masks)
     hull_meshes = [h.mesh() for h in hulls]
     log(f"rendered and carved {frames} frames x {len(rig)} cameras in {time.perf_counter() - clock:.1f} s "
         f"(voxel {1000 * hulls[0].grid.spacing:.1f} mm)")
     clock = time.perf_counter()
     model = elastocap.ElasticModel.from_mesh(hull_meshes[rest_frame], n_nodes=nodes, k=20, rotation="warped")
     log(f"model: {model.n_nodes} nodes ({len(model.surface_nodes)} on the surface) in {time.perf_counter() - clock:.1f} s")
-    fit = elastocap.fit_sequence(model, hulls, rest_frame=rest_frame, stiffness=stiffness, coverage=coverage)
+    extra = dict(options or {})
+    if extra.get("silhouette", 0) > 0:
+        extra.update(cameras=rig.cameras, masks=masks)
+    fit = elastocap.fit_sequence(model, hulls, rest_frame=rest_frame, stiffness=stiffness, coverage=coverage, **extra)
     surface_faces = model.surface.faces
     ours = {f: fit.fits[f].positions[model.surface_nodes] for f in fit.frames}
+    if floor:
+        # The floor: each frame fitted alone, from the model moved with the truth (each node
+        # by its nearest rest-frame truth vertex's displacement), not from its neighbour.
+        _, near = cKDTree(vertices[rest_frame]).query(model.nodes)
+        for f in range(frames):
+            start = model.nodes + vertices[f][near] - vertices[rest_frame][near]
+            other = f + 1 if f == 0 else f - 1
+            alone = elastocap.fit_sequence(model, {other: hulls[other], f: hulls[f]}, rest_frame=other,
+                                           done={other: start}, stiffness=stiffness, coverage=coverage, **extra)
+            fit.fits[f] = alone.fits[f]
+            ours[f] = alone.fits[f].positions[model.surface_nodes]
     _, ties = cKDTree(vertices[rest_frame]).query(ours[rest_frame])
     rows = _accuracy_rows(ours, surface_faces, truth, ties, vertices)
     hull_rows = {f: dict(zip(("mean", "p95"), symmetric_distance(hull_meshes[f], truth[f], seed=f))) for f in range(frames)}
@@ -179,7 +199,7 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
             })
     return {"setup": {"frames": frames, "rest_frame": rest_frame, "nodes": model.n_nodes,
                       "surface_nodes": len(model.surface_nodes), "k": model.k, "stiffness": stiffness,
-                      "coverage": coverage, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
+                      "coverage": coverage, "options": {k: v for k, v in extra.items() if k not in ("cameras", "masks")}, "floor": floor, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
                       "bbox_diagonal_m": diagonal},
             "summary": summarise(per_frame, rest_frame), "frames": per_frame}
 
@@ -243,13 +263,18 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=128, help="voxels along the longest side of the hull grid")
     parser.add_argument("--stiffness", type=float, default=STIFFNESS, help=f"fit_sequence's stiffness (default {STIFFNESS})")
     parser.add_argument("--coverage", type=float, default=COVERAGE, help=f"fit_sequence's coverage weight (default {COVERAGE})")
+    parser.add_argument("--options", type=json.loads, default={},
+                        help='further fit_sequence options as JSON, e.g. \'{"volume": 1.0}\'')
+    parser.add_argument("--floor", action="store_true",
+                        help="fit each frame alone from the model moved with the truth (the floor), not through the sequence")
     parser.add_argument("--no-peer", action="store_true", help="skip nricp_amberg")
     parser.add_argument("--json", type=Path, default=Path("eval_horse.json"), help="per-frame figures (default ./eval_horse.json)")
     args = parser.parse_args()
     if not HORSE.exists():
         sys.exit(f"{HORSE} not found (set ELASTOCAP_SHARED_DATA)")
     result = evaluate(args.frames, args.nodes, rest_frame=args.rest_frame, resolution=args.resolution,
-                      stiffness=args.stiffness, coverage=args.coverage, peer=not args.no_peer)
+                      stiffness=args.stiffness, coverage=args.coverage, options=args.options,
+                      peer=not args.no_peer, floor=args.floor)
     print_table(result)
     args.json.write_text(json.dumps(result, indent=1))
     print(f"wrote {args.json}")

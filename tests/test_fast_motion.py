@@ -72,11 +72,6 @@ def test_the_coverage_term_keeps_the_fast_limbs_that_the_fit_without_it_loses(
     assert unexplained.max() < 0.2, unexplained
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 17 item 4 open: with the exact node placement (parry) the last frame's volume is "
-    "0.946 of rest (0.980-1.047 before it); needs a volume term",
-)
 def test_the_volume_stays_within_five_percent_of_rest(fits: tuple) -> None:
     with_term, _ = fits
     volumes = np.array([with_term.fits[f].metrics["volume_ratio"] for f in range(FRAMES)])

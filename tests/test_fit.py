@@ -90,12 +90,12 @@ def _rigid_sequence(poisson: float = 0.3) -> tuple[ElasticModel, list[trimesh.Tr
     return model, targets
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 17 open: the coverage term strains the first rotated frame of an exact rigid target "
-    "(elastic energy 11% of a 5% stretch's against 3%; 0.1% without the term)",
-)
 def test_rigid_motion_stays_unstrained_with_the_coverage_term() -> None:
+    # The coverage term pulls a displaced start hard; its pulls vanish once the surface is in
+    # place. A frame's iteration stops on the whole objective (elastic energy included), so
+    # the strain the pulls left relaxes: measured 0.05% of a 5% stretch's energy on the first
+    # rotated frame (11% when the iteration stopped on the data terms alone, after 2
+    # iterations).
     model, targets = _rigid_sequence()
     fit = fit_sequence(model, targets)
     stretch = model.energy(model.nodes * 1.05)
@@ -290,3 +290,19 @@ def test_targets_keyed_by_frame_numbers_give_results_keyed_by_them() -> None:
         fit_sequence(model, {10: moved[0], 12: moved[1]}, rest_frame=11)
     with pytest.raises(InvalidInputError, match="keyed by int frame numbers"):
         fit_sequence(model, {"a": moved[0]}, rest_frame=0)
+
+
+def test_the_volume_term_holds_the_volume_against_a_target_that_lost_it() -> None:
+    # A carved hull gains and loses phantom volume as limbs meet and part; the body keeps
+    # its own. A compressible capsule (Poisson 0.3) fitted to itself shrunk by 10% (volume
+    # 0.73 of rest) follows the target without the term and keeps its volume with it.
+    # Measured: 0.850 without, 0.896 at weight 1, 0.947 at 4 (the default); at Poisson 0.48
+    # 0.936 / 0.947 / 0.966.
+    model = ElasticModel.from_mesh(CAPSULE, n_nodes=700, rotation="warped", poisson=0.3)
+    shrunk = CAPSULE.copy()
+    shrunk.apply_scale(0.9)
+    without = fit_sequence(model, [CAPSULE, shrunk], volume=0.0).fits[1].metrics
+    held = fit_sequence(model, [CAPSULE, shrunk]).fits[1].metrics
+    print("volume ratio without / with the term:", without["volume_ratio"], held["volume_ratio"])
+    assert without["volume_ratio"] < 0.88
+    assert held["volume_ratio"] > without["volume_ratio"] + 0.07

@@ -213,6 +213,9 @@ class FitCore:
         coarse: bool = True,
         hold_contacts: bool = False,
         coverage: float = 2.0,
+        volume: float = 4.0,
+        silhouette: float = 0.0,
+        views: list[tuple[list[float], list[float], list[float], list[float], NDArray[np.float64]]] | None = None,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
 
 @final

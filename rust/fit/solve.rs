@@ -11,6 +11,9 @@ use crate::error::Result;
 use crate::linalg::mat_vec;
 use crate::solve::{BlockJacobi, LinearOperator, PcgStatus};
 
+/// Relative residual of the second right-hand side's solve (see [`solve`]).
+const ALSO_TOLERANCE: f64 = 1e-3;
+
 /// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
 struct FitOperator<'a, const D: usize> {
     model: &'a ElasticModel<D>,
@@ -38,8 +41,10 @@ impl<const D: usize> LinearOperator<D> for FitOperator<'_, D> {
     }
 }
 
-/// Solves `system` with the elastic part `alpha` $S$ (for `rotations`) from `x` in place.
-/// `first_iteration` of a frame refreshes the coarse space's rigid modes.
+/// Solves `system` with the elastic part `alpha` $S$ (for `rotations`) from `x` in place,
+/// and, given `also` (a right-hand side and a start), the same matrix for it with the same
+/// preconditioner (the volume term's $A^{-1} g$). `first_iteration` of a frame refreshes the
+/// coarse space's rigid modes.
 ///
 /// # Errors
 /// [`crate::Error::NotPositiveDefinite`] if the system (or a diagonal block) loses
@@ -54,9 +59,14 @@ pub(super) fn solve<const D: usize>(
     first_iteration: bool,
     options: &FitOptions,
     x: &mut Vec<[f64; D]>,
+    mut also: Option<(&[f64], &mut Vec<f64>)>,
 ) -> Result<PcgStatus> {
     let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
     let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
+    // The second right-hand side is a correction's direction: three digits fewer than the
+    // main solve's, at most ALSO_TOLERANCE, place the rank-one step well enough (at the
+    // main tolerance it cost as many PCG iterations as the main solve).
+    let also_tolerance = (tolerance * 1e3).min(ALSO_TOLERANCE);
     let rhs = &system.rhs;
     let status = if options.matrix_free {
         let mut diagonal = model.diagonal_blocks(rotations)?;
@@ -76,14 +86,26 @@ pub(super) fn solve<const D: usize>(
             stresses: Vec::new(),
             slots: Vec::new(),
         };
-        workspace.pcg.solve_operator(
+        let mut status = workspace.pcg.solve_operator(
             &mut operator,
             &mut preconditioner,
             rhs,
             &mut flat,
             tolerance,
             cap,
-        )?
+        )?;
+        if let Some((b, y)) = also.as_mut() {
+            let more = workspace.pcg.solve_operator(
+                &mut operator,
+                &mut preconditioner,
+                b,
+                y,
+                also_tolerance,
+                cap,
+            )?;
+            status = merge(status, more);
+        }
+        status
     } else {
         // System: alpha S + E, assembled on the stiffness pattern.
         if model.rotation() == Rotation::Warped {
@@ -106,21 +128,51 @@ pub(super) fn solve<const D: usize>(
             } else {
                 coarse.update_smoother(&workspace.system)?;
             }
-            workspace
-                .pcg
-                .solve(&workspace.system, coarse, rhs, &mut flat, tolerance, cap)?
+            let mut status =
+                workspace
+                    .pcg
+                    .solve(&workspace.system, coarse, rhs, &mut flat, tolerance, cap)?;
+            if let Some((b, y)) = also.as_mut() {
+                let more =
+                    workspace
+                        .pcg
+                        .solve(&workspace.system, coarse, b, y, also_tolerance, cap)?;
+                status = merge(status, more);
+            }
+            status
         } else {
             let mut preconditioner = BlockJacobi::new(&workspace.system)?;
-            workspace.pcg.solve(
+            let mut status = workspace.pcg.solve(
                 &workspace.system,
                 &mut preconditioner,
                 rhs,
                 &mut flat,
                 tolerance,
                 cap,
-            )?
+            )?;
+            if let Some((b, y)) = also.as_mut() {
+                let more = workspace.pcg.solve(
+                    &workspace.system,
+                    &mut preconditioner,
+                    b,
+                    y,
+                    also_tolerance,
+                    cap,
+                )?;
+                status = merge(status, more);
+            }
+            status
         }
     };
     *x = flat.as_chunks::<D>().0.to_vec();
     Ok(status)
+}
+
+/// Two solves' status as one: iterations summed, converged if both did.
+fn merge(a: PcgStatus, b: PcgStatus) -> PcgStatus {
+    PcgStatus {
+        iterations: a.iterations + b.iterations,
+        converged: a.converged && b.converged,
+        ..a
+    }
 }

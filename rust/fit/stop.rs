@@ -1,4 +1,5 @@
-//! SPEC 5 step 5: when a frame's iteration stops.
+//! SPEC 5 step 5: when a frame's iteration stops (on the whole objective, elastic energy
+//! included: see `fit_frame_with`).
 
 /// Stops when the last decrease of $D$ is a small part of the total decrease so far,
 /// unless penetrations are still being resolved (pushing nodes out of another part moves

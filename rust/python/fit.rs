@@ -9,7 +9,9 @@ use pyo3::types::PyDict;
 
 use super::elastic::ElasticCore;
 use super::{c_slice, invalid_input, rows};
+use crate::camera::Camera;
 use crate::fit::coverage::TargetSamples;
+use crate::fit::silhouette::SilhouetteView;
 use crate::fit::{fit_frame_with, FitOptions, FitWorkspace, FrameMetrics, FrameTargets};
 use crate::grid_sample::GridField;
 
@@ -103,7 +105,7 @@ impl FitCore {
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
         solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true,
-        hold_contacts = false, coverage = 2.0))]
+        hold_contacts = false, coverage = 2.0, volume = 4.0, silhouette = 0.0, views = None))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -124,6 +126,9 @@ impl FitCore {
         coarse: bool,
         hold_contacts: bool,
         coverage: f64,
+        volume: f64,
+        silhouette: f64,
+        views: Option<Vec<View<'py>>>,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let shape = values.shape();
         let grid = [shape[0], shape[1], shape[2]];
@@ -142,7 +147,10 @@ impl FitCore {
             coarse,
             hold_contacts,
             coverage,
+            volume,
+            silhouette,
         };
+        let views = views.map(silhouette_views).transpose()?;
         let mut workspace = self
             .workspace
             .lock()
@@ -157,6 +165,7 @@ impl FitCore {
                         .transpose()?;
                     let targets = FrameTargets {
                         samples: samples.as_ref(),
+                        silhouettes: views.as_deref(),
                     };
                     fit_frame_with(model, w, &field, &targets, start, &options)
                 })?;
@@ -175,6 +184,7 @@ impl FitCore {
                         .transpose()?;
                     let targets = FrameTargets {
                         samples: samples.as_ref(),
+                        silhouettes: None,
                     };
                     fit_frame_with(model, w, &field, &targets, start, &options)
                 })?;
@@ -185,6 +195,37 @@ impl FitCore {
         let metrics = metrics_dict(py, &m)?;
         Ok((positions, metrics))
     }
+}
+
+/// One camera of the silhouette term: K (9, row-major), distortion (OpenCV's order), R (9,
+/// row-major), t (3), and its mask's signed distance (H, W) in pixels, positive outside.
+type View<'py> = (
+    Vec<f64>,
+    Vec<f64>,
+    Vec<f64>,
+    Vec<f64>,
+    PyReadonlyArray2<'py, f64>,
+);
+
+fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
+    views
+        .into_iter()
+        .enumerate()
+        .map(|(index, (k, dist, r, t, signed))| {
+            let nine = |v: &[f64], name: &str| -> PyResult<[f64; 9]> {
+                v.try_into().map_err(|_| {
+                    invalid_input(format!("views[{index}]: {name} must hold 9 values"))
+                })
+            };
+            let t: [f64; 3] = t[..]
+                .try_into()
+                .map_err(|_| invalid_input(format!("views[{index}]: t must hold 3 values")))?;
+            let (height, width) = (signed.shape()[0], signed.shape()[1]);
+            let camera = Camera::new(nine(&k, "K")?, &dist, nine(&r, "R")?, t, width, height)?;
+            let values = c_slice(&signed, "views signed distance")?.to_vec();
+            Ok(SilhouetteView::new(camera, index, values, width, height)?)
+        })
+        .collect()
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

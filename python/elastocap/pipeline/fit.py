@@ -74,6 +74,7 @@ def run_fit_stage(
     k: int = 20,
     rotation: str = "warped",
     stiffness: float = 1.0,
+    silhouette: float = 0.0,
     resolution: int = 128,
     reprojection: bool = True,
     progress: bool = True,
@@ -91,8 +92,9 @@ def run_fit_stage(
         when ``out/model/rest.npz`` exists (a resumed run keeps its model).
     n_nodes, k, rotation
         As in :meth:`ElasticModel.from_mesh`.
-    stiffness : float
-        As in :func:`~elastocap.elastic.fit.fit_sequence`.
+    stiffness, silhouette : float
+        As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
+        capture's cameras and masks.
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
@@ -156,7 +158,9 @@ def run_fit_stage(
         bar.update(1)
 
     targets = _LazyHulls(out, frames)
-    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, done=done, callback=write)
+    masks = _LazyMasks(cap) if silhouette > 0 else None
+    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, silhouette=silhouette,
+                          cameras=cap.rig.cameras, masks=masks, done=done, callback=write)
     bar.close()
     # Frames fitted before an interruption come back with their positions only: their
     # figures are in their files, so a resumed run reports what an uninterrupted one does.
@@ -190,6 +194,24 @@ class _LazyHulls(Mapping[int, Any]):
         if frame not in self._frames:
             raise KeyError(frame)
         return load_hull(self._out, frame)
+
+
+class _LazyMasks(Mapping[int, list[Any]]):
+    """A capture's masks, read frame by frame, one per camera in the rig's order."""
+
+    def __init__(self, cap: Capture) -> None:
+        self._cap = cap
+
+    def __len__(self) -> int:
+        return len(self._cap.frames)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._cap.frames)
+
+    def __getitem__(self, frame: int) -> list[Any]:
+        masks = self._cap.masks(frame)
+        # A camera without this frame (a capture read with missing="present") is left out.
+        return [masks.get(name) for name in self._cap.rig.names]
 
 
 def _write_metrics(out: Path, result: SequenceFit, cameras: list[str]) -> dict[int, list[str]]:

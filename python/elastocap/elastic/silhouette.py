@@ -1,0 +1,73 @@
+"""The silhouette term's input (issue 17, item 2): per camera, the mask's signed distance in
+pixels, computed once per frame with OpenCV's exact Euclidean distance transform, and the
+camera's parameters, as :meth:`elastocap._core.FitCore.fit_frame` takes them."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap._core import InvalidInputError
+
+__all__ = ["signed_mask_distance", "silhouette_views"]
+
+
+def signed_mask_distance(mask: NDArray[Any]) -> NDArray[np.float64]:
+    """The signed distance of a mask's outline, in pixels.
+
+    Parameters
+    ----------
+    mask : (H, W) array, bool or 0/1
+        True on the silhouette.
+
+    Returns
+    -------
+    (H, W) float64
+        Distance from each pixel centre to the outline (the boundary between mask and
+        background pixels, half a pixel from the centres on either side): positive outside
+        the mask, negative inside. An empty mask is everywhere as far as the image's
+        diagonal outside.
+    """
+    inside = np.asarray(mask).astype(bool)
+    if inside.ndim != 2:
+        raise InvalidInputError(f"a mask must have shape (H, W), got {inside.shape}")
+    if not inside.any():
+        return np.full(inside.shape, float(np.hypot(*inside.shape)))
+    if inside.all():
+        return np.full(inside.shape, -float(np.hypot(*inside.shape)))
+    # Distance to the nearest pixel of the other kind, minus half a pixel: the outline.
+    outside = cv2.distanceTransform((~inside).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    within = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(inside, 0.5 - within, outside - 0.5).astype(np.float64)
+
+
+def silhouette_views(cameras: Sequence[Any], masks: Sequence[NDArray[Any]]) -> list[tuple[Any, ...]]:
+    """One ``(K, dist, R, t, signed distance)`` per camera, for ``FitCore.fit_frame(views=)``.
+
+    Parameters
+    ----------
+    cameras : sequence of :class:`elastocap.cameras.Camera`
+        The rig's cameras.
+    masks : sequence of (H, W) bool or None
+        One mask per camera, the camera's image size; a camera whose mask is None is left
+        out.
+    """
+    if len(cameras) != len(masks):
+        raise InvalidInputError(f"need one mask per camera: {len(masks)} masks for {len(cameras)} cameras")
+    views = []
+    for camera, mask in zip(cameras, masks):
+        if mask is None:
+            continue
+        dist = np.ravel(np.asarray(camera.full_dist, dtype=np.float64))
+        views.append((
+            np.asarray(camera.K, dtype=np.float64).ravel().tolist(),
+            dist.tolist(),
+            np.asarray(camera.R, dtype=np.float64).ravel().tolist(),
+            np.asarray(camera.t, dtype=np.float64).ravel().tolist(),
+            np.ascontiguousarray(signed_mask_distance(mask)),
+        ))
+    return views
