@@ -308,7 +308,7 @@ def _close_holes(state, affine, region, grid_u, grid_v, offsets, level, levels, 
     rows, columns = state.shape
     index = np.arange(rows * columns).reshape(rows, columns)
     matched = state == _MATCHED
-    count = sum(_shifted(matched, di, dj, False).astype(np.int64) for di, dj in offsets)
+    count: NDArray[np.int64] = np.stack([_shifted(matched, di, dj, False) for di, dj in offsets]).sum(axis=0, dtype=np.int64)
     candidate = ((state == _FAILED) | (state == _OPEN)) & (count >= 3) & (count > tried)
     tried[candidate] = count[candidate]
     target = np.flatnonzero(candidate.ravel())
