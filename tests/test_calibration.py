@@ -117,6 +117,13 @@ def test_calibrate_command_on_the_shared_pairs(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path), "--board", "7x5", "--out", str(tmp_path / "x")]) == 2
 
 
+@pytest.mark.parametrize("board", ["1x1", "7x1", "seven", "7x"])
+def test_a_bad_board_is_refused_naming_the_option(tmp_path, capsys, board):
+    assert main(["calibrate", str(tmp_path), "--board", board, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--board" in err and board in err and "\n" not in err
+
+
 # --------------------------------------------------------------------------- rendered rigs
 
 

@@ -73,3 +73,20 @@ def test_a_plausible_rig_has_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert check_rig(Rig(cameras)) == []
+
+
+@pytest.mark.parametrize("name", ["rig.json", "intri.yml", "cameras.txt", "cameras.bin", "transforms.json",
+                                  "calib.toml"])
+def test_a_convert_killed_while_writing_leaves_the_old_rig(tmp_path, name):
+    # The kill-and-resume hook of elastocap._io kills the process at its first atomic write,
+    # with the temporary file half written: the rig written before must still read back.
+    from resume_runs import command, visible_files
+
+    ring(3).save(tmp_path / "in.json")
+    out = tmp_path / "out" / name
+    assert main(["rig", "convert", str(tmp_path / "in.json"), str(out)]) == 0
+    before = {p: p.read_bytes() for p in visible_files(tmp_path / "out")}
+    ring(4).save(tmp_path / "other.json")
+    assert command(["rig", "convert", str(tmp_path / "other.json"), str(out)], kill_at_write=1) == -9
+    assert {p: p.read_bytes() for p in visible_files(tmp_path / "out")} == before
+    assert len(Rig.load(out)) == 3

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
 
-__all__ = ["MAX_ARRAY_BYTES", "atomic_write", "load_npz", "save_bytes", "save_image", "save_mesh", "save_npz"]
+__all__ = ["MAX_ARRAY_BYTES", "atomic_write", "load_npz", "save_bytes", "save_image", "save_mesh", "save_npz", "save_text"]
 
 # Largest array an .npz file may declare (its header is checked before anything is
 # allocated): a file from elsewhere cannot make elastocap allocate more than this.
@@ -82,6 +82,23 @@ def save_mesh(path: Path, mesh: trimesh.Trimesh) -> None:
 def save_bytes(path: Path, data: bytes) -> None:
     """``data`` to ``path``, atomically."""
     atomic_write(path, lambda tmp: tmp.write_bytes(data))
+
+
+def save_text(path: Path, text: str) -> None:
+    """``text`` to ``path`` as UTF-8, atomically."""
+    save_bytes(path, text.encode("utf-8"))
+
+
+def opencv_storage_text(path: Path, write: Callable[[Any], None]) -> str:
+    """What ``cv2.FileStorage`` would write to ``path`` (YAML or XML by its suffix), built in
+    memory so the caller can write it atomically: ``write(storage)`` fills the storage."""
+    storage = cv2.FileStorage(path.suffix or ".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    try:
+        write(storage)
+    except BaseException:
+        storage.release()
+        raise
+    return str(storage.releaseAndGetString())
 
 
 def save_image(path: Path, image: NDArray[np.uint8], *, jpeg_quality: int = 95) -> None:

@@ -41,7 +41,11 @@ def parse_board(text: str) -> tuple[int, int]:
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
     if not match:
         raise InvalidInputError(f"--board must be COLUMNSxROWS of inner corners, e.g. 7x5, got {text!r}")
-    return int(match.group(1)), int(match.group(2))
+    columns, rows = int(match.group(1)), int(match.group(2))
+    # Checked here, not only by Chessboard, so the message names the option the user typed.
+    if columns < 2 or rows < 2:
+        raise InvalidInputError(f"--board needs at least 2x2 inner corners, got {text!r}")
+    return columns, rows
 
 
 def board_images(folder: Path) -> dict[str, dict[str, Path]]:

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_text
 from elastocap.cameras.formats.common import CameraRecord, number, settle_size
 
 if sys.version_info >= (3, 11):
@@ -129,5 +130,4 @@ def write(file: Path, cameras: Sequence[Camera]) -> None:
             "",
         ]
     lines += ["[metadata]", "adjusted = false", "error = 0.0", ""]
-    file.parent.mkdir(parents=True, exist_ok=True)
-    file.write_text("\n".join(lines))
+    save_text(file, "\n".join(lines))

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_text
 from elastocap.cameras.formats.common import CameraRecord, number, settle_size
 
 if TYPE_CHECKING:
@@ -308,7 +309,6 @@ def write(folder: Path, cameras: Sequence[Camera], *, model: str | None = None) 
         pose = [*quaternion_from_rotation(camera.R), *camera.t]
         image_lines.append(" ".join([str(index), *map(number, pose), str(index), f"{camera.name}.png"]))
         image_lines.append("")
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "cameras.txt").write_text("\n".join(camera_lines) + "\n")
-    (folder / "images.txt").write_text("\n".join(image_lines) + "\n")
-    (folder / "points3D.txt").write_text("# 3D point list (empty: elastocap writes cameras only)\n")
+    save_text(folder / "cameras.txt", "\n".join(camera_lines) + "\n")
+    save_text(folder / "images.txt", "\n".join(image_lines) + "\n")
+    save_text(folder / "points3D.txt", "# 3D point list (empty: elastocap writes cameras only)\n")

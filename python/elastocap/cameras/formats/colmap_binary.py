@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_bytes
 from elastocap.cameras.formats.colmap import (
     MODEL_BY_ID,
     MODELS,
@@ -128,7 +129,6 @@ def write(folder: Path, cameras: Sequence[Camera], *, model: str | None = None) 
         image_data.append(struct.pack("<idddddddi", index, *pose, index))
         image_data.append(f"{camera.name}.png".encode("utf-8") + b"\x00")
         image_data.append(struct.pack("<Q", 0))
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "cameras.bin").write_bytes(b"".join(camera_data))
-    (folder / "images.bin").write_bytes(b"".join(image_data))
-    (folder / "points3D.bin").write_bytes(struct.pack("<Q", 0))
+    save_bytes(folder / "cameras.bin", b"".join(camera_data))
+    save_bytes(folder / "images.bin", b"".join(image_data))
+    save_bytes(folder / "points3D.bin", struct.pack("<Q", 0))

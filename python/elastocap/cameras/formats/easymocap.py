@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import opencv_storage_text, save_text
 from elastocap.cameras.formats.common import CameraRecord, settle_size, size_from_capture
 from elastocap.cameras.formats.filestorage import (
     open_storage,
@@ -94,28 +95,35 @@ def write(folder: Path, cameras: Sequence[Camera]) -> None:
     """``intri.yml`` + ``extri.yml`` in the EasyMocap layout, with both ``R_`` (Rodrigues)
     and ``Rot_`` (3x3) and the image size as ``H_`` / ``W_``; OpenCV prints doubles with
     17 significant digits."""
-    folder.mkdir(parents=True, exist_ok=True)
-    intri = cv2.FileStorage(str(folder / "intri.yml"), cv2.FILE_STORAGE_WRITE)
-    extri = cv2.FileStorage(str(folder / "extri.yml"), cv2.FILE_STORAGE_WRITE)
-    try:
-        for storage in (intri, extri):
-            storage.startWriteStruct("names", cv2.FileNode_SEQ)
-            for camera in cameras:
-                storage.write("", camera.name)
-            storage.endWriteStruct()
+    def write_names(storage: Any) -> None:
+        storage.startWriteStruct("names", cv2.FileNode_SEQ)
+        for camera in cameras:
+            storage.write("", camera.name)
+        storage.endWriteStruct()
+
+    def write_intri(storage: Any) -> None:
+        write_names(storage)
         for camera in cameras:
             name = camera.name
-            intri.write(f"K_{name}", np.array(camera.K))
-            intri.write(f"dist_{name}", np.array(camera.dist).reshape(1, -1))
-            intri.write(f"H_{name}", camera.height)
-            intri.write(f"W_{name}", camera.width)
+            storage.write(f"K_{name}", np.array(camera.K))
+            storage.write(f"dist_{name}", np.array(camera.dist).reshape(1, -1))
+            storage.write(f"H_{name}", camera.height)
+            storage.write(f"W_{name}", camera.width)
+
+    def write_extri(storage: Any) -> None:
+        write_names(storage)
+        for camera in cameras:
+            name = camera.name
             rvec, _ = cv2.Rodrigues(np.array(camera.R))
-            extri.write(f"R_{name}", rvec)
-            extri.write(f"Rot_{name}", np.array(camera.R))
-            extri.write(f"T_{name}", np.array(camera.t).reshape(3, 1))
-    finally:
-        intri.release()
-        extri.release()
+            storage.write(f"R_{name}", rvec)
+            storage.write(f"Rot_{name}", np.array(camera.R))
+            storage.write(f"T_{name}", np.array(camera.t).reshape(3, 1))
+
+    # Both files are built in memory first, so a failure leaves the folder as it was.
+    intri = opencv_storage_text(folder / "intri.yml", write_intri)
+    extri = opencv_storage_text(folder / "extri.yml", write_extri)
+    save_text(folder / "intri.yml", intri)
+    save_text(folder / "extri.yml", extri)
 
 
 def _check_rodrigues_agrees(

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_text
 from elastocap.cameras.formats.common import (
     CameraRecord,
     file_image_size,
@@ -82,5 +83,4 @@ def write(file: Path, cameras: Sequence[Camera]) -> None:
     for camera in cameras:
         values = np.concatenate([camera.K.ravel(), camera.R.ravel(), camera.t])
         lines.append(" ".join([f"{camera.name}.png", *map(number, values)]))
-    file.parent.mkdir(parents=True, exist_ok=True)
-    file.write_text("\n".join(lines) + "\n")
+    save_text(file, "\n".join(lines) + "\n")

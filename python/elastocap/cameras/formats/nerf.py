@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_text
 from elastocap.cameras.formats.colmap import camera_names
 from elastocap.cameras.formats.common import (
     IMAGE_SUFFIXES,
@@ -185,8 +186,7 @@ def write(file: Path, cameras: Sequence[Camera]) -> None:
             frame.update(own)
         frames.append(frame)
     document["frames"] = frames
-    file.parent.mkdir(parents=True, exist_ok=True)
-    file.write_text(_dumps(document) + "\n")
+    save_text(file, _dumps(document) + "\n")
 
 
 def _intrinsics_of(camera: Camera) -> dict[str, Any]:

@@ -19,13 +19,14 @@ frame (re-express the rig with :meth:`Rig.relative_to` first). Round trips are e
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Any, TYPE_CHECKING, Sequence
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from elastocap._core import InvalidInputError
+from elastocap._io import opencv_storage_text, save_text
 from elastocap.cameras.formats.common import CameraRecord, file_image_size, settle_size
 from elastocap.cameras.formats.filestorage import (
     open_storage,
@@ -143,9 +144,8 @@ def write(file: Path, cameras: Sequence[Camera]) -> None:
             f"the OpenCV stereo format puts the world at the first camera, but camera {first.name!r} is "
             f"not at the origin (R = I, t = 0): re-express the rig with rig.relative_to({first.name!r})"
         )
-    file.parent.mkdir(parents=True, exist_ok=True)
-    storage = cv2.FileStorage(str(file), cv2.FILE_STORAGE_WRITE)
-    try:
+
+    def fill(storage: Any) -> None:
         storage.startWriteStruct("names", cv2.FileNode_SEQ)
         for camera in cameras:
             storage.write("", camera.name)
@@ -160,5 +160,5 @@ def write(file: Path, cameras: Sequence[Camera]) -> None:
         else:
             for i, camera in enumerate(cameras, start=1):
                 storage.write(f"imageSize{i}", np.array(camera.size, dtype=np.float64).reshape(1, 2))
-    finally:
-        storage.release()
+
+    save_text(file, opencv_storage_text(file, fill))

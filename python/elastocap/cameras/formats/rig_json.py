@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
 from elastocap._core import InvalidInputError
+from elastocap._io import save_text
 from elastocap.cameras.formats.common import CameraRecord, settle_size, size_from_capture
 
 if TYPE_CHECKING:
@@ -51,9 +52,8 @@ def read(file: Path, size: tuple[int, int] | None) -> list[CameraRecord]:
 def write(file: Path, cameras: Sequence[Camera]) -> None:
     """``{"cameras": [...]}`` with every field; Python prints floats in their shortest
     form that reads back exactly."""
-    file.parent.mkdir(parents=True, exist_ok=True)
     document = {"cameras": [_camera_json(camera) for camera in cameras]}
-    file.write_text(json.dumps(document, indent=2) + "\n")
+    save_text(file, json.dumps(document, indent=2) + "\n")
 
 
 def _camera_json(camera: Camera) -> dict[str, Any]:
