@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap.stereo.dense import DenseMatches, grow_matches
 from elastocap.stereo.disparity_stage import PairDisparity, pair_disparity
+from elastocap.stereo.disparity_stage import _inside as _in_volume
 from elastocap.stereo.intersection import intersect, match_observations
 from elastocap.stereo.rectify import RectifiedPair
 
@@ -162,13 +163,9 @@ def pair_points(
     keep_seed = grow_mask[np.rint(seeds_left[:, 1]).astype(int), np.rint(seeds_left[:, 0]).astype(int)]
     left_grey, right_grey = _grey(left_image), _grey(right_image)
     matches = grow_matches(left_grey, right_grey, seeds_left[keep_seed], seeds_right[keep_seed], mask=grow_mask, **grow_options)
-    n = len(matches.points)
-    covariance = np.zeros((n, 2, 2))
-    covariance[:] = matches.covariance
-    uv, cov = match_observations(matches.points, matches.positions[:, None], covariance)
+    # One search image: the matches' (M, 2, 2) position covariance is the (M, 2S, 2S) block.
+    uv, cov = match_observations(matches.points, matches.positions[:, None], matches.covariance)
     solved = intersect([pair.left, pair.right], uv, covariance=cov, reject=False)
-    from elastocap.stereo.disparity_stage import _inside as _in_volume
-
     ok = solved.valid & np.isfinite(solved.covariance).all(axis=(1, 2))
     ok[ok] &= _in_volume(solved.points[ok], volume)
     kept = np.flatnonzero(ok)
