@@ -15,6 +15,7 @@ per-pixel loop; the waves are few (the largest distance from a seed, in grid ste
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -36,6 +37,10 @@ DENSE_TEXTURE_OVER_NOISE = 0.7
 # Grid neighbours in the order a prediction is taken from them: along the row, then the
 # column ("shifting the template along rows then columns"), then the diagonals.
 _NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))
+
+# Matches grid points (flat indices) from start maps (K, 1, 2, 3) with region labels (K,),
+# accepting those within a distance (pixels) of their start; returns which were accepted.
+_Run = Callable[[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64], float], NDArray[np.bool_]]
 
 # States of a grid point.
 _OUTSIDE, _OPEN, _MATCHED, _FAILED = 0, 1, 2, 3
@@ -276,7 +281,11 @@ def _shifted(array: NDArray[Any], di: int, dj: int, fill: Any) -> NDArray[Any]:
     return out
 
 
-def _grow(state, level, affine, region, grid_u, grid_v, offsets, run, jump, levels, waves_cap) -> bool:  # type: ignore[no-untyped-def]
+def _grow(
+    state: NDArray[np.int8], level: NDArray[np.int64], affine: NDArray[np.float64], region: NDArray[np.int64],
+    grid_u: NDArray[np.float64], grid_v: NDArray[np.float64], offsets: NDArray[np.int64], run: _Run, jump: float,
+    levels: int, waves_cap: int,
+) -> bool:
     """Waves until no open point touches the matched region; whether any point matched."""
     grew = False
     rows, columns = state.shape
@@ -300,7 +309,11 @@ def _grow(state, level, affine, region, grid_u, grid_v, offsets, run, jump, leve
     return grew
 
 
-def _close_holes(state, affine, region, grid_u, grid_v, offsets, level, levels, run, jump, tried) -> bool:  # type: ignore[no-untyped-def]
+def _close_holes(
+    state: NDArray[np.int8], affine: NDArray[np.float64], region: NDArray[np.int64], grid_u: NDArray[np.float64],
+    grid_v: NDArray[np.float64], offsets: NDArray[np.int64], level: NDArray[np.int64], levels: int, run: _Run,
+    jump: float, tried: NDArray[np.int64],
+) -> bool:
     """One round of hole closing: failed (or unreached) points with at least three matched
     neighbours out of eight (more than when they were last tried), started from the median
     of the neighbours' predictions at the largest patch. Points that match reopen the
