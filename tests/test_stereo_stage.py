@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -73,6 +74,10 @@ def test_files_picture_and_resume(stage: tuple[Path, Path, list[int]]) -> None:
     np.testing.assert_array_equal(np.stack([raw["red"], raw["green"], raw["blue"]], axis=1), data["colours"])
     assert (out / "pictures" / "stereo" / "000000.png").stat().st_size > 10_000
     assert (out / "disparity" / "cam00-cam01" / "000000.png").exists()
+    # The silhouette stage's input: the disparity mask in cam00's pixels, on the figure.
+    disparity_mask = cv2.imread(str(out / "disparity" / "cam00" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
+    silhouette = cv2.imread(str(capture / "masks" / "cam00" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
+    assert (disparity_mask & silhouette).sum() > 0.5 * silhouette.sum()
     before = (out / "points" / "000000.npz").stat().st_mtime_ns
     assert run_stereo_stage(capture, out, volume=VOLUME, progress=False) == []
     assert main(["stereo", str(capture), "--out", str(out), "--volume=-1.5,-0.3,-1.5,1.5,2.1,1.5", "--quiet"]) == 0

@@ -11,6 +11,9 @@ Writes, per frame::
                                       point came from), pixels (N, 2) (in that pair's left
                                       camera), pairs (P,) str ("<left>-<right>")
     OUT/disparity/<pair>/<frame:06d>.png|.npz   the SGBM stage's files (the seeds)
+    OUT/disparity/<camera>/<frame:06d>.png      the pair's disparity mask in its LEFT camera's
+                                                pixels (0 / 255), what ``elastocap
+                                                silhouettes`` reads; right cameras get none
     OUT/pictures/stereo/<frame:06d>.png         per pair: the disparity, and the points over
                                                 the left image coloured by depth
 
@@ -180,6 +183,8 @@ def run_stereo_stage(
                 mask = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
             result = pair_points(pair, left, right, volume, mask=mask, **options)
             write_disparity(out, result.disparity, frame)
+            # The silhouette stage reads the disparity mask per camera, in its own pixels.
+            save_image(out / "disparity" / pair.left.name / f"{frame:06d}.png", result.disparity.mask_original.astype(np.uint8) * 255)
             results.append(result)
         _write_frame(out, frame, results)
         if pictures:
