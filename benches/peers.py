@@ -24,6 +24,7 @@ from peer_cases.hull import carve_cases, memory_cases
 from peer_cases.neighbors import knn_cases, radius_cases
 from peer_cases.silhouettes import snake_cases
 from peer_cases.stereo import dense_cases, disparity_cases, lsm_cases
+from peer_cases.tracking import track_cases
 
 # Group name -> cases; ``python benches/peers.py NAME`` runs the groups whose name contains NAME.
 CASES: dict[str, Callable[[int], list[dict[str, Any]]]] = {
@@ -43,6 +44,7 @@ CASES: dict[str, Callable[[int], list[dict[str, Any]]]] = {
     "snake": snake_cases,
     "lsm": lsm_cases,
     "dense": dense_cases,
+    "track": track_cases,
 }
 
 

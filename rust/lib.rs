@@ -22,6 +22,7 @@ pub mod sdf;
 pub mod snake;
 pub mod solve;
 pub mod spatial_hash;
+pub mod track;
 
 #[cfg(feature = "python")]
 mod python;

@@ -25,6 +25,7 @@ from elastocap.pipeline import load_hull, run_fit_stage, run_hull_stage
 from elastocap.silhouettes import clean_mask, refine_silhouette, segment_dark_background
 from elastocap.silhouettes import subtract_background, threshold_dark_background
 from elastocap.stereo import grow_matches, intersect, match_patches
+from elastocap.tracking import Tracks, load_tracks, track_points
 
 _moved.install()
 
@@ -55,6 +56,7 @@ __all__ = [
     "SequenceFit",
     "SpatialIndex",
     "StaticSolution",
+    "Tracks",
     "__version__",
     "clean_mask",
     "fit_body",
@@ -63,6 +65,7 @@ __all__ = [
     "intersect",
     "knn",
     "load_hull",
+    "load_tracks",
     "match_patches",
     "mls_shape_functions",
     "polar_rotation",
@@ -75,5 +78,6 @@ __all__ = [
     "stiffness_matrix",
     "subtract_background",
     "threshold_dark_background",
+    "track_points",
     "visual_hull",
 ]

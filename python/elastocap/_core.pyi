@@ -28,6 +28,8 @@ __all__ = [
     "active_contour",
     "lsm_match_patches",
     "TriangleMesh",
+    "track_step",
+    "track_ncc_at",
 ]
 
 __version__: str
@@ -349,3 +351,25 @@ class TriangleMesh:
     def cast_rays(
         self, origins: NDArray[np.float64], directions: NDArray[np.float64], max_distance: float
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]: ...
+
+def track_step(
+    previous: list[NDArray[np.float32]],
+    current: list[NDArray[np.float32]],
+    last: NDArray[np.float64],
+    before: NDArray[np.float64],
+    *,
+    size: int = 11,
+    radius: int = 4,
+    min_correlation: float = 0.8,
+    forward_backward: float = 0.3,
+    max_iterations: int = 15,
+    min_texture: float = 0.0,
+) -> tuple[NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]: ...
+def track_ncc_at(
+    template: NDArray[np.float32],
+    points: NDArray[np.float64],
+    search: NDArray[np.float32],
+    candidates: NDArray[np.float64],
+    *,
+    size: int = 11,
+) -> NDArray[np.float64]: ...

@@ -16,6 +16,7 @@ mod polar;
 mod sdf;
 mod snake;
 mod solve;
+mod track;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -66,6 +67,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     snake::register(m)?;
     lsm::register(m)?;
     mesh::register(m)?;
+    track::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

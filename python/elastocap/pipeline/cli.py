@@ -54,6 +54,19 @@ def _hull(args: argparse.Namespace) -> int:
     return 0
 
 
+def _track(args: argparse.Namespace) -> int:
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames
+    from elastocap.pipeline.track import run_track_stage
+
+    capture = Capture.open(args.capture)
+    tracks = run_track_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames),
+                             progress=not args.quiet, spacing=args.spacing)
+    tracked = int((tracks.flags == 0).any(axis=0).sum())
+    print(f"tracked {tracked} of {len(tracks.ids)} points through {len(tracks.frames)} frames into {Path(args.out) / 'tracks'}")
+    return 0
+
+
 def _fit(args: argparse.Namespace) -> int:
     from elastocap.pipeline.fit import run_fit_stage
 
@@ -217,6 +230,20 @@ def _parser() -> argparse.ArgumentParser:
     hull.add_argument("--footprint", choices=["center", "conservative"], default="center", help="finest-level test")
     hull.add_argument("--quiet", action="store_true", help="no progress bar")
     hull.set_defaults(run=_hull)
+    track = commands.add_parser(
+        "track",
+        help="track surface points through every frame and across cameras",
+        description="Seed points on the textured masks, track them in every camera (NCC box search, "
+        "least-squares matching, forward-backward check) and in 3-D (forward intersection, trajectory "
+        "filters), and write OUT/tracks/<frame>.npz (ids, positions, covariances, flags), "
+        "OUT/tracks.png and OUT/tracks_strip.png. Frames already written are skipped.",
+    )
+    track.add_argument("capture", metavar="CAPTURE", help="capture folder (calibration, images/, masks/)")
+    track.add_argument("--out", required=True, help="output folder")
+    track.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    track.add_argument("--spacing", type=int, default=10, help="one seed per spacing x spacing pixels of mask (default: 10)")
+    track.add_argument("--quiet", action="store_true", help="no progress bar")
+    track.set_defaults(run=_track)
     fit = commands.add_parser(
         "fit",
         help="fit an elastic model through all frames of a capture (hulls first if missing)",

@@ -1,0 +1,235 @@
+"""Issue 15: point tracking against cv2.calcOpticalFlowPyrLK with a forward-backward check.
+
+``track_cases`` rows:
+
+- ``track_textured_seed<S>`` (accuracy, one per capture in ``ELASTOCAP_TRACK_CAPTURES``, a
+  comma-separated list of folders written by ``elastocap.synth.textured``): ours is
+  ``track_points`` over the whole capture; the peer tracks the same points (the 2-D views of
+  the points ours seeded on the first frame) through every camera with pyramidal
+  Lucas-Kanade (15x15 window, 3 levels), a forward-backward check at the same 0.6 px
+  tolerance, and the same forward intersection with the same blunder rejection, so that
+  only the 2-D tracker differs. Both are measured against the ground-truth surface points
+  (``elastocap.tracking.accuracy``): the share of points tracked through their visibility,
+  the share with RMS image error <= 0.5 px, both together, and the share of kept 3-D
+  positions farther than 5 px from the truth.
+- ``track_speed_1000x8`` (speed): one frame step (15x15 patches, box radius 6) of 1,000
+  points in each of 8 cameras of 1024x768 (``ELASTOCAP_TRACK_SPEED``, a textured capture at that size), images decoded
+  beforehand; ours the Rust step (prediction, NCC box search, temporal LSM,
+  forward-backward), the peer calcOpticalFlowPyrLK forward and backward on the same points;
+  the decoding time of the 8 frames is reported apart (``decode_s``).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from peer_cases._common import _compare
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+
+
+def _lk_tracks(capture: Any, uv0: np.ndarray, frames: list[int], tolerance: float) -> np.ndarray:
+    """(F, N, C, 2) views of the points tracked by pyramidal LK with a forward-backward
+    check, per camera; NaN once lost."""
+    names = capture.rig.names
+    f, (n, c) = len(frames), uv0.shape[:2]
+    out = np.full((f, n, c, 2), np.nan)
+    out[0] = uv0
+    params = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+    previous = [_grey(capture.image(name, frames[0])) for name in names]
+    for i in range(1, f):
+        current = [_grey(capture.image(name, frames[i])) for name in names]
+        for k in range(c):
+            alive = np.flatnonzero(np.isfinite(out[i - 1, :, k, 0]))
+            if alive.size == 0:
+                continue
+            p0 = out[i - 1, alive, k].astype(np.float32).reshape(-1, 1, 2)
+            p1, st1, _ = cv2.calcOpticalFlowPyrLK(previous[k], current[k], p0, None, **params)
+            back, st2, _ = cv2.calcOpticalFlowPyrLK(current[k], previous[k], p1, None, **params)
+            ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) <= tolerance)
+            out[i, alive[ok], k] = p1.reshape(-1, 2)[ok]
+        previous = current
+    return out
+
+
+def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
+    import tempfile
+
+    from elastocap import Capture
+    from elastocap.synth.textured import load_textured_truth
+    from elastocap.tracking import TrackFlag, Tracks, load_tracks, track_points
+    from elastocap.tracking.accuracy import track_accuracy
+    from elastocap.tracking.tracks import read_frame, frame_file
+    from elastocap.tracking.views import intersect_views
+
+    capture = Capture.open(folder)
+    truth = load_textured_truth(folder)
+    frames = [int(f) for f in truth.frames]
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        ours = track_points(capture, frames=frames, out=out)
+        ours_s = time.perf_counter() - start
+        first = read_frame(frame_file(out, frames[0]))
+    cams = capture.rig.cameras
+    acc = track_accuracy(ours, cams, truth.positions, truth.visible, truth.part)
+    born = np.flatnonzero(ours.flags[0] == TrackFlag.TRACKED)
+    # The peer on the same points: their first-frame views.
+    start = time.perf_counter()
+    views = _lk_tracks(capture, first["uv"][born], frames, 0.6)
+    peer_s = time.perf_counter() - start
+    f, n = len(frames), born.size
+    positions = np.full((f, n, 3), np.nan)
+    covariances = np.full((f, n, 3, 3), np.nan)
+    for i in range(f):
+        cov = np.where(np.isfinite(views[i])[..., None], np.eye(2) * 0.01, np.nan)
+        x, xc, _, _ = intersect_views(cams, views[i], cov, max_residual=1.5, floor=0.1)
+        positions[i], covariances[i] = x, xc
+        # Views the intersection rejected are dropped, as ours drops them.
+        views[i + 1:, ~np.isfinite(x).all(axis=1)] = np.nan if i + 1 < f else views[i + 1:, ~np.isfinite(x).all(axis=1)]
+    flags = np.where(np.isfinite(positions).all(axis=2), 0, TrackFlag.FEW_VIEWS).astype(np.uint8)
+    peer = Tracks(np.array(frames), np.arange(n), positions, covariances, flags)
+    pacc = track_accuracy(peer, cams, truth.positions, truth.visible, truth.part)
+
+    def figures(a: Any, rows: np.ndarray) -> dict[str, float]:
+        e = a.error[:, rows]
+        e = e[np.isfinite(e)]
+        good = a.rms[rows] <= 0.5
+        return {
+            "through": round(float(a.through[rows].mean()), 4),
+            "rms_le_0.5px": round(float(good.mean()), 4),
+            "through_and_rms": round(float((a.through[rows] & good).mean()), 4),
+            "median_rms_px": round(float(np.nanmedian(a.rms[rows])), 4),
+            "kept_over_5px": round(float(np.mean(e > 5.0)), 5),
+            "kept_positions": int(e.size),
+        }
+
+    return {
+        "case": f"track_textured_{folder.name}",
+        "n": int(n),
+        "ours_s": round(ours_s, 3),
+        "peer": "cv2.calcOpticalFlowPyrLK 15x15 + forward-backward (0.6 px), same intersection",
+        "peer_s": round(peer_s, 3),
+        "ratio": round(peer_s / ours_s, 2),
+        "repeats": 1,
+        "frames": f,
+        "ours_first_frame_points": figures(acc, born),
+        "ours_all_points": figures(acc, np.arange(len(ours.ids))) | {"n": len(ours.ids)},
+        "peer_first_frame_points": figures(pacc, np.arange(n)),
+    }
+
+
+def _speed_row(folder: Path, repeats: int) -> dict[str, Any]:
+    from elastocap import Capture, _core
+
+    capture = Capture.open(folder)
+    names = capture.rig.names
+    f0, f1 = capture.frames[0], capture.frames[1]
+    start = time.perf_counter()
+    images = [[capture.image(name, f) for name in names] for f in (f0, f1)]
+    decode_s = time.perf_counter() - start
+    grey8 = [[_grey(i) for i in frame] for frame in images]
+    grey = [[g.astype(np.float32) for g in frame] for frame in grey8]
+    rng = np.random.default_rng(0)
+    pts = np.zeros((len(names), 1000, 2))
+    for k, name in enumerate(names):
+        mask = cv2.erode(capture.mask(name, f0).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+        v, u = np.nonzero(mask)
+        pick = rng.choice(len(u), 1000, replace=len(u) < 1000)
+        pts[k] = np.column_stack([u[pick], v[pick]]) + rng.uniform(-0.5, 0.5, (1000, 2))
+    nan = np.full_like(pts, np.nan)
+    params = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
+
+    def ours() -> Any:
+        return _core.track_step(grey[0], grey[1], pts, nan, size=15, radius=6, min_correlation=0.75, forward_backward=0.6)
+
+    def peer() -> None:
+        for k in range(len(names)):
+            p0 = pts[k].astype(np.float32).reshape(-1, 1, 2)
+            p1, _, _ = cv2.calcOpticalFlowPyrLK(grey8[0][k], grey8[1][k], p0, None, **params)
+            cv2.calcOpticalFlowPyrLK(grey8[1][k], grey8[0][k], p1, None, **params)
+
+    row = _compare("track_speed_1000x8_1024x768", 8000, ours, "cv2.calcOpticalFlowPyrLK forward + backward", peer, repeats)
+    _, flags, _, _ = ours()
+    row.update(
+        ours_frames_per_s=round(1.0 / row["ours_s"], 2),
+        tracked_share=round(float(np.mean(flags == 0)), 3),
+        decode_s_8_images=round(decode_s / 2, 4),
+        image_size=list(grey8[0][0].shape[::-1]),
+    )
+    return row
+
+
+class _Decoded:
+    """A capture whose images and masks are decoded beforehand (the speed figure excludes
+    decoding): what ``track_points`` reads of a Capture."""
+
+    def __init__(self, capture: Any, frames: list[int]) -> None:
+        self.rig, self.frames, self.cameras = capture.rig, frames, capture.cameras
+        self.has_masks = self.has_images = True
+        start = time.perf_counter()
+        self._images = {(n, f): capture.image(n, f) for f in frames for n in capture.rig.names}
+        self.decode_s = (time.perf_counter() - start) / len(frames)
+        self._masks = {(n, f): capture.mask(n, f) for f in frames for n in capture.rig.names}
+
+    def image(self, name: str, frame: int) -> np.ndarray:
+        return self._images[name, frame]
+
+    def mask(self, name: str, frame: int) -> np.ndarray:
+        return self._masks[name, frame]
+
+
+def _pipeline_speed_row(folder: Path, repeats: int) -> dict[str, Any]:
+    """Whole frames of ``track_points`` (temporal step, anchors, intersection, filters,
+    re-acquisition) on a decoded capture; frames that seed are reported apart."""
+    from elastocap import Capture
+    from elastocap.tracking import track_points
+
+    capture = Capture.open(folder)
+    frames = list(capture.frames)[:8]
+    decoded = _Decoded(capture, frames)
+    stamps: list[float] = []
+    per_frame: list[list[float]] = []
+    for _ in range(max(1, repeats // 3)):
+        stamps.clear()
+        start = time.perf_counter()
+        tracks = track_points(decoded, frames=frames, spacing=8, progress=lambda f: stamps.append(time.perf_counter()))  # type: ignore[arg-type]
+        times = np.diff([start] + stamps)
+        per_frame.append(times.tolist())
+    times = np.median(np.array(per_frame), axis=0)
+    steady = [t for i, t in enumerate(times) if i % 5 != 0]  # frames 0 and 5 seed
+    views = np.isfinite(tracks.views[..., 0]).sum(axis=2) if tracks.views is not None else np.zeros(1)
+    tracked = (tracks.flags == 0).sum(axis=1)
+    return {
+        "case": "track_points_frame_1024x768_8cams",
+        "n": int(np.median(tracked[1:])),
+        "ours_s": round(float(np.median(steady)), 4),
+        "ours_frames_per_s": round(1.0 / float(np.median(steady)), 2),
+        "seeding_frame_s": round(float(times[0]), 3),
+        "points_tracked_per_frame": tracked.tolist(),
+        "views_per_frame_median": int(np.median(views.sum(axis=1)[1:])),
+        "decode_s_per_frame_8_images": round(decoded.decode_s, 4),
+        "repeats": max(1, repeats // 3),
+    }
+
+
+def track_cases(repeats: int) -> list[dict[str, Any]]:
+    rows = []
+    for folder in filter(None, os.environ.get("ELASTOCAP_TRACK_CAPTURES", "").split(",")):
+        rows.append(_accuracy_row(Path(folder), repeats))
+    speed = os.environ.get("ELASTOCAP_TRACK_SPEED")
+    if speed:
+        rows.append(_speed_row(Path(speed), repeats))
+        rows.append(_pipeline_speed_row(Path(speed), repeats))
+    if not rows:
+        rows.append({"case": "track", "skipped": "set ELASTOCAP_TRACK_CAPTURES and/or ELASTOCAP_TRACK_SPEED (folders "
+                     "written by elastocap.synth.textured.write_textured_capture)"})
+    return rows

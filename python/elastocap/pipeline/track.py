@@ -1,0 +1,85 @@
+"""The track stage of a capture (issue 15): surface points tracked through every frame,
+``OUT/tracks/<frame:06d>.npz`` per frame (resumable), and two pictures: the trajectories
+over a camera's image (``OUT/tracks.png``) and a strip over time of every track's state
+(``OUT/tracks_strip.png``: one row per track, one column per frame, coloured by flag)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from elastocap._io import save_image
+from elastocap.capture.folder import Capture
+from elastocap.tracking import Tracks, track_points
+from elastocap.tracking.flags import TrackFlag
+
+__all__ = ["run_track_stage", "trajectory_picture", "strip_picture"]
+
+# Colours of the strip per flag (RGB): tracked green, not seeded dark, failures warm.
+_FLAG_COLOURS = np.array([
+    [40, 200, 60], [30, 30, 30], [120, 120, 120], [230, 160, 30], [220, 60, 200], [230, 40, 40],
+    [40, 120, 230], [40, 200, 230], [160, 90, 230], [250, 240, 80], [170, 170, 170],
+], np.uint8)
+
+
+def trajectory_picture(capture: Capture, tracks: Tracks, *, camera: str | None = None, tail: int = 15) -> NDArray[np.uint8]:
+    """(H, W, 3) RGB: the last frame's image of ``camera`` (default: the first) with the
+    projected trajectories of its last ``tail`` frames, one colour per track."""
+    name = camera if camera is not None else capture.cameras[0]
+    cam = capture.rig[name]
+    frame = int(tracks.frames[-1])
+    image = np.ascontiguousarray(capture.image(name, frame))
+    rng = np.random.default_rng(0)
+    colours = rng.integers(60, 256, size=(len(tracks.ids), 3))
+    window = tracks.positions[-tail:]
+    f, n = window.shape[:2]
+    uv = cam.project(np.nan_to_num(window.reshape(-1, 3)))[0].reshape(f, n, 2)
+    uv[~np.isfinite(window).all(axis=2)] = np.nan
+    for j in range(n):
+        path = uv[:, j]
+        ok = np.isfinite(path).all(axis=1)
+        if ok.sum() >= 2:
+            cv2.polylines(image, [np.round(path[ok]).astype(np.int32)], False, tuple(int(v) for v in colours[j]), 1, cv2.LINE_AA)
+        if ok[-1]:
+            cv2.circle(image, tuple(int(v) for v in np.round(path[-1])), 2, tuple(int(v) for v in colours[j]), -1)
+    return image
+
+
+def strip_picture(tracks: Tracks, *, height: int = 600) -> NDArray[np.uint8]:
+    """(rows, F, 3) RGB: one row per track (in order of first appearance, resampled to at
+    most ``height`` rows), one column per frame, coloured by :class:`TrackFlag`."""
+    flags = tracks.flags.T
+    tracked = flags == TrackFlag.TRACKED
+    first = np.where(tracked.any(axis=1), np.argmax(tracked, axis=1), flags.shape[1])
+    order = np.argsort(first, kind="stable")
+    picture = _FLAG_COLOURS[np.minimum(flags[order], len(_FLAG_COLOURS) - 1)]
+    if len(picture) > height:
+        picture = picture[np.linspace(0, len(picture) - 1, height).astype(int)]
+    scale = max(1, 600 // max(1, picture.shape[1]))
+    return np.repeat(picture, scale, axis=1)
+
+
+def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | None = None, progress: bool = True,
+                    **options: object) -> Tracks:
+    """Track the capture's surface points into ``OUT/tracks/`` (resuming), then draw the
+    pictures. ``options`` go to :func:`elastocap.track_points`."""
+    chosen = list(capture.frames) if frames is None else frames
+    bar = tqdm(total=len(chosen), desc="track", unit="frame", disable=not progress)
+    done = {"n": 0}
+
+    def tick(frame: int) -> None:
+        done["n"] += 1
+        bar.update(1)
+
+    try:
+        tracks = track_points(capture, frames=chosen, out=out, progress=tick, **options)  # type: ignore[arg-type]
+    finally:
+        bar.close()
+    root = Path(out)
+    save_image(root / "tracks.png", trajectory_picture(capture, tracks))
+    save_image(root / "tracks_strip.png", strip_picture(tracks))
+    return tracks

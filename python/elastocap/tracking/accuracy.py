@@ -1,0 +1,107 @@
+"""Tracks measured against ground-truth surface points (synthetic captures): each track is
+carried through the sequence by the rigid motion of the truth points around where it was
+seeded (a local Kabsch fit of its nearest truth points), which is exact on rigid parts and
+close to it on smoothly deforming ones; its image error is the distance between the
+projections of the track and of that carried truth position."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from elastocap.cameras import Camera
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.tracks import Tracks
+
+__all__ = ["TrackAccuracy", "track_accuracy"]
+
+
+class TrackAccuracy(NamedTuple):
+    """Per track: ``rms`` (N,) RMS image error over its tracked frames and the cameras that
+    hold it where the truth is visible, pixels; ``through`` (N,) tracked on every frame
+    after its seeding where its truth is visible in at least two cameras; ``expected``
+    (F, N) those frames; ``error`` (F, N) the largest image error per frame (NaN where not
+    tracked), pixels; ``error3d`` (F, N) the 3-D distance to the truth in pixel
+    equivalents (over the pixel footprint at the truth's depth, mean over the cameras that
+    see it)."""
+
+    rms: NDArray[np.float64]
+    through: NDArray[np.bool_]
+    expected: NDArray[np.bool_]
+    error: NDArray[np.float64]
+    error3d: NDArray[np.float64]
+
+
+def _kabsch(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Batched rigid fits b ~ R a + t of (N, K, 3) point sets."""
+    ca, cb = a.mean(axis=1), b.mean(axis=1)
+    h = np.einsum("nki,nkj->nij", a - ca[:, None], b - cb[:, None])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
+    fix = np.ones((len(a), 3))
+    fix[:, 2] = d
+    r = np.einsum("nji,nj,nkj->nik", vt, fix, u)
+    return r, cb - np.einsum("nij,nj->ni", r, ca)
+
+
+def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.float64], visible: NDArray[np.bool_],
+                   part: NDArray[np.int64] | None = None, *, neighbours: int = 8) -> TrackAccuracy:
+    """Measure ``tracks`` against truth positions (F, M, 3) and visibility (F, C, M) of
+    surface points on the same frames (``part`` (M,): neighbours are taken on the nearest
+    point's part only)."""
+    f, n = tracks.flags.shape
+    tracked = tracks.flags == TrackFlag.TRACKED
+    first = np.where(tracked.any(axis=0), np.argmax(tracked, axis=0), -1)
+    carried = np.full((f, n, 3), np.nan)
+    expected = np.zeros((f, n), bool)
+    error = np.full((f, n), np.nan)
+    error3d = np.full((f, n), np.nan)
+    m = truth.shape[1]
+    part_ = np.zeros(m, np.int64) if part is None else np.asarray(part)
+    for s in np.unique(first[first >= 0]):
+        rows = np.flatnonzero(first == s)
+        x0 = tracks.positions[s, rows]
+        tree = cKDTree(truth[s])
+        _, nearest = tree.query(x0, k=1)
+        # Neighbours on the nearest point's part.
+        near = np.zeros((rows.size, neighbours), np.int64)
+        for p in np.unique(part_[nearest]):
+            on = np.flatnonzero(part_ == p)
+            sub = cKDTree(truth[s, on])
+            sel = part_[nearest] == p
+            _, idx = sub.query(x0[sel], k=min(neighbours, on.size))
+            near[sel] = on[np.atleast_2d(idx).reshape(sel.sum(), -1)[:, :neighbours]] if on.size >= neighbours else on[0]
+        for t in range(s, f):
+            r, tr = _kabsch(truth[s, near], truth[t, near])
+            carried[t, rows] = np.einsum("nij,nj->ni", r, x0) + tr
+            seen = visible[t][:, near].all(axis=2)  # (C, rows)
+            expected[t, rows] = seen.sum(axis=0) >= 2
+            errs = np.full((len(cameras), rows.size), np.nan)
+            footprint = np.zeros(rows.size)
+            for k, cam in enumerate(cameras):
+                a = cam.project(carried[t, rows])[0]
+                if tracks.views is not None:
+                    b = tracks.views[t, rows, k]
+                    held = np.isfinite(b).all(axis=1)
+                else:
+                    b = cam.project(np.nan_to_num(tracks.positions[t, rows]))[0]
+                    held = np.ones(rows.size, bool)
+                errs[k] = np.where(seen[k] & held & tracked[t, rows], np.linalg.norm(a - np.nan_to_num(b), axis=1), np.nan)
+                footprint += np.where(seen[k], cam.to_camera(carried[t, rows])[:, 2] / cam.K[0, 0], 0.0)
+            with np.errstate(all="ignore"):
+                footprint /= seen.sum(axis=0)
+                error3d[t, rows] = np.where(tracked[t, rows], np.linalg.norm(tracks.positions[t, rows] - carried[t, rows], axis=1) / footprint, np.nan)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                error[t, rows] = np.where(np.isfinite(errs).any(axis=0), np.nanmax(errs, axis=0), np.nan)
+    squares = np.where(np.isfinite(error), error**2, 0.0)
+    counts = np.isfinite(error).sum(axis=0)
+    with np.errstate(all="ignore"):
+        rms = np.where(counts > 0, np.sqrt(squares.sum(axis=0) / counts), np.nan)
+    through = ~(expected & ~tracked).any(axis=0) & (first >= 0)
+    return TrackAccuracy(rms=rms, through=through, expected=expected, error=error, error3d=error3d)

@@ -1,0 +1,87 @@
+"""Drift correction against each view's first appearance (Matthews, Ishikawa & Baker 2004,
+"The template update problem"): frame-to-frame matching converges from far but its errors
+add up as a random walk (a tenth of a pixel per frame on weak texture is most of a pixel
+after fifty); matching the patch as first seen, started at the frame-to-frame result,
+does not drift. The anchor patch is kept while it still matches (correlation and a
+correction within ``reach``) and replaced by the current patch when it does not (the
+appearance changed: a limb turned).
+
+Anchor patches are stored per point and camera (``size + 6`` pixels square, flat memory),
+laid out as tiles of one mosaic image per camera for the batched matcher."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap.stereo import match_patches
+from elastocap.stereo.matching import MatchStatus
+
+__all__ = ["Anchors"]
+
+
+class Anchors:
+    """First-appearance patches of every point in every camera (NaN-free where ``held``)."""
+
+    def __init__(self, cameras: int, size: int) -> None:
+        self.size = size
+        self.side = size + 6  # the patch, its gradient border and the bicubic margin
+        self.patches = np.zeros((0, cameras, self.side, self.side), np.float32)
+        self.held = np.zeros((0, cameras), bool)
+        # Where each patch was cut (frame number, position): a resumed run cuts it again.
+        self.frame = np.full((0, cameras), -1, np.int64)
+        self.uv = np.full((0, cameras, 2), np.nan)
+
+    def grow(self, n: int) -> None:
+        """Room for ``n`` points in all."""
+        extra = n - len(self.held)
+        if extra > 0:
+            c = self.held.shape[1]
+            self.patches = np.concatenate([self.patches, np.zeros((extra, c, self.side, self.side), np.float32)])
+            self.held = np.concatenate([self.held, np.zeros((extra, c), bool)])
+            self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
+            self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
+
+    def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int) -> None:
+        """Take the patches around ``uv`` (N, C, 2) where ``where`` (N, C) from the images
+        of ``frame``."""
+        self.grow(len(uv))
+        for p, k in zip(*np.nonzero(where)):
+            self.patches[p, k] = cv2.getRectSubPix(images[k], (self.side, self.side), (float(uv[p, k, 0]), float(uv[p, k, 1])))
+        self.held[: len(where)] |= where
+        self.frame[: len(where)][where] = frame
+        self.uv[: len(where)][where] = uv[where]
+
+    def drop(self, where: NDArray[np.bool_]) -> None:
+        self.held[: len(where)] &= ~where
+
+    def correct(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], *, min_correlation: float,
+                reach: float, min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """``uv`` (N, C, 2) refined against the anchors where held and tracked; returns the
+        refined positions and where the anchor no longer matched (to be re-cut)."""
+        n, c = uv.shape[:2]
+        self.grow(n)
+        out = uv.copy()
+        stale = np.zeros((n, c), bool)
+        half = self.side // 2
+        for k in range(c):
+            rows = np.flatnonzero(self.held[:n, k] & np.isfinite(uv[:, k, 0]))
+            if rows.size == 0:
+                continue
+            per_row = int(np.ceil(np.sqrt(rows.size)))
+            tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
+            tiles[: rows.size] = self.patches[rows, k]
+            mosaic = tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3).reshape(per_row * self.side, per_row * self.side)
+            index = np.arange(rows.size)
+            centres = np.column_stack([(index % per_row) * self.side + half, (index // per_row) * self.side + half]).astype(float)
+            m = match_patches(np.ascontiguousarray(mosaic), centres, [images[k]], initial=uv[rows, k][:, None, :],
+                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach)
+            pos = m.positions[:, 0]
+            good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+                    & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
+            out[rows[good], k] = pos[good]
+            stale[rows[~good], k] = True
+        return out, stale

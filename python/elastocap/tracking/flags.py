@@ -1,0 +1,52 @@
+"""Why a tracked point has no position in a frame: the codes of ``Tracks.flags`` (the same
+integers as the Rust core's ``track::Flag``)."""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+__all__ = ["TrackFlag"]
+
+
+class TrackFlag(IntEnum):
+    """Flag of a point in a frame (``Tracks.flags``, uint8).
+
+    Attributes
+    ----------
+    TRACKED : 0
+        The position is valid.
+    NOT_SEEDED : 1
+        The point does not exist yet in this frame (seeded later), or was lost before it.
+    IMAGE_BORDER : 2
+        Its patch or search box left the image in the cameras that held it.
+    LOW_CORRELATION : 3
+        The box search's or the least-squares match's correlation fell below the threshold
+        (occlusion, change of appearance).
+    FORWARD_BACKWARD : 4
+        Matching back into the previous frame missed the start.
+    EPIPOLAR : 5
+        The cameras disagree: a view was a blunder in the forward intersection or its
+        reprojection residual exceeds the threshold.
+    VELOCITY : 6
+        Its 3-D speed exceeds the threshold.
+    ACCELERATION : 7
+        Its 3-D acceleration exceeds the threshold.
+    NONUNIFORM : 8
+        Its velocity differs from the median velocity of the neighbouring trajectories.
+    MATCH_FAILED : 9
+        Least-squares matching diverged or found too little texture.
+    FEW_VIEWS : 10
+        Fewer than two cameras kept it.
+    """
+
+    TRACKED = 0
+    NOT_SEEDED = 1
+    IMAGE_BORDER = 2
+    LOW_CORRELATION = 3
+    FORWARD_BACKWARD = 4
+    EPIPOLAR = 5
+    VELOCITY = 6
+    ACCELERATION = 7
+    NONUNIFORM = 8
+    MATCH_FAILED = 9
+    FEW_VIEWS = 10

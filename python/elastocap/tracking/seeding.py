@@ -1,0 +1,198 @@
+"""Seeding (issue 15 item 2): points at a fixed density over the textured mask area of each
+camera (one per ``spacing x spacing`` pixel cell, and at least one per mask region so that
+thin limbs get points), where no tracked point already lies; each seed's depth found by
+normalised cross-correlation along its ray inside the visual hull in a partner camera,
+refined by least-squares matching on the epipolar line, then confirmed by spatial matching
+into every other camera and forward intersection."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap import _core
+from elastocap.cameras import Camera
+from elastocap.stereo import match_patches
+from elastocap.stereo.matching import MatchStatus
+from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
+
+__all__ = ["seed_candidates", "seed_points"]
+
+# Depth samples along a seed's ray: enough that neighbouring samples project within about a
+# pixel of each other in a partner camera across the hull's depth.
+_DEPTHS = 96
+# Local maxima within this many samples of the best belong to its peak; the best must beat
+# every other local maximum by this much correlation.
+_PEAK_WIDTH = 3
+_UNIQUENESS = 0.1
+_COARSE = 120
+
+
+def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
+                    spacing: int, size: int, min_texture: float) -> NDArray[np.float64]:
+    """(M, 2) seed pixels of one camera: cell centres inside the mask eroded by the patch,
+    textured, in cells holding none of ``covered`` (K, 2); plus the most interior pixel of
+    every mask region that got no seed."""
+    h, w = mask.shape
+    reach = size // 2 + 2
+    kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
+    inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
+    texture = np.sqrt(np.maximum(cv2.cornerMinEigenVal(grey, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
+    cells = np.zeros(((h + spacing - 1) // spacing, (w + spacing - 1) // spacing), bool)
+    ok = np.isfinite(covered).all(axis=1)
+    if ok.any():
+        cu = np.clip((covered[ok, 0] // spacing).astype(int), 0, cells.shape[1] - 1)
+        cv = np.clip((covered[ok, 1] // spacing).astype(int), 0, cells.shape[0] - 1)
+        cells[cv, cu] = True
+    vs, us = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
+    pick = inner[vs, us] & (texture[vs, us] >= min_texture) & ~cells[vs // spacing, us // spacing]
+    seeds = [np.column_stack([us[pick], vs[pick]]).astype(float)]
+    count, labels = cv2.connectedComponents(inner.astype(np.uint8))
+    have = np.zeros(count, bool)
+    have[labels[vs[pick], us[pick]]] = True
+    if ok.any():
+        cu = np.clip(np.round(covered[ok, 0]).astype(int), 0, w - 1)
+        cv = np.clip(np.round(covered[ok, 1]).astype(int), 0, h - 1)
+        have[labels[cv, cu]] = True
+    if (~have[1:]).any():
+        distance = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
+        for region in np.flatnonzero(~have[1:]) + 1:
+            where = np.flatnonzero((labels == region).ravel())
+            best = where[np.argmax(distance.ravel()[where])]
+            seeds.append(np.array([[best % w, best // w]], float))
+    return np.concatenate(seeds)
+
+
+def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
+    """(C, C-1): the other cameras by angle between optical axes, nearest first."""
+    axes = np.array([cam.R[2] for cam in cameras])
+    cosine = axes @ axes.T
+    np.fill_diagonal(cosine, -np.inf)
+    return np.argsort(-cosine, axis=1)[:, :-1]
+
+
+def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
+                 masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
+    """Whether points lie inside every other camera's mask where they project into its
+    image, and are seen by at least half of them (the visual hull; space that few cameras
+    see is not bounded by it: right in front of a camera of a ring, the cameras across see
+    the space behind the subject and count it inside)."""
+    inside = np.isfinite(flat).all(axis=1)
+    x = np.nan_to_num(flat)
+    seen_by = np.zeros(len(x), int)
+    for other, mask in zip(cameras, masks):
+        if other is cam:
+            continue
+        uv, depth = other.project(x)
+        seen = (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < other.width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < other.height - 0.5)
+        iu = np.clip(np.nan_to_num(uv[:, 0]), -1, other.width).round().astype(int).clip(0, other.width - 1)
+        iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
+        inside &= ~seen | mask[iv, iu]
+        seen_by += seen
+    return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+
+
+def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
+                 masks: Sequence[NDArray[np.bool_]]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Ray samples (M, K, 3) from ``cam`` through ``seeds`` over the ray's first run inside
+    the visual hull (where the front surface lies): found on a coarse grid across the rig's
+    depth range, then sampled finely; and which of them lie inside the hull."""
+    origins, dirs = cam.rays(seeds)
+    dirs = np.nan_to_num(dirs)
+    centres = np.array([c.center for c in cameras])
+    reach = np.linalg.norm(centres - cam.center, axis=1).max()
+    coarse = np.linspace(0.05 * reach, 1.2 * reach, _COARSE)
+    step = coarse[1] - coarse[0]
+    points = origins[:, None, :] + coarse[None, :, None] * dirs[:, None, :]
+    hull = _inside_hull(points.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _COARSE)
+    first = np.argmax(hull, axis=1)
+    after = np.arange(_COARSE)[None, :] >= first[:, None]
+    run = hull & after & (np.cumsum(after & ~hull, axis=1) == 0)
+    last = _COARSE - 1 - np.argmax(run[:, ::-1], axis=1)
+    near = coarse[first] - step
+    far = coarse[last] + step
+    t = near[:, None] + (far - near)[:, None] * np.linspace(0, 1, _DEPTHS)[None, :]
+    fine = origins[:, None, :] + t[..., None] * dirs[:, None, :]
+    inside = _inside_hull(fine.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _DEPTHS)
+    inside &= hull.any(axis=1)[:, None]
+    return fine, inside
+
+
+def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
+                covered: NDArray[np.float64], *, spacing: int, size: int, min_correlation: float, min_views: int,
+                min_texture: float, tolerance: float, max_residual: float, floor: float) -> NDArray[np.float64]:
+    """New points: their views (M, C, 2; NaN where not matched; at least ``min_views``).
+
+    ``covered`` (N, C, 2) holds the tracked points' views; seeds go where no point lies, one
+    camera after the other (so a point seeded from one camera covers its cells in the
+    others)."""
+    c = len(cameras)
+    partners = _partners(cameras)
+    views: list[NDArray[np.float64]] = []
+    cover = [covered[:, k] for k in range(c)]
+    for k, cam in enumerate(cameras):
+        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture)
+        if len(seeds) == 0:
+            continue
+        points, hull = _hull_depths(cam, seeds, cameras, masks)
+        found = np.full((len(seeds), 2), np.nan)
+        partner_of = np.full(len(seeds), -1)
+        for p in partners[k][:2]:
+            todo = np.flatnonzero(np.isnan(found[:, 0]) & hull.any(axis=1))
+            if todo.size == 0:
+                break
+            other = cameras[p]
+            uv, _ = other.project(np.nan_to_num(points[todo].reshape(-1, 3)))
+            uv = uv.reshape(len(todo), _DEPTHS, 2)
+            uv[~hull[todo]] = -1e6  # outside any image: no score
+            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
+            scores = np.where(np.isfinite(scores), scores, -np.inf)
+            best = np.argmax(scores, axis=1)
+            peak = scores[np.arange(len(todo)), best]
+            # A repeated texture along the line makes a false match as likely as the true
+            # one: the best peak must stand out from every candidate away from it.
+            padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
+            local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
+            away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+            second = np.where(local & away, scores, -np.inf).max(axis=1)
+            good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+            rows, best = todo[good], best[good]
+            if rows.size == 0:
+                continue
+            lo = np.clip(best - 1, 0, _DEPTHS - 1)
+            hi = np.clip(best + 1, 0, _DEPTHS - 1)
+            a, _ = other.project(points[rows, lo])
+            b, _ = other.project(points[rows, hi])
+            line = np.column_stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0], a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]])
+            m = match_patches(images[k], seeds[rows], [images[p]], initial=uv[good, best][:, None, :],
+                              epipolar=line[:, None, :], size=size, min_texture=min_texture, max_iterations=20)
+            ok = (m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+            found[rows[ok]] = m.positions[ok, 0]
+            partner_of[rows[ok]] = p
+        rows = np.flatnonzero(partner_of >= 0)
+        if rows.size == 0:
+            continue
+        uv = np.full((rows.size, c, 2), np.nan)
+        uv[:, k] = seeds[rows]
+        uv[np.arange(rows.size), partner_of[rows]] = found[rows]
+        cov = np.where(np.isfinite(uv)[..., None], np.eye(2) * 0.01, np.nan)
+        x, _, pair, _ = intersect_views(cameras, uv, cov, max_residual=max_residual, floor=floor)
+        # Confirm in every other camera by spatial matching from the seed camera.
+        targets = project_all(cameras, x, margin=size)
+        targets[:, k] = np.nan
+        matched, mcov = spatial_match(images, np.full(rows.size, k), seeds[rows], targets, size=size,
+                                      min_correlation=min_correlation, tolerance=tolerance, min_texture=min_texture,
+                                      cameras=cameras, points=x, normals=facing_normals(cameras, x, pair))
+        matched[:, k] = seeds[rows]
+        mcov[:, k] = np.eye(2) * 1e-4
+        x, _, used, _ = intersect_views(cameras, matched, mcov, max_residual=max_residual, floor=floor)
+        keep = used.sum(axis=1) >= min_views
+        new = np.where(used[keep][..., None], matched[keep], np.nan)
+        views.append(new)
+        for j in range(c):
+            cover[j] = np.concatenate([cover[j], new[:, j]])
+    return np.concatenate(views) if views else np.zeros((0, c, 2))

@@ -1,0 +1,398 @@
+"""``track_points``: surface points followed through a capture (SPEC 7, issue 15).
+
+Per frame: every camera's points tracked from the previous frame in one Rust call
+(prediction, NCC box search, temporal LSM, forward-backward check; parallel over points,
+GIL released), the views of each point intersected (blunders rejected, residual threshold),
+the 3-D trajectories filtered (velocity, acceleration, local uniformity), lost views
+re-acquired by spatial LSM at the projection of the 3-D point, and new points seeded where
+the textured mask has none. Each frame is written to ``OUT/tracks/<frame:06d>.npz`` before
+the next starts, with the 2-D state, so that a run resumes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap import _core
+from elastocap._core import InvalidInputError
+from elastocap._validate import as_count, as_positive
+from elastocap.capture import Capture
+from elastocap.stereo.matching import noise_level
+from elastocap.tracking.anchors import Anchors
+from elastocap.tracking.filters import pixel_size, trajectory_flags
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.seeding import seed_points
+from elastocap.tracking.tracks import Tracks, frame_file, load_tracks, read_frame, write_frame
+from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
+
+__all__ = ["track_points"]
+
+# The matcher's covariance holds the noise of one match, not the drift of a chain of
+# them: each view gets this standard deviation (pixels) on top in the intersection.
+_FLOOR = 0.1
+# Least RMS gradient of a patch along its weakest direction, in multiples of the image's
+# noise level (smooth printed textures are weak at 11 px).
+_TEXTURE_OVER_NOISE = 1.0
+# Least correlation of the box search's peak (a start for least-squares matching).
+_BOX_CORRELATION = 0.5
+# Largest correction of a frame-to-frame match by its anchor, pixels.
+_ANCHOR_REACH = 1.5
+
+
+def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32))
+
+
+def _frames(capture: Capture, frames: Any) -> list[int]:
+    if frames is None:
+        return list(capture.frames)
+    chosen = [int(f) for f in np.atleast_1d(np.asarray(frames)).tolist()]
+    missing = sorted(set(chosen) - set(capture.frames))
+    if missing:
+        raise InvalidInputError(f"frames {missing[:5]} are not in the capture (it has {len(capture.frames)} frames)")
+    if chosen != sorted(set(chosen)):
+        raise InvalidInputError("frames must be increasing and without repeats")
+    return chosen
+
+
+def track_points(
+    capture: Capture,
+    *,
+    frames: Sequence[int] | None = None,
+    out: str | Path | None = None,
+    spacing: int = 10,
+    size: int = 15,
+    radius: int = 6,
+    min_correlation: float = 0.75,
+    forward_backward: float = 0.6,
+    max_residual: float = 1.5,
+    min_views: int = 2,
+    reseed_every: int = 5,
+    max_velocity: float = 40.0,
+    max_acceleration: float = 12.0,
+    uniformity: float = 4.0,
+    neighbours: int = 8,
+    anchor: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> Tracks:
+    """Track surface points through a capture in every camera and in 3-D.
+
+    Parameters
+    ----------
+    capture : Capture
+        Images, masks and calibrated cameras.
+    frames : sequence of int, optional, keyword-only
+        Increasing capture frame numbers to track through (default: all). Tracking runs
+        from one to the next whatever the gaps.
+    out : str or Path, optional, keyword-only
+        When given, each frame goes to ``OUT/tracks/<frame:06d>.npz`` as it is done, and a
+        run finding some of them resumes after the last (memory stays flat: the result is
+        read back with :func:`load_tracks`).
+    spacing : int, default 10, keyword-only
+        Seed density: one point per ``spacing x spacing`` pixel cell of textured mask area
+        per camera (and at least one per mask region).
+    size : int, default 15, keyword-only
+        Side of the matched patches, pixels (odd): printed textures on clothes are smooth
+        at 11 px.
+    radius : int, default 6, keyword-only
+        Half-side of the NCC search box around the linear prediction, pixels.
+    min_correlation : float, default 0.75, keyword-only
+        Least correlation of the box search, of each least-squares match and of the seeds.
+    forward_backward : float, default 0.6, keyword-only
+        Largest miss of the forward-backward check, pixels (the anchors keep the drift
+        that a looser check lets through from adding up).
+    max_residual : float, default 1.5, keyword-only
+        Largest reprojection residual of a view in the forward intersection, pixels.
+    min_views : int, default 2, keyword-only
+        Cameras a new seed must be matched in. Two views cannot reveal a false match by
+        their residual; the correlation peak along the epipolar line must then be unique.
+    reseed_every : int, default 5, keyword-only
+        Seed new points on the first frame and every this many frames after.
+    max_velocity, max_acceleration : float, default 40 and 12, keyword-only
+        Trajectory thresholds, pixel equivalents per frame (per frame squared).
+    uniformity : float, default 4, keyword-only
+        Largest deviation of a point's velocity from the median of its ``neighbours``
+        nearest tracked points, pixel equivalents per frame.
+    neighbours : int, default 8, keyword-only
+        Neighbouring trajectories of the uniformity filter.
+    anchor : bool, default True, keyword-only
+        Refine each frame-to-frame match against the view's first-appearance patch
+        (replaced when it stops matching), which stops the random-walk drift of chained
+        matches (:mod:`elastocap.tracking.anchors`).
+    progress : callable, optional, keyword-only
+        Called with each frame number once it is done.
+
+    Returns
+    -------
+    Tracks
+        ``positions`` NaN and ``flags`` the reason where a point is not tracked.
+
+    Raises
+    ------
+    InvalidInputError
+        Options out of range, frames not in the capture, a capture without masks.
+    """
+    if not capture.has_masks or not capture.has_images:
+        raise InvalidInputError("capture must have images and masks to track points")
+    chosen = _frames(capture, frames)
+    if not chosen:
+        raise InvalidInputError("frames is empty")
+    spacing = as_count("spacing", spacing, minimum=2)
+    size = as_count("size", size, minimum=3)
+    if size % 2 == 0:
+        raise InvalidInputError(f"size must be odd, got {size}")
+    radius = as_count("radius", radius, minimum=0)
+    if not -1 <= float(min_correlation) <= 1:
+        raise InvalidInputError(f"min_correlation must lie in [-1, 1], got {min_correlation!r}")
+    options = dict(
+        forward_backward=as_positive("forward_backward", forward_backward),
+        max_residual=as_positive("max_residual", max_residual),
+        min_views=as_count("min_views", min_views, minimum=2),
+        reseed_every=as_count("reseed_every", reseed_every),
+        max_velocity=as_positive("max_velocity", max_velocity),
+        max_acceleration=as_positive("max_acceleration", max_acceleration),
+        uniformity=as_positive("uniformity", uniformity),
+        neighbours=as_count("neighbours", neighbours, minimum=3),
+        anchor=bool(anchor),
+    )
+    tracker = _Tracker(capture, spacing, size, radius, float(min_correlation), options)
+    records: list[dict[str, NDArray[np.generic]]] = []
+    start = 0
+    if out is not None:
+        start = tracker.resume(out, chosen)
+    for i in range(start, len(chosen)):
+        record = tracker.step(chosen[i], first=i == 0, reseed=i % options["reseed_every"] == 0)
+        if out is not None:
+            write_frame(out, chosen[i], record)
+        else:
+            records.append({k: record[k] for k in ("ids", "positions", "covariances", "flags", "uv")})
+        if progress is not None:
+            progress(chosen[i])
+    if out is not None:
+        tracks = load_tracks(out)
+        keep = np.isin(tracks.frames, chosen)
+        return Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep],
+                      None if tracks.views is None else tracks.views[keep])
+    return _assemble(np.array(chosen, np.int64), records)
+
+
+def _assemble(frames: NDArray[np.int64], records: list[dict[str, NDArray[np.generic]]]) -> Tracks:
+    n = max((len(r["ids"]) for r in records), default=0)
+    f = len(records)
+    positions = np.full((f, n, 3), np.nan)
+    covariances = np.full((f, n, 3, 3), np.nan)
+    flags = np.full((f, n), TrackFlag.NOT_SEEDED, np.uint8)
+    c = records[0]["uv"].shape[1] if records else 0
+    views = np.full((f, n, c, 2), np.nan)
+    for i, r in enumerate(records):
+        m = len(r["ids"])
+        views[i, :m] = r["uv"]
+        positions[i, :m] = r["positions"]
+        covariances[i, :m] = r["covariances"]
+        flags[i, :m] = r["flags"]
+    ids = records[-1]["ids"].astype(np.int64) if records else np.zeros(0, np.int64)
+    return Tracks(frames=frames, ids=ids, positions=positions, covariances=covariances, flags=flags, views=views)
+
+
+class _Tracker:
+    """The state carried from frame to frame (all points, ids in order of seeding)."""
+
+    def __init__(self, capture: Capture, spacing: int, size: int, radius: int, min_correlation: float,
+                 options: dict[str, Any]) -> None:
+        self.capture = capture
+        self.names = capture.rig.names
+        self.cameras = capture.rig.cameras
+        self.spacing, self.size, self.radius, self.min_correlation = spacing, size, radius, min_correlation
+        self.o = options
+        c = len(self.cameras)
+        self.uv = np.zeros((0, c, 2))
+        self.uv_last = np.zeros((0, c, 2))
+        self.x_last = np.zeros((0, 3))
+        self.x_before = np.zeros((0, 3))
+        self.point_flags = np.zeros(0, np.uint8)
+        self.grey: list[NDArray[np.float32]] | None = None
+        self.anchors = Anchors(c, size) if options["anchor"] else None
+        self.texture: list[float] = []
+
+    def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
+        grey = [_grey(self.capture.image(name, frame)) for name in self.names]
+        masks = [self.capture.mask(name, frame) for name in self.names]
+        if not self.texture:
+            self.texture = [_TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
+        return grey, masks
+
+    def resume(self, out: str | Path, chosen: list[int]) -> int:
+        """Restores the state after the longest prefix of ``chosen`` already written;
+        returns the index to continue from."""
+        done = 0
+        while done < len(chosen) and frame_file(out, chosen[done]).exists():
+            done += 1
+        if done == 0:
+            return 0
+        last = read_frame(frame_file(out, chosen[done - 1]))
+        before = read_frame(frame_file(out, chosen[done - 2])) if done >= 2 else None
+        n = len(last["ids"])
+        self.uv = last["uv"].astype(float)
+        self.uv_last = np.full_like(self.uv, np.nan)
+        self.x_last = last["positions"].astype(float)
+        self.x_before = np.full((n, 3), np.nan)
+        if before is not None:
+            m = len(before["ids"])
+            self.uv_last[:m] = before["uv"]
+            self.x_before[:m] = before["positions"]
+        self.point_flags = last["flags"].astype(np.uint8)
+        self.grey, _ = self._read(chosen[done - 1])
+        if self.anchors is not None and "anchor_frame" in last:
+            where_frames = last["anchor_frame"]
+            for source in np.unique(where_frames[where_frames >= 0]):
+                grey = self.grey if source == chosen[done - 1] else self._read(int(source))[0]
+                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source))
+        return done
+
+    def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
+        grey, masks = self._read(frame)
+        n, c = self.uv.shape[:2]
+        alive = np.isfinite(self.uv).all(axis=2).any(axis=1)
+        if first or n == 0 or self.grey is None:
+            uv = np.full((n, c, 2), np.nan)
+            flags2d = np.full((n, c), TrackFlag.NOT_SEEDED, np.uint8)
+            cov2d = np.full((n, c, 2, 2), np.nan)
+            corr = np.full((n, c), np.nan)
+        else:
+            pos, f2d, cv2d, cr = _core.track_step(
+                self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
+                np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
+                min_correlation=min(self.min_correlation, _BOX_CORRELATION), forward_backward=self.o["forward_backward"],
+                min_texture=float(min(self.texture)))
+            uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
+            # The box search only has to find the start (it does not model rotation or
+            # scale); the least-squares match, which does, must reach the threshold.
+            weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
+            flags2d[weak] = TrackFlag.LOW_CORRELATION
+            uv = np.where(weak[..., None], np.nan, uv)
+            if self.anchors is not None:
+                uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=_ANCHOR_REACH,
+                                                 min_texture=float(min(self.texture)))
+                self.anchors.cut(grey, uv, stale, frame)
+        x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=_FLOOR)
+        flags2d[rejected] = TrackFlag.EPIPOLAR
+        pixel = pixel_size(self.cameras, x, used)
+        traj = trajectory_flags(x, self.x_last, self.x_before, pixel, max_velocity=self.o["max_velocity"],
+                                max_acceleration=self.o["max_acceleration"], uniformity=self.o["uniformity"],
+                                neighbours=self.o["neighbours"])
+        x[traj > 0] = np.nan
+        xcov[traj > 0] = np.nan
+        tracked = np.isfinite(x).all(axis=1)
+        # A point down to one view (occluded in the others) keeps it for a frame: its 3-D
+        # position predicted from the last two is where the others are searched again.
+        views = np.isfinite(uv[..., 0])
+        single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.isfinite(self.x_last).all(axis=1)
+        keep = (used & tracked[:, None]) | (views & single[:, None])
+        uv = np.where(keep[..., None], uv, np.nan)
+        flags = _point_flags(flags2d, self.uv, traj, tracked, alive, self.point_flags)
+        anchor = np.where(tracked[:, None], x, np.where(np.isfinite(self.x_before), 2 * self.x_last - self.x_before, self.x_last))
+        anchor[~(tracked | single)] = np.nan
+        found = tracked | single
+
+        # Lost views re-acquired by spatial matching from the view of best correlation.
+        if n and found.any():
+            targets = project_all(self.cameras, anchor, margin=self.size)
+            for k in range(c):
+                iu = np.clip(np.round(np.nan_to_num(targets[:, k, 0])).astype(int), 0, masks[k].shape[1] - 1)
+                iv = np.clip(np.round(np.nan_to_num(targets[:, k, 1])).astype(int), 0, masks[k].shape[0] - 1)
+                wanted = found & ~np.isfinite(uv[:, k, 0]) & masks[k][iv, iu]
+                targets[~wanted, k] = np.nan
+            score = np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0)
+            reference = np.argmax(score, axis=1)
+            rows = np.flatnonzero(np.isfinite(targets).all(axis=2).any(axis=1))
+            if rows.size:
+                matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
+                                              size=self.size, min_correlation=self.min_correlation,
+                                              tolerance=self.o["max_residual"] + 2.0 * single[rows],
+                                              min_texture=float(min(self.texture)), cameras=self.cameras,
+                                              points=anchor[rows], normals=facing_normals(self.cameras, anchor[rows], np.isfinite(uv[rows, :, 0])))
+                uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
+                cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
+                # Points that were down to one view and got others back: intersect now.
+                back = rows[single[rows] & (np.isfinite(uv[rows, :, 0]).sum(axis=1) >= 2)]
+                if back.size:
+                    bx, bcov, bused, _ = intersect_views(self.cameras, uv[back], cov2d[back],
+                                                         max_residual=self.o["max_residual"], floor=_FLOOR)
+                    ok = np.isfinite(bx).all(axis=1)
+                    x[back[ok]], xcov[back[ok]], flags[back[ok]] = bx[ok], bcov[ok], TrackFlag.TRACKED
+                    uv[back] = np.where((bused & ok[:, None])[..., None], uv[back], np.nan)
+        lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
+        uv[lone & ~single] = np.nan
+        # A single view that found no partner is given up.
+        uv[single & ~np.isfinite(x).all(axis=1) & lone] = np.nan
+        # Keep the prediction of a point that waits on one view (its next frame predicts on).
+        x_state = np.where((single & ~np.isfinite(x).all(axis=1))[:, None], anchor, x)
+
+        # New points where the textured masks have none.
+        if reseed:
+            new = seed_points(grey, masks, self.cameras, uv, spacing=self.spacing, size=self.size,
+                              min_correlation=self.min_correlation, min_views=self.o["min_views"],
+                              min_texture=float(min(self.texture)), tolerance=self.o["max_residual"],
+                              max_residual=self.o["max_residual"], floor=_FLOOR)
+            if len(new):
+                ncov = np.where(np.isfinite(new)[..., None], np.eye(2) * 0.01, np.nan)
+                nx, nxcov, nused, _ = intersect_views(self.cameras, new, ncov, max_residual=self.o["max_residual"], floor=_FLOOR)
+                ok = np.isfinite(nx).all(axis=1)
+                new, nx, nxcov, nused = new[ok], nx[ok], nxcov[ok], nused[ok]
+                new = np.where(nused[..., None], new, np.nan)
+                m = len(new)
+                uv = np.concatenate([uv, new])
+                x = np.concatenate([x, nx])
+                xcov = np.concatenate([xcov, nxcov])
+                flags = np.concatenate([flags, np.zeros(m, np.uint8)])
+                flags2d = np.concatenate([flags2d, np.where(nused, 0, TrackFlag.NOT_SEEDED).astype(np.uint8)])
+                self.uv = np.concatenate([self.uv, np.full((m, c, 2), np.nan)])
+                self.x_last = np.concatenate([self.x_last, np.full((m, 3), np.nan)])
+                self.x_before = np.concatenate([self.x_before, np.full((m, 3), np.nan)])
+        total = len(uv)
+        if self.anchors is not None:
+            views_now = np.isfinite(uv[..., 0])
+            self.anchors.grow(total)
+            self.anchors.drop(~views_now)
+            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame)
+        self.uv_last, self.uv = self.uv, uv
+        if len(x_state) < len(x):
+            x_state = np.concatenate([x_state, x[len(x_state):]])
+        self.x_before, self.x_last = self.x_last, x_state
+        self.point_flags = flags
+        self.grey = grey
+        return {
+            "ids": np.arange(total, dtype=np.int64),
+            "positions": x,
+            "covariances": xcov,
+            "flags": flags,
+            "uv": uv,
+            "flags2d": flags2d,
+            **({} if self.anchors is None else {
+                "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
+                "anchor_uv": self.anchors.uv[:total],
+            }),
+        }
+
+
+def _point_flags(flags2d: NDArray[np.uint8], previous: NDArray[np.float64], traj: NDArray[np.uint8],
+                 tracked: NDArray[np.bool_], alive: NDArray[np.bool_], before: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Per point: 0 where tracked; else the trajectory filter's flag; else the most common
+    2-D reason among the cameras that held it; a point dead before keeps its flag."""
+    n = len(tracked)
+    flags = np.zeros(n, np.uint8)
+    held = np.isfinite(previous).all(axis=2)
+    counts = np.zeros((n, len(TrackFlag)), int)
+    rows, cols = np.nonzero(held)
+    np.add.at(counts, (rows, flags2d[rows, cols]), 1)
+    counts[:, :2] = 0
+    reason = np.where(counts.any(axis=1), np.argmax(counts, axis=1), TrackFlag.FEW_VIEWS)
+    flags[~tracked] = reason[~tracked]
+    flags[traj > 0] = traj[traj > 0]
+    flags[~alive] = np.where(before[~alive] == 0, TrackFlag.NOT_SEEDED, before[~alive])
+    return flags

@@ -1,0 +1,172 @@
+//! Binding of point tracking: one frame of every camera, and correlation at candidates.
+
+use numpy::{
+    PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
+use pyo3::prelude::*;
+
+use super::{c_slice, invalid_input, rows};
+use crate::lsm::{ImageView, MatchOptions};
+use crate::track::{ncc_at, track_camera, CameraStep, TrackOptions};
+
+fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
+    let shape = image.shape();
+    Ok(ImageView {
+        data: c_slice(image, argument)?,
+        width: shape[1],
+        height: shape[0],
+    })
+}
+
+type Step<'py> = (
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<u8>>,
+    Bound<'py, PyArray4<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
+/// `(positions (C, N, 2), flags (C, N) uint8, covariance (C, N, 2, 2), correlation (C, N))`
+/// for C cameras' previous and current images (C-contiguous float32) and the points'
+/// positions `last` and `before` (C, N, 2) in the previous two frames.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (previous, current, last, before, *, size=11, radius=4,
+    min_correlation=0.8, forward_backward=0.3, max_iterations=15, min_texture=0.0))]
+fn track_step<'py>(
+    py: Python<'py>,
+    previous: Vec<PyReadonlyArray2<'py, f32>>,
+    current: Vec<PyReadonlyArray2<'py, f32>>,
+    last: PyReadonlyArray3<'py, f64>,
+    before: PyReadonlyArray3<'py, f64>,
+    size: usize,
+    radius: usize,
+    min_correlation: f64,
+    forward_backward: f64,
+    max_iterations: usize,
+    min_texture: f64,
+) -> PyResult<Step<'py>> {
+    let c = previous.len();
+    if current.len() != c {
+        return Err(invalid_input(format!(
+            "current must hold {c} images (one per camera of previous), got {}",
+            current.len()
+        )));
+    }
+    let shape = last.shape();
+    if shape.len() != 3 || shape[0] != c || shape[2] != 2 || before.shape() != shape {
+        return Err(invalid_input(format!(
+            "last and before must have shape ({c}, N, 2), got {:?} and {:?}",
+            shape,
+            before.shape()
+        )));
+    }
+    let n = shape[1];
+    let prev = previous
+        .iter()
+        .map(|i| view(i, "previous"))
+        .collect::<PyResult<Vec<_>>>()?;
+    let cur = current
+        .iter()
+        .map(|i| view(i, "current"))
+        .collect::<PyResult<Vec<_>>>()?;
+    let last_rows = c_slice(&last, "last")?.as_chunks::<2>().0;
+    let before_rows = c_slice(&before, "before")?.as_chunks::<2>().0;
+    let options = TrackOptions {
+        matching: MatchOptions {
+            size,
+            max_iterations,
+            max_shift: (size / 2) as f64,
+            min_texture,
+            ..MatchOptions::default()
+        },
+        radius,
+        min_correlation,
+        forward_backward,
+    };
+    let positions = PyArray3::<f64>::zeros(py, [c, n, 2], false);
+    let flags = PyArray2::<u8>::zeros(py, [c, n], false);
+    let covariance = PyArray4::<f64>::zeros(py, [c, n, 2, 2], false);
+    let correlation = PyArray2::<f64>::zeros(py, [c, n], false);
+    {
+        let mut positions_w = positions.readwrite();
+        let mut flags_w = flags.readwrite();
+        let mut covariance_w = covariance.readwrite();
+        let mut correlation_w = correlation.readwrite();
+        let positions_s = positions_w.as_slice_mut()?.as_chunks_mut::<2>().0;
+        let flags_s = flags_w.as_slice_mut()?;
+        let covariance_s = covariance_w.as_slice_mut()?.as_chunks_mut::<4>().0;
+        let correlation_s = correlation_w.as_slice_mut()?;
+        py.detach(|| {
+            for k in 0..c {
+                let range = k * n..(k + 1) * n;
+                track_camera(
+                    &prev[k],
+                    &cur[k],
+                    &last_rows[range.clone()],
+                    &before_rows[range.clone()],
+                    &options,
+                    CameraStep {
+                        positions: &mut positions_s[range.clone()],
+                        flags: &mut flags_s[range.clone()],
+                        covariance: &mut covariance_s[range.clone()],
+                        correlation: &mut correlation_s[range],
+                    },
+                )?;
+            }
+            Ok::<(), crate::Error>(())
+        })?;
+    }
+    Ok((positions, flags, covariance, correlation))
+}
+
+/// `(N, K)` correlation of the template patch around each of `points` (N, 2) with the
+/// patch of `search` around each of its `candidates` (N, K, 2); NaN where a patch leaves
+/// its image or is flat.
+#[pyfunction]
+#[pyo3(signature = (template, points, search, candidates, *, size=11))]
+fn track_ncc_at<'py>(
+    py: Python<'py>,
+    template: PyReadonlyArray2<'py, f32>,
+    points: PyReadonlyArray2<'py, f64>,
+    search: PyReadonlyArray2<'py, f32>,
+    candidates: PyReadonlyArray3<'py, f64>,
+    size: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    use rayon::prelude::*;
+    let t = view(&template, "template")?;
+    let s = view(&search, "search")?;
+    let p = rows::<2>(&points, "points")?;
+    let n = p.len();
+    let shape = candidates.shape();
+    if shape[0] != n || shape[2] != 2 {
+        return Err(invalid_input(format!(
+            "candidates must have shape ({n}, K, 2), got {shape:?}"
+        )));
+    }
+    if size < 3 || size % 2 == 0 || size > 255 {
+        return Err(invalid_input(format!(
+            "size must be an odd integer from 3 to 255, got {size}"
+        )));
+    }
+    let k = shape[1];
+    let cand = c_slice(&candidates, "candidates")?.as_chunks::<2>().0;
+    let scores = PyArray2::<f64>::zeros(py, [n, k], false);
+    {
+        let mut w = scores.readwrite();
+        let out = w.as_slice_mut()?;
+        py.detach(|| {
+            if k > 0 {
+                out.par_chunks_mut(k).enumerate().for_each(|(i, row)| {
+                    ncc_at(&t, p[i], &s, &cand[i * k..(i + 1) * k], size, row)
+                });
+            }
+        });
+    }
+    Ok(scores)
+}
+
+pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(track_step, m)?)?;
+    m.add_function(wrap_pyfunction!(track_ncc_at, m)?)
+}

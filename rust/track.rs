@@ -1,0 +1,27 @@
+//! Point tracking through time (SPEC 7, paper 003 section 3.2): per camera and point, a
+//! linear prediction from the last two positions, a search box by normalised
+//! cross-correlation around it, temporal least-squares matching (affine + radiometric,
+//! [`crate::lsm`]) of the previous frame's patch into the current frame, and a
+//! forward-backward check (the match found again from the current frame back into the
+//! previous one must land on the start).
+//!
+//! The template is the previous frame's patch, not the first appearance's: between two
+//! frames the affine change of a patch is small, so the Gauss-Newton starts close and
+//! converges in a few iterations whatever the deformation or rotation accumulated since
+//! the point was seeded (a first-appearance template stops matching once a limb has turned
+//! by ~30 degrees). The drift this costs is bounded by the forward-backward check and, in
+//! 3-D, by the cross-camera intersection with blunder rejection (done in Python, vectorised:
+//! `elastocap.tracking`).
+//!
+//! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
+//! `step` (one frame of one camera), `flags` (why a point is not tracked).
+
+mod flags;
+mod ncc;
+mod step;
+#[cfg(test)]
+mod tests;
+
+pub use flags::Flag;
+pub use ncc::{ncc_at, NccBest};
+pub use step::{track_camera, CameraStep, TrackOptions};

@@ -1,0 +1,208 @@
+//! Normalised cross-correlation of a template patch: over an integer box around a
+//! prediction (the tracker's search), and at arbitrary candidate centres (seeding along an
+//! epipolar line).
+//!
+//! The box search resamples one window of side `size + 2 radius` around the prediction
+//! (bilinear, at the prediction's sub-pixel offset) and slides the template over it by
+//! whole pixels, with the window's sums and sums of squares from summed-area tables: one
+//! dot product of `size^2` per shift. The peak is refined to sub-pixel by a parabola
+//! through it and its four neighbours.
+
+use crate::lsm::ImageView;
+
+/// Bilinear samples of a square window of side `side` centred on `centre` into `out`
+/// (row-major); false when the window is not inside the image.
+pub(crate) fn sample_window(
+    image: &ImageView<'_>,
+    centre: [f64; 2],
+    side: usize,
+    out: &mut Vec<f32>,
+) -> bool {
+    let half = (side / 2) as f64;
+    let (u0, v0) = (centre[0] - half, centre[1] - half);
+    let (w, h) = (image.width as f64, image.height as f64);
+    // Written so that NaN fails; the last sample needs its right/lower neighbour.
+    if !(u0 >= 0.0 && v0 >= 0.0 && u0 + side as f64 <= w - 1.0 && v0 + side as f64 <= h - 1.0)
+    {
+        return false;
+    }
+    let (iu, iv) = (u0.floor(), v0.floor());
+    let (tu, tv) = ((u0 - iu) as f32, (v0 - iv) as f32);
+    let (iu, iv) = (iu as usize, iv as usize);
+    let width = image.width;
+    out.clear();
+    for r in 0..side {
+        let row0 = &image.data[(iv + r) * width + iu..(iv + r) * width + iu + side + 1];
+        let row1 = &image.data[(iv + r + 1) * width + iu..(iv + r + 1) * width + iu + side + 1];
+        for c in 0..side {
+            let top = row0[c] + tu * (row0[c + 1] - row0[c]);
+            let bottom = row1[c] + tu * (row1[c + 1] - row1[c]);
+            out.push(top + tv * (bottom - top));
+        }
+    }
+    true
+}
+
+/// Mean-free template with unit norm; `None` for a flat patch.
+pub(crate) fn normalised(values: &[f32]) -> Option<Vec<f32>> {
+    let n = values.len() as f64;
+    let mean = values.iter().map(|&x| x as f64).sum::<f64>() / n;
+    let norm = values
+        .iter()
+        .map(|&x| (x as f64 - mean).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    (norm > 1e-9).then(|| {
+        values
+            .iter()
+            .map(|&x| ((x as f64 - mean) / norm) as f32)
+            .collect()
+    })
+}
+
+/// The best shift of a box search.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NccBest {
+    /// Sub-pixel centre of the best match, pixels.
+    pub centre: [f64; 2],
+    /// Its correlation (at the integer peak), -1..1.
+    pub score: f64,
+}
+
+/// Per-worker scratch of the box search.
+#[derive(Debug, Default)]
+pub(crate) struct BoxScratch {
+    template: Vec<f32>,
+    window: Vec<f32>,
+    sum: Vec<f64>,
+    square: Vec<f64>,
+    scores: Vec<f64>,
+}
+
+/// Searches the template patch (side `size`, around `point` in `template_image`) in
+/// `search` over integer shifts up to `radius` around `prediction`. `None` when a patch
+/// or the window leaves its image, or the template is flat.
+pub(crate) fn box_search(
+    template_image: &ImageView<'_>,
+    point: [f64; 2],
+    search: &ImageView<'_>,
+    prediction: [f64; 2],
+    size: usize,
+    radius: usize,
+    scratch: &mut BoxScratch,
+) -> Option<NccBest> {
+    if !sample_window(template_image, point, size, &mut scratch.template) {
+        return None;
+    }
+    let template = normalised(&scratch.template)?;
+    let side = size + 2 * radius;
+    if !sample_window(search, prediction, side, &mut scratch.window) {
+        return None;
+    }
+    // Summed-area tables of the window and its squares, (side + 1)^2.
+    let stride = side + 1;
+    scratch.sum.clear();
+    scratch.sum.resize(stride * stride, 0.0);
+    scratch.square.clear();
+    scratch.square.resize(stride * stride, 0.0);
+    for r in 0..side {
+        let (mut row, mut row2) = (0.0, 0.0);
+        for c in 0..side {
+            let x = scratch.window[r * side + c] as f64;
+            row += x;
+            row2 += x * x;
+            scratch.sum[(r + 1) * stride + c + 1] = scratch.sum[r * stride + c + 1] + row;
+            scratch.square[(r + 1) * stride + c + 1] = scratch.square[r * stride + c + 1] + row2;
+        }
+    }
+    let box_sum = |table: &[f64], r: usize, c: usize| {
+        table[(r + size) * stride + c + size] - table[r * stride + c + size]
+            - table[(r + size) * stride + c]
+            + table[r * stride + c]
+    };
+    let n = (size * size) as f64;
+    let shifts = 2 * radius + 1;
+    scratch.scores.clear();
+    let (mut best, mut best_at) = (f64::NEG_INFINITY, (radius, radius));
+    for r in 0..shifts {
+        for c in 0..shifts {
+            let mut dot = 0.0f32;
+            for tr in 0..size {
+                let w = &scratch.window[(r + tr) * side + c..(r + tr) * side + c + size];
+                let t = &template[tr * size..(tr + 1) * size];
+                dot += w.iter().zip(t).map(|(a, b)| a * b).sum::<f32>();
+            }
+            let s = box_sum(&scratch.sum, r, c);
+            let ss = box_sum(&scratch.square, r, c);
+            let variance = ss - s * s / n;
+            // The template is mean-free, so the window's mean drops out of the dot product.
+            let score = if variance > 1e-9 {
+                dot as f64 / variance.sqrt()
+            } else {
+                0.0
+            };
+            scratch.scores.push(score);
+            if score > best {
+                best = score;
+                best_at = (r, c);
+            }
+        }
+    }
+    let (r, c) = best_at;
+    let at = |r: usize, c: usize| scratch.scores[r * shifts + c];
+    let vertex = |minus: f64, centre: f64, plus: f64| {
+        let curvature = minus - 2.0 * centre + plus;
+        if curvature < 0.0 {
+            (0.5 * (minus - plus) / curvature).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let du = if c > 0 && c + 1 < shifts {
+        vertex(at(r, c - 1), best, at(r, c + 1))
+    } else {
+        0.0
+    };
+    let dv = if r > 0 && r + 1 < shifts {
+        vertex(at(r - 1, c), best, at(r + 1, c))
+    } else {
+        0.0
+    };
+    Some(NccBest {
+        centre: [
+            prediction[0] + (c as f64 - radius as f64) + du,
+            prediction[1] + (r as f64 - radius as f64) + dv,
+        ],
+        score: best,
+    })
+}
+
+/// Correlation of the template patch around `point` with the patch of `search` around
+/// each of `candidates` (bilinear at sub-pixel centres); NaN where a patch leaves its image
+/// or is flat. Writes `scores[k]` for `candidates[k]`.
+pub fn ncc_at(
+    template_image: &ImageView<'_>,
+    point: [f64; 2],
+    search: &ImageView<'_>,
+    candidates: &[[f64; 2]],
+    size: usize,
+    scores: &mut [f64],
+) {
+    let mut values = Vec::with_capacity(size * size);
+    let template = if sample_window(template_image, point, size, &mut values) {
+        normalised(&values)
+    } else {
+        None
+    };
+    for (score, &candidate) in scores.iter_mut().zip(candidates) {
+        *score = match &template {
+            Some(t) if sample_window(search, candidate, size, &mut values) => {
+                match normalised(&values) {
+                    Some(s) => t.iter().zip(&s).map(|(a, b)| (a * b) as f64).sum(),
+                    None => f64::NAN,
+                }
+            }
+            _ => f64::NAN,
+        };
+    }
+}

@@ -1,0 +1,124 @@
+use super::*;
+use crate::lsm::ImageView;
+
+/// A smooth random texture (sum of sines), shifted by `shift` pixels.
+fn texture(width: usize, height: usize, shift: [f64; 2]) -> Vec<f32> {
+    let waves = [
+        (0.31, 0.17, 0.0, 40.0),
+        (-0.23, 0.29, 1.0, 35.0),
+        (0.11, -0.41, 2.0, 25.0),
+        (0.47, 0.07, 3.0, 20.0),
+        (0.05, 0.53, 4.0, 15.0),
+    ];
+    let mut data = Vec::with_capacity(width * height);
+    for v in 0..height {
+        for u in 0..width {
+            let (x, y) = (u as f64 - shift[0], v as f64 - shift[1]);
+            let g: f64 = waves
+                .iter()
+                .map(|&(a, b, p, amp)| amp * (a * x + b * y + p).sin())
+                .sum();
+            data.push((128.0 + g) as f32);
+        }
+    }
+    data
+}
+
+fn step(
+    previous: &[f32],
+    current: &[f32],
+    last: &[[f64; 2]],
+    before: &[[f64; 2]],
+) -> (Vec<[f64; 2]>, Vec<u8>) {
+    let (w, h) = (120, 100);
+    let prev = ImageView {
+        data: previous,
+        width: w,
+        height: h,
+    };
+    let cur = ImageView {
+        data: current,
+        width: w,
+        height: h,
+    };
+    let n = last.len();
+    let mut positions = vec![[0.0; 2]; n];
+    let mut flags = vec![0u8; n];
+    let mut covariance = vec![[0.0; 4]; n];
+    let mut correlation = vec![0.0; n];
+    track_camera(
+        &prev,
+        &cur,
+        last,
+        before,
+        &TrackOptions::default(),
+        CameraStep {
+            positions: &mut positions,
+            flags: &mut flags,
+            covariance: &mut covariance,
+            correlation: &mut correlation,
+        },
+    )
+    .unwrap();
+    (positions, flags)
+}
+
+#[test]
+fn tracks_a_known_shift_with_prediction() {
+    // Moved (11.3, -9.6) px; the prediction from the last two positions says (11, -10).
+    let shift = [11.3, -9.6];
+    let (a, b) = (texture(120, 100, [0.0; 2]), texture(120, 100, shift));
+    let last = [[35.0, 60.0], [50.2, 55.7], [70.0, 65.0]];
+    let before: Vec<_> = last.iter().map(|p| [p[0] - 11.0, p[1] + 10.0]).collect();
+    let (positions, flags) = step(&a, &b, &last, &before);
+    for (p, x) in last.iter().enumerate() {
+        assert_eq!(flags[p], Flag::Tracked as u8);
+        let e = (positions[p][0] - x[0] - shift[0]).hypot(positions[p][1] - x[1] - shift[1]);
+        assert!(e < 0.02, "point {p}: error {e}");
+    }
+    // Without the prediction the shift lies outside the box: not tracked, and flagged.
+    let (_, flags) = step(&a, &b, &last, &[[f64::NAN; 2]; 3]);
+    assert!(flags.iter().all(|&f| f != Flag::Tracked as u8), "{flags:?}");
+}
+
+#[test]
+fn flags_border_unseeded_and_occlusion() {
+    let (a, mut b) = (texture(120, 100, [0.0; 2]), texture(120, 100, [1.0, 0.5]));
+    // Occlude the neighbourhood of (60, 50) with another texture.
+    let other = texture(120, 100, [37.0, 11.0]);
+    for v in 35..65 {
+        for u in 45..75 {
+            b[v * 120 + u] = 255.0 - other[v * 120 + u];
+        }
+    }
+    let last = [[60.0, 50.0], [3.0, 50.0], [f64::NAN, f64::NAN], [20.0, 20.0]];
+    let (positions, flags) = step(&a, &b, &last, &[[f64::NAN; 2]; 4]);
+    assert_eq!(flags[0], Flag::LowCorrelation as u8);
+    assert_eq!(flags[1], Flag::ImageBorder as u8);
+    assert_eq!(flags[2], Flag::NotSeeded as u8);
+    assert_eq!(flags[3], Flag::Tracked as u8);
+    assert!(positions[0][0].is_nan() && positions[3][0].is_finite());
+}
+
+#[test]
+fn ncc_at_peaks_at_the_match() {
+    let (a, b) = (texture(120, 100, [0.0; 2]), texture(120, 100, [2.5, 1.0]));
+    let (ta, tb) = (
+        ImageView {
+            data: &a,
+            width: 120,
+            height: 100,
+        },
+        ImageView {
+            data: &b,
+            width: 120,
+            height: 100,
+        },
+    );
+    let candidates: Vec<[f64; 2]> = (0..11).map(|k| [55.0 + 0.5 * k as f64, 51.0]).collect();
+    let mut scores = vec![0.0; candidates.len()];
+    ncc_at(&ta, [55.0, 50.0], &tb, &candidates, 11, &mut scores);
+    let best = (0..11).max_by(|&i, &j| scores[i].total_cmp(&scores[j])).unwrap();
+    assert_eq!(best, 5, "{scores:?}");
+    assert!(scores[5] > 0.999);
+}
