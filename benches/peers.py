@@ -23,7 +23,7 @@ from peer_cases.geometry import mesh_distance_cases, polar_cases, sdf_cases
 from peer_cases.hull import carve_cases, memory_cases
 from peer_cases.neighbors import knn_cases, radius_cases
 from peer_cases.silhouettes import snake_cases
-from peer_cases.stereo import disparity_cases, lsm_cases
+from peer_cases.stereo import dense_cases, disparity_cases, lsm_cases
 from peer_cases.tracking import track_cases
 
 # Group name -> cases; ``python benches/peers.py NAME`` runs the groups whose name contains NAME.
@@ -43,6 +43,7 @@ CASES: dict[str, Callable[[int], list[dict[str, Any]]]] = {
     "disparity": disparity_cases,
     "snake": snake_cases,
     "lsm": lsm_cases,
+    "dense": dense_cases,
     "track": track_cases,
 }
 

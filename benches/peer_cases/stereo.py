@@ -1,4 +1,5 @@
-"""Stereo: disparity on Tsukuba against StereoSGBM, least-squares matching against ECC."""
+"""Stereo: disparity on Tsukuba against StereoSGBM, least-squares matching against ECC, dense
+points on the textured synthetic capture against SGBM's own points."""
 
 from __future__ import annotations
 
@@ -169,3 +170,108 @@ def lsm_cases(repeats: int) -> list[dict[str, Any]]:
         }
     )
     return rows
+
+
+# ------------------------------------------------------------------------------------------
+# Dense points on the textured synthetic capture (issue 14 item 7)
+# ------------------------------------------------------------------------------------------
+
+# Textured captures written once per seed (1024 x 768, 8 cameras in 4 pairs).
+DENSE_CAPTURES = "/tmp/elastocap_bench_textured"
+
+
+def textured_capture(seed: int, frames: int = 2) -> str:
+    """The textured synthetic capture of ``seed`` (written on first use, then reused)."""
+    from elastocap.synth import write_textured_capture
+
+    root = f"{DENSE_CAPTURES}/seed{seed}"
+    write_textured_capture(root, frames=frames, cameras=8, seed=seed, progress=False)
+    return root
+
+
+def score_points(points: np.ndarray, pixels: np.ndarray, pair: Any, truth: Any, mesh: Any, frame: int, step: float) -> dict[str, float]:
+    """Issue 14's figures for one pair's points: distance to the ground-truth mesh in pixels
+    of disparity (``distance * f B / Z^2``) and metres, the depth of 0.3 px of disparity,
+    the share beyond 5 px, and the coverage of the surface points both cameras see (a point
+    is covered when a template pixel lies within ``1.5 step`` px of its projection)."""
+    from scipy.spatial import cKDTree
+
+    distance = mesh.distances(points)
+    depth = pair.left.to_camera(points)[:, 2]
+    per_metre = pair.focal * pair.baseline / depth**2
+    error = distance * per_metre
+    left, right = truth.cameras.index(pair.left.name), truth.cameras.index(pair.right.name)
+    both = truth.visible[frame, left] & truth.visible[frame, right]
+    uv, _ = pair.left.project(truth.positions[frame][both])
+    nearest = cKDTree(pixels).query(uv)[0] if len(pixels) else np.full(len(uv), np.inf)
+    return {
+        "points": len(points),
+        "median_px": float(np.median(error)),
+        "median_mm": 1000 * float(np.median(distance)),
+        "depth_of_0.3px_mm": 1000 * float(np.median(0.3 / per_metre)),
+        "beyond_5px": float((error > 5).mean()),
+        "coverage": float((nearest <= 1.5 * step).mean()),
+    }
+
+
+def evaluate_dense(root: str, frames: list[int], **options: Any) -> list[dict[str, Any]]:
+    """Per frame and pair: the stage's dense points (ours) and SGBM's checked disparity
+    points in the same silhouette (the peer), scored by :func:`score_points`, with times."""
+    import cv2
+    import trimesh
+
+    from elastocap import Capture
+    from elastocap.geometry.mesh_distance import TriangleMesh
+    from elastocap.pipeline.stereo import read_stereo_pairs
+    from elastocap.stereo import rectify_pair
+    from elastocap.stereo.disparity_stage import disparity_to_points, pair_disparity
+    from elastocap.stereo.points import pair_points
+    from elastocap.synth import load_textured_truth
+
+    capture, truth = Capture.open(root), load_textured_truth(root)
+    volume = np.array([[-1.5, -0.3, -1.5], [1.5, 2.1, 1.5]])
+    rows = []
+    for frame in frames:
+        mesh = TriangleMesh(trimesh.load(truth.mesh_path(frame)))
+        for left_name, right_name in read_stereo_pairs(root, capture.rig) or []:
+            pair = rectify_pair(capture.rig[left_name], capture.rig[right_name])
+            pair.maps  # built once per pair in the stage; not timed
+            left, right = capture.image(pair.left.name, frame), capture.image(pair.right.name, frame)
+            silhouette = capture.mask(pair.left.name, frame)
+            mask = cv2.dilate(silhouette.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+            start = time.perf_counter()
+            ours = pair_points(pair, left, right, volume, mask=mask, **options)
+            ours_s = time.perf_counter() - start
+            start = time.perf_counter()
+            sgbm = pair_disparity(pair, left, right, volume, fill=False)
+            inside = pair.rectify(silhouette.astype(np.uint8), silhouette.astype(np.uint8), interpolation=cv2.INTER_NEAREST)[0] > 0
+            peer_points, peer_pixels = disparity_to_points(sgbm.disparity.disparity, pair, mask=sgbm.disparity.valid & inside)
+            peer_s = time.perf_counter() - start
+            # The peer's pixels are rectified: its coverage is measured in the left original.
+            peer_original = pair.left.project(peer_points)[0]
+            rows.append({
+                "frame": frame, "pair": pair.name, "ours_s": round(ours_s, 3), "peer_s": round(peer_s, 3),
+                "ours": score_points(ours.points, ours.pixels, pair, truth, mesh, frame, options.get("step", 2)),
+                "sgbm": score_points(peer_points, peer_original, pair, truth, mesh, frame, 1.0),
+            })
+    return rows
+
+
+def dense_cases(repeats: int) -> list[dict[str, Any]]:
+    """Dense points of one pair of the textured capture (seed 2, held out from tuning):
+    the stereo stage's pair_points (SGBM seeds + region-grown LSM + intersection) against
+    SGBM's own checked points, time and accuracy in one row."""
+    root = textured_capture(2)
+    rows = evaluate_dense(root, [0])
+    first = rows[0]
+    return [{
+        "case": f"dense_points_{first['pair']}_1024x768",
+        "n": first["ours"]["points"],
+        "ours_s": first["ours_s"],
+        "peer": "StereoSGBM checked disparity -> points",
+        "peer_s": first["peer_s"],
+        "ratio": round(first["peer_s"] / first["ours_s"], 2),
+        "repeats": 1,
+        "ours_accuracy": first["ours"],
+        "peer_accuracy": first["sgbm"],
+    }]

@@ -24,6 +24,7 @@ from elastocap.hull import SDF, Grid, Hull, signed_distance, visual_hull
 from elastocap.pipeline import load_hull, run_fit_stage, run_hull_stage
 from elastocap.silhouettes import clean_mask, refine_silhouette, segment_dark_background
 from elastocap.silhouettes import subtract_background, threshold_dark_background
+from elastocap.stereo import grow_matches, intersect, match_patches
 from elastocap.tracking import Tracks, load_tracks, track_points
 
 _moved.install()
@@ -60,9 +61,12 @@ __all__ = [
     "clean_mask",
     "fit_body",
     "fit_sequence",
+    "grow_matches",
+    "intersect",
     "knn",
     "load_hull",
     "load_tracks",
+    "match_patches",
     "mls_shape_functions",
     "polar_rotation",
     "radius_neighbors",

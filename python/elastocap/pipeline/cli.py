@@ -151,6 +151,31 @@ def _silhouettes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _stereo(args: argparse.Namespace) -> int:
+    from elastocap.capture.folder import Capture
+    from elastocap.pipeline.hull import parse_frames
+    from elastocap.pipeline.stereo import run_stereo_stage
+
+    from elastocap._core import InvalidInputError
+
+    capture = Capture.open(args.capture)
+    volume = None
+    if args.volume is not None:
+        try:
+            volume = [float(x) for x in args.volume.split(",")]
+        except ValueError:
+            raise InvalidInputError(f"--volume must be six numbers x0,y0,z0,x1,y1,z1, got {args.volume!r}") from None
+        if len(volume) != 6:
+            raise InvalidInputError(f"--volume must be six numbers x0,y0,z0,x1,y1,z1, got {args.volume!r}")
+        volume = [volume[:3], volume[3:]]
+    written = run_stereo_stage(
+        capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), volume=volume, step=args.step,
+        pictures=not args.no_pictures, progress=not args.quiet,
+    )
+    print(f"wrote the points of {len(written)} frame(s) into {Path(args.out) / 'points'}")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="elastocap",
@@ -336,6 +361,26 @@ def _parser() -> argparse.ArgumentParser:
     silhouettes.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     silhouettes.add_argument("--quiet", action="store_true", help="no progress bar")
     silhouettes.set_defaults(run=_silhouettes)
+    stereo = commands.add_parser(
+        "stereo",
+        help="dense 3-D points per frame from the capture's stereo pairs",
+        description="For every frame and every camera pair or triplet named in CAPTURE/stereo.json "
+        "(else pairs chosen by baseline): SGBM seeds, least-squares matches grown over the left "
+        "image, forward intersection with each match's covariance. Writes OUT/points/<frame>.ply "
+        "(x, y, z, colour, sigma) and .npz, OUT/disparity/<pair>/<frame>.png|.npz and "
+        "OUT/pictures/stereo/<frame>.png. Frames already written are skipped.",
+    )
+    stereo.add_argument("capture", metavar="CAPTURE", help="capture folder (calibration, images/; masks/ optional)")
+    stereo.add_argument("--out", required=True, help="output folder")
+    stereo.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    stereo.add_argument(
+        "--volume", default=None,
+        help="capture volume --volume=x0,y0,z0,x1,y1,z1 in world units (default: the box every camera sees)",
+    )
+    stereo.add_argument("--step", type=int, default=2, help="spacing of the matched points in the left image, pixels (default: 2)")
+    stereo.add_argument("--no-pictures", action="store_true", help="do not write OUT/pictures/stereo")
+    stereo.add_argument("--quiet", action="store_true", help="no progress bar")
+    stereo.set_defaults(run=_stereo)
     return parser
 
 

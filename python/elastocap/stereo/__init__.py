@@ -1,6 +1,7 @@
 """Stereo: board calibration, rectification with elastocap's camera model (skew and
 distortion), SGBM disparity with a left-right check, disparity -> world points and masks;
-least-squares matching and forward intersection (SPEC 7)."""
+least-squares matching, dense matching by region growing and forward intersection (SPEC 7),
+dense points of a pair."""
 
 from elastocap.stereo.board import BoardRenderer, CharucoTarget, Chessboard, random_board_poses
 from elastocap.stereo.calibration import CameraCalibration, UnderdeterminedCalibrationWarning, calibrate_camera
@@ -11,6 +12,8 @@ from elastocap.stereo.disparity_stage import PairDisparity, disparity_mask, disp
 from elastocap.stereo.rectify import RectifiedPair, rectify_pair
 from elastocap.stereo.intersection import Intersection, intersect, match_observations
 from elastocap.stereo.matching import PARAMETERS, Matches, MatchStatus, match_patches, noise_level
+from elastocap.stereo.dense import DenseMatches, grow_matches
+from elastocap.stereo.points import PairPoints, pair_points
 
 __all__ = [
     "BoardRenderer",
@@ -46,4 +49,8 @@ __all__ = [
     "Matches",
     "match_patches",
     "noise_level",
+    "DenseMatches",
+    "grow_matches",
+    "PairPoints",
+    "pair_points",
 ]

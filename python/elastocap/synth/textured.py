@@ -295,9 +295,8 @@ def _write_frame(root: Path, figure: CapsuleFigure, rig: Rig, frame: int, seed: 
 def _write_surface_points(root: Path, figure: CapsuleFigure, rig: Rig, frames: int, count: int, seed: int) -> None:
     path = root / "ground_truth" / "surface_points.npz"
     if path.exists():
-        with np.load(path) as previous:
-            if len(previous["frames"]) == frames:
-                return
+        if len(load_npz(path, required=["frames"])["frames"]) == frames:
+            return
     if not all(_frame_complete(root, rig, n) for n in range(frames)):
         return
     part, local = seed_material_points(figure, count, spacing=_SPACING, seed=seed)
