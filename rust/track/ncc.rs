@@ -22,8 +22,7 @@ pub(crate) fn sample_window(
     let (u0, v0) = (centre[0] - half, centre[1] - half);
     let (w, h) = (image.width as f64, image.height as f64);
     // Written so that NaN fails; the last sample needs its right/lower neighbour.
-    if !(u0 >= 0.0 && v0 >= 0.0 && u0 + side as f64 <= w - 1.0 && v0 + side as f64 <= h - 1.0)
-    {
+    if !(u0 >= 0.0 && v0 >= 0.0 && u0 + side as f64 <= w - 1.0 && v0 + side as f64 <= h - 1.0) {
         return false;
     }
     let (iu, iv) = (u0.floor(), v0.floor());
@@ -116,7 +115,8 @@ pub(crate) fn box_search(
         }
     }
     let box_sum = |table: &[f64], r: usize, c: usize| {
-        table[(r + size) * stride + c + size] - table[r * stride + c + size]
+        table[(r + size) * stride + c + size]
+            - table[r * stride + c + size]
             - table[(r + size) * stride + c]
             + table[r * stride + c]
     };

@@ -106,7 +106,11 @@ pub fn track_camera(
         ));
     }
     if options.radius > 64 {
-        return Err(invalid("radius", options.radius as f64, "at most 64 pixels"));
+        return Err(invalid(
+            "radius",
+            options.radius as f64,
+            "at most 64 pixels",
+        ));
     }
     let size = options.matching.size;
     if size < 3 || size % 2 == 0 || size > 255 {

@@ -91,7 +91,12 @@ fn flags_border_unseeded_and_occlusion() {
             b[v * 120 + u] = 255.0 - other[v * 120 + u];
         }
     }
-    let last = [[60.0, 50.0], [3.0, 50.0], [f64::NAN, f64::NAN], [20.0, 20.0]];
+    let last = [
+        [60.0, 50.0],
+        [3.0, 50.0],
+        [f64::NAN, f64::NAN],
+        [20.0, 20.0],
+    ];
     let (positions, flags) = step(&a, &b, &last, &[[f64::NAN; 2]; 4]);
     assert_eq!(flags[0], Flag::LowCorrelation as u8);
     assert_eq!(flags[1], Flag::ImageBorder as u8);
@@ -118,7 +123,9 @@ fn ncc_at_peaks_at_the_match() {
     let candidates: Vec<[f64; 2]> = (0..11).map(|k| [55.0 + 0.5 * k as f64, 51.0]).collect();
     let mut scores = vec![0.0; candidates.len()];
     ncc_at(&ta, [55.0, 50.0], &tb, &candidates, 11, &mut scores);
-    let best = (0..11).max_by(|&i, &j| scores[i].total_cmp(&scores[j])).unwrap();
+    let best = (0..11)
+        .max_by(|&i, &j| scores[i].total_cmp(&scores[j]))
+        .unwrap();
     assert_eq!(best, 5, "{scores:?}");
     assert!(scores[5] > 0.999);
 }
