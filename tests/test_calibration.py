@@ -10,7 +10,7 @@ import pytest
 from data_paths import SHARED_DATA
 
 from elastocap import Camera, InvalidInputError, Rig
-from elastocap.cli import main
+from elastocap.pipeline.cli import main
 from elastocap.stereo.board import BoardRenderer, CharucoTarget, Chessboard, random_board_poses, subpixel_rays
 from elastocap.stereo.calibration import UnderdeterminedCalibrationWarning, calibrate_camera
 from elastocap.stereo.calibration_cli import board_images
