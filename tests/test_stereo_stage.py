@@ -99,3 +99,20 @@ def test_pairs_read_or_chosen_by_baseline(tmp_path: Path) -> None:
     with pytest.raises(InvalidInputError, match="stereo_pairs"):
         read_stereo_pairs(tmp_path, rig)
     assert isinstance(rig, Rig)
+
+
+def test_black_images_give_no_points_and_a_warning(stage: tuple[Path, Path, list[int]], tmp_path: Path) -> None:
+    # No disparity (blank images), so no seed: the frame is written with no point,
+    # the disparity stage's warning says why (it once crashed in cv2.remap on empty maps).
+    import shutil
+
+    from elastocap.stereo.disparity import DisparityWarning
+
+    capture = tmp_path / "capture"
+    shutil.copytree(stage[0], capture)
+    for image in (capture / "images").rglob("*.png"):
+        cv2.imwrite(str(image), np.zeros(cv2.imread(str(image)).shape, np.uint8))
+    with pytest.warns(DisparityWarning, match="no disparity"):
+        assert run_stereo_stage(capture, tmp_path / "out", volume=VOLUME, progress=False) == [0]
+    with np.load(tmp_path / "out" / "points" / "000000.npz") as frame:
+        assert frame["points"].shape == (0, 3) and frame["sigma"].shape == (0,)

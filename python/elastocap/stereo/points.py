@@ -88,6 +88,9 @@ def seeds_from_disparity(
         usable &= result.mask
     rows, columns = np.mgrid[spacing // 2 : d.shape[0] : spacing, spacing // 2 : d.shape[1] : spacing]
     keep = usable[rows, columns]
+    if not keep.any():
+        # No checked disparity in the volume (cv2.remap refuses empty maps).
+        return np.empty((0, 2)), np.empty((0, 2))
     v, u = rows[keep].astype(np.float64), columns[keep].astype(np.float64)
     ur = u - d[rows[keep], columns[keep]]
     (lx, ly), (rx, ry) = result.pair.maps
