@@ -78,6 +78,12 @@ def test_files_picture_and_resume(stage: tuple[Path, Path, list[int]]) -> None:
     disparity_mask = cv2.imread(str(out / "disparity" / "cam00" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
     silhouette = cv2.imread(str(capture / "masks" / "cam00" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
     assert (disparity_mask & silhouette).sum() > 0.5 * silhouette.sum()
+    # ... and in the right camera's (the left's points projected), covering its figure as much.
+    right_mask = cv2.imread(str(out / "disparity" / "cam01" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
+    right_silhouette = cv2.imread(str(capture / "masks" / "cam01" / "000000.png"), cv2.IMREAD_GRAYSCALE) > 0
+    assert right_mask.shape == right_silhouette.shape
+    left_cover = (disparity_mask & silhouette).sum() / silhouette.sum()
+    assert (right_mask & right_silhouette).sum() / right_silhouette.sum() > left_cover - 0.1
     before = (out / "points" / "000000.npz").stat().st_mtime_ns
     assert run_stereo_stage(capture, out, volume=VOLUME, progress=False) == []
     assert main(["stereo", str(capture), "--out", str(out), "--volume=-1.5,-0.3,-1.5,1.5,2.1,1.5", "--quiet"]) == 0

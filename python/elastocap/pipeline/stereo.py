@@ -186,10 +186,32 @@ def run_stereo_stage(
             # The silhouette stage reads the disparity mask per camera, in its own pixels.
             save_image(out / "disparity" / pair.left.name / f"{frame:06d}.png", result.disparity.mask_original.astype(np.uint8) * 255)
             results.append(result)
+        # The silhouette stage needs a disparity mask in every camera: a camera that is only
+        # ever a pair's right one gets the left's masked points projected into it.
+        lefts = {pair.left.name for pair in rectified}
+        for pair, result in zip(rectified, results):
+            if pair.right.name not in lefts:
+                mask = projected_mask(pair.right, result.disparity.points)
+                save_image(out / "disparity" / pair.right.name / f"{frame:06d}.png", mask.astype(np.uint8) * 255)
         _write_frame(out, frame, results)
         if pictures:
             save_image(out / "pictures" / "stereo" / f"{frame:06d}.png", stereo_picture(cap, frame, results))
     return todo
+
+
+def projected_mask(camera: Any, points: NDArray[np.float64], *, closing: int = 3) -> NDArray[np.bool_]:
+    """The pixels of ``camera`` that world ``points`` (N, 3) fall in, closed by an elliptic
+    element of radius ``closing`` pixels: a mask from another view's dense points (its
+    neighbour in a short-baseline pair sees nearly the same surface)."""
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    if len(points):
+        uv, depth = camera.project(points)
+        ij = np.rint(uv).astype(np.int64)
+        keep = (depth > 0) & (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < camera.width) & (ij[:, 1] < camera.height)
+        mask[ij[keep, 1], ij[keep, 0]] = 1
+        element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * closing + 1, 2 * closing + 1))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, element)
+    return mask > 0
 
 
 def _write_frame(out: Path, frame: int, results: list[PairPoints]) -> None:

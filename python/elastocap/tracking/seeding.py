@@ -159,7 +159,9 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
             away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
             second = np.where(local & away, scores, -np.inf).max(axis=1)
-            good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+            # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
+            with np.errstate(invalid="ignore"):
+                good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
             rows, best = todo[good], best[good]
             if rows.size == 0:
                 continue
