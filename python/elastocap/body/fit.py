@@ -260,6 +260,10 @@ def fit_body(
     max_rays_per_mask: int | None = None,
     residual: str = "log",
     log_epsilon: float = 0.01,
+    tracks: Any = None,
+    frame_numbers: Sequence[int] | None = None,
+    rest_frame: int | None = None,
+    track_outlier: float = 0.1,
 ) -> BodyFit:
     """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
     silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
@@ -299,6 +303,22 @@ def fit_body(
     log_epsilon : float, keyword-only
         ``eps`` of the "log" residual: below ``F ~ eps`` it flattens again, so far
         outliers do not pull.
+    tracks : Tracks, optional, keyword-only
+        Tracked surface points (:func:`elastocap.track_points`; world metres, the frames'
+        world). Each is attached to the part it lies on at its frame nearest
+        ``rest_frame``, at a fixed place in that part's frame, and pulled to its tracked
+        position in the other frames with weight ``1 / sigma_joint^2`` times
+        ``(0.01 m / its sigma)^2`` (:mod:`elastocap.body.tracks`). The fit then runs twice:
+        without tracks (to attach them), and with them from that result. An empty set
+        changes nothing.
+    frame_numbers : sequence of int, optional, keyword-only
+        The frame number of each entry of ``frames`` (the tracks' frames); default
+        ``0 .. len(frames) - 1``.
+    rest_frame : int, optional, keyword-only
+        The frame the tracks are anchored about (default the first).
+    track_outlier : float, keyword-only
+        A track farther than this (metres) from where the fit without tracks puts its
+        point is left out of that frame.
 
     Returns
     -------
@@ -329,6 +349,24 @@ def fit_body(
     motion = np.ascontiguousarray(np.stack([m for _, m in checked]))
     start_shape = checked[0][0] if shape is None else model.check_state(BodyState(as_float_array("shape", shape), checked[0][1]))[0]
     per_frame = [_frame(model, obs, f, cameras, max_rays_per_mask) for f, obs in enumerate(frames)]
+    attached = None
+    if tracks is not None:
+        from elastocap.body.tracks import attach_tracks
+
+        numbers = list(range(n)) if frame_numbers is None else [int(v) for v in frame_numbers]
+        if len(numbers) != n:
+            raise InvalidInputError(f"frame_numbers must hold one number per frame ({n}), got {len(numbers)}")
+        options = dict(cameras=cameras, shape=shape, sigma_point=sigma_point, sigma_ray=sigma_ray, sigma_joint=sigma_joint,
+                       max_iterations=max_iterations, refresh_every=refresh_every, outlier_distance=outlier_distance,
+                       max_rays_per_mask=max_rays_per_mask, residual=residual, log_epsilon=log_epsilon)
+        first = fit_body(model, frames, init=init, **options)  # type: ignore[arg-type]
+        attached = attach_tracks(model, first.states, tracks, numbers,
+                                 rest_frame=numbers[0] if rest_frame is None else int(rest_frame),
+                                 outlier=as_positive("track_outlier", track_outlier))
+        if attached.count == 0:
+            return first
+        motion = np.ascontiguousarray(first.motion)
+        start_shape = first.shape if shape is None else start_shape
 
     def stack(k: int) -> NDArray[np.float64]:
         return np.ascontiguousarray(np.concatenate([p[k] for p in per_frame]).reshape(-1, 3))
@@ -350,8 +388,18 @@ def fit_body(
         "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
         "point_scale": np.ascontiguousarray(np.concatenate([p[5] for p in per_frame])),
         "ray_side": np.ascontiguousarray(np.concatenate([p[6] for p in per_frame])),
+        "joint_offset": np.zeros((len(stack(3)), 3)),
+        "joint_scale": np.ones(len(stack(3))),
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
+    if attached is not None:
+        # The tracks' observations after the frames' own joints.
+        extra = [(f, *a) for f, a in enumerate(attached.frames) if len(a[0])]
+        observations["joints"] = np.ascontiguousarray(np.concatenate([observations["joints"]] + [e[1] for e in extra]))
+        observations["joint_part"] = np.concatenate([observations["joint_part"]] + [e[2] for e in extra]).astype(np.int64)
+        observations["joint_frame"] = np.concatenate([observations["joint_frame"]] + [np.full(len(e[1]), e[0], np.int64) for e in extra])
+        observations["joint_offset"] = np.ascontiguousarray(np.concatenate([observations["joint_offset"]] + [e[3] for e in extra]))
+        observations["joint_scale"] = np.ascontiguousarray(np.concatenate([observations["joint_scale"]] + [e[4] for e in extra]))
     result = model._core.fit(
         observations,
         np.ascontiguousarray(start_shape),

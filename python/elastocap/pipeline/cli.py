@@ -78,6 +78,7 @@ def _fit(args: argparse.Namespace) -> int:
         rotation=args.rotation,
         stiffness=args.stiffness,
         resolution=args.resolution,
+        tracks=not args.no_tracks,
         progress=not args.quiet,
     )
     print(f"fitted {len(result.fits)} frame(s) into {Path(args.out) / 'fit'}; figures in {Path(args.out) / 'metrics.json'}")
@@ -264,6 +265,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     fit.add_argument("--stiffness", type=float, default=1.0, help="elastic stiffness vs. surface pull (default: 1)")
     fit.add_argument("--resolution", type=int, default=128, help="hull voxels along the longest side (default: 128)")
+    fit.add_argument("--no-tracks", action="store_true",
+                     help="ignore OUT/tracks/ (by default its tracks, from elastocap track, pin the fit)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_fit)
     body = commands.add_parser(

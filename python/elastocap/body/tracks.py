@@ -1,0 +1,112 @@
+"""Tracks in the body fit (issue 15, item 4): each tracked surface point is attached to the
+body part it lies on at its anchor frame (its frame nearest the rest frame), at a fixed
+position in that part's frame, and pulled to its tracked position in every other frame.
+
+In the core a track's observation is a joint observation with an offset
+(``rust/body/observe.rs``: the point ``o_b + R_b offset`` of part ``b``, residual against
+the tracked position, weight ``1 / (sigma_joint * scale)``), so its derivatives are the
+part's twists at that point. The part and offset come from a fit of the anchor frame:
+:func:`fit_body` fits once without tracks, attaches them to that fit, and fits again with
+them; a track farther than ``outlier`` from where the first fit puts its point in a frame
+is left out of that frame (a wrong track cannot drag a limb).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap._core import InvalidInputError
+from elastocap.body.model import BodyModel, BodyState
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.tracks import Tracks
+
+__all__ = ["TrackObservations", "attach_tracks", "nearest_part"]
+
+# The track sigma that fit_body's sigma_joint stands for: a track of this standard
+# deviation weighs as one joint observation.
+TRACK_SIGMA_REFERENCE = 0.01
+
+
+def nearest_part(model: BodyModel, state: BodyState, points: NDArray[np.float64]) -> NDArray[np.int64]:
+    """The part of each point: that of the metaball whose scaled radius reaches it best
+    (smallest distance to the centre over the largest radius)."""
+    centres, reach = model.ball_centers(state)
+    part = model._balls[0]
+    ratio = np.linalg.norm(points[:, None, :] - centres[None], axis=2) / reach[None]
+    return np.asarray(part, np.int64)[ratio.argmin(axis=1)]
+
+
+class TrackObservations:
+    """Per frame index, the arrays of the attached tracks: ``points (T, 3)``, ``part (T,)``,
+    ``offset (T, 3)`` (metres, in the part's frame) and ``scale (T,)`` (sigma over
+    :data:`TRACK_SIGMA_REFERENCE`)."""
+
+    def __init__(self, n_frames: int) -> None:
+        empty = (np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+        self.frames: list[tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]] = [empty] * n_frames
+
+    @property
+    def count(self) -> int:
+        """Track observations over all frames."""
+        return sum(len(f[0]) for f in self.frames)
+
+
+def attach_tracks(
+    model: BodyModel,
+    states: Sequence[BodyState],
+    tracks: Tracks,
+    frame_numbers: Sequence[int],
+    *,
+    rest_frame: int,
+    outlier: float,
+) -> TrackObservations:
+    """Attach ``tracks`` to the parts of ``states`` (one per entry of ``frame_numbers``)
+    and return their observations in the other frames (module docs).
+
+    Raises
+    ------
+    InvalidInputError
+        Not a :class:`Tracks`; non-finite tracked positions or covariances; frames of the
+        tracks that are not in ``frame_numbers``.
+    """
+    if not isinstance(tracks, Tracks):
+        raise InvalidInputError(f"tracks must be elastocap.Tracks (elastocap.load_tracks), got {type(tracks).__name__}")
+    numbers = [int(v) for v in frame_numbers]
+    result = TrackObservations(len(numbers))
+    if len(tracks.ids) == 0 or len(tracks.frames) == 0:
+        return result
+    missing = sorted(set(int(v) for v in tracks.frames) - set(numbers))
+    if missing:
+        raise InvalidInputError(f"tracks hold frames {missing[:5]} that are not frames of the fit ({numbers[0]}..{numbers[-1]})")
+    tracked = tracks.flags == TrackFlag.TRACKED
+    if not (np.isfinite(tracks.positions[tracked]).all() and np.isfinite(tracks.covariances[tracked]).all()):
+        raise InvalidInputError("tracks: a position or covariance flagged TRACKED is not finite")
+    index = np.array([numbers.index(int(v)) for v in tracks.frames])
+    gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
+    cost = np.where(tracked, gap[:, None], np.iinfo(np.int64).max)
+    anchor = cost.argmin(axis=0)
+    usable = tracked.any(axis=0)
+    part = np.zeros(len(tracks.ids), np.int64)
+    offset = np.zeros((len(tracks.ids), 3))
+    for row in np.unique(anchor[usable]):
+        which = np.flatnonzero(usable & (anchor == row))
+        state = states[index[row]]
+        points = tracks.positions[row, which]
+        part[which] = nearest_part(model, state, points)
+        rotations, origins = model.pose(state)
+        offset[which] = np.einsum("tji,tj->ti", rotations[part[which]], points - origins[part[which]])
+    for row, f in enumerate(index):
+        use = np.flatnonzero(tracked[row] & usable & (anchor != row))
+        if len(use) == 0:
+            continue
+        rotations, origins = model.pose(states[f])
+        predicted = origins[part[use]] + np.einsum("tij,tj->ti", rotations[part[use]], offset[use])
+        observed = tracks.positions[row, use]
+        near = np.linalg.norm(observed - predicted, axis=1) <= outlier
+        use = use[near]
+        sigma = np.sqrt(np.maximum(np.trace(tracks.covariances[row, use], axis1=1, axis2=2) / 3, 1e-12))
+        result.frames[f] = (observed[near], part[use], offset[use], np.maximum(sigma, 1e-3) / TRACK_SIGMA_REFERENCE)
+    return result
