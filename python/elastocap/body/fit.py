@@ -38,6 +38,11 @@ class BodyObservations:
         through a pixel inside the silhouette (must meet the skin), -1 outside it (must
         miss it); see :func:`silhouette_samples`. Default: all outline rays. Rays drawn
         from ``masks`` are outline rays.
+    anchored : tuple or None
+        Tracked points attached to body parts (:mod:`elastocap.body.tracks`): ``(points
+        (T, 3) world metres, part (T,) int, offset (T, 3) metres in the part's frame, sigma
+        (T,) metres)``; each pulls its part's point ``offset`` to ``points`` with weight
+        ``1 / sigma_joint^2`` times ``(0.01 / sigma)^2``.
     point_sigma : (N,) array_like or None
         Standard deviation of each point (metres), e.g. from stereo's or a track's
         covariance: a point's weight is ``(POINT_SIGMA_REFERENCE / point_sigma)^2`` times
@@ -51,6 +56,7 @@ class BodyObservations:
     joints: Mapping[str, Any] = field(default_factory=dict)
     point_sigma: Any = None
     ray_side: Any = None
+    anchored: Any = None
 
 
 #: The point standard deviation (metres) that ``fit_body(sigma_point=...)`` (field units)
@@ -241,7 +247,26 @@ def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None,
         raise InvalidInputError(f"frames[{f}].joints names unknown parts {unknown}; parts are {model.part_names}")
     joints = _rows3(f"frames[{f}].joints", [obs.joints[n] for n in obs.joints] if obs.joints else None)
     joint_part = np.array([names[n] for n in obs.joints], dtype=np.int64)
-    return points, origins, directions, joints, joint_part, point_scale, sides
+    offsets, scales = np.zeros((len(joints), 3)), np.ones(len(joints))
+    if obs.anchored is not None:
+        from elastocap.body.tracks import TRACK_SIGMA_REFERENCE
+
+        try:
+            at, part, offset, sigma = (np.asarray(v) for v in obs.anchored)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"frames[{f}].anchored must be (points, part, offset, sigma)") from None
+        t = len(at)
+        if at.shape != (t, 3) or part.shape != (t,) or offset.shape != (t, 3) or sigma.shape != (t,):
+            raise InvalidInputError(f"frames[{f}].anchored must be points (T, 3), part (T,), offset (T, 3), sigma (T,)")
+        if not (np.isfinite(at).all() and np.isfinite(offset).all() and np.isfinite(sigma).all() and (sigma > 0).all()):
+            raise InvalidInputError(f"frames[{f}].anchored holds non-finite values or a sigma that is not positive")
+        if t and not ((part >= 0) & (part < len(names))).all():
+            raise InvalidInputError(f"frames[{f}].anchored part indices must be in 0..{len(names)}")
+        joints = np.concatenate([joints, at.astype(np.float64)])
+        joint_part = np.concatenate([joint_part, part.astype(np.int64)])
+        offsets = np.concatenate([offsets, offset.astype(np.float64)])
+        scales = np.concatenate([scales, sigma.astype(np.float64) / TRACK_SIGMA_REFERENCE])
+    return points, origins, directions, joints, joint_part, point_scale, sides, offsets, scales
 
 
 def fit_body(
@@ -351,7 +376,7 @@ def fit_body(
     per_frame = [_frame(model, obs, f, cameras, max_rays_per_mask) for f, obs in enumerate(frames)]
     attached = None
     if tracks is not None:
-        from elastocap.body.tracks import attach_tracks
+        from elastocap.body.tracks import TRACK_SIGMA_REFERENCE, attach_tracks
 
         numbers = list(range(n)) if frame_numbers is None else [int(v) for v in frame_numbers]
         if len(numbers) != n:
@@ -388,8 +413,8 @@ def fit_body(
         "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
         "point_scale": np.ascontiguousarray(np.concatenate([p[5] for p in per_frame])),
         "ray_side": np.ascontiguousarray(np.concatenate([p[6] for p in per_frame])),
-        "joint_offset": np.zeros((len(stack(3)), 3)),
-        "joint_scale": np.ones(len(stack(3))),
+        "joint_offset": stack(7),
+        "joint_scale": np.ascontiguousarray(np.concatenate([p[8] for p in per_frame])),
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
     if attached is not None:
@@ -399,7 +424,7 @@ def fit_body(
         observations["joint_part"] = np.concatenate([observations["joint_part"]] + [e[2] for e in extra]).astype(np.int64)
         observations["joint_frame"] = np.concatenate([observations["joint_frame"]] + [np.full(len(e[1]), e[0], np.int64) for e in extra])
         observations["joint_offset"] = np.ascontiguousarray(np.concatenate([observations["joint_offset"]] + [e[3] for e in extra]))
-        observations["joint_scale"] = np.ascontiguousarray(np.concatenate([observations["joint_scale"]] + [e[4] for e in extra]))
+        observations["joint_scale"] = np.ascontiguousarray(np.concatenate([observations["joint_scale"]] + [e[4] / TRACK_SIGMA_REFERENCE for e in extra]))
     result = model._core.fit(
         observations,
         np.ascontiguousarray(start_shape),

@@ -23,11 +23,14 @@ from elastocap.body.model import BodyModel, BodyState
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
-__all__ = ["TrackObservations", "attach_tracks", "nearest_part"]
+__all__ = ["SequentialAnchors", "TrackObservations", "attach_tracks", "nearest_part"]
 
 # The track sigma that fit_body's sigma_joint stands for: a track of this standard
 # deviation weighs as one joint observation.
 TRACK_SIGMA_REFERENCE = 0.01
+# No track is trusted below this standard deviation (metres): the forward intersection's
+# covariance is optimistic on faint texture (session 6, issue 14).
+SIGMA_FLOOR = 0.003
 
 
 def nearest_part(model: BodyModel, state: BodyState, points: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -40,9 +43,9 @@ def nearest_part(model: BodyModel, state: BodyState, points: NDArray[np.float64]
 
 
 class TrackObservations:
-    """Per frame index, the arrays of the attached tracks: ``points (T, 3)``, ``part (T,)``,
-    ``offset (T, 3)`` (metres, in the part's frame) and ``scale (T,)`` (sigma over
-    :data:`TRACK_SIGMA_REFERENCE`)."""
+    """Per frame index, the arrays of the attached tracks (``BodyObservations.anchored``):
+    ``points (T, 3)``, ``part (T,)``, ``offset (T, 3)`` (metres, in the part's frame) and
+    ``sigma (T,)`` (metres, at least 1 mm)."""
 
     def __init__(self, n_frames: int) -> None:
         empty = (np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
@@ -108,5 +111,54 @@ def attach_tracks(
         near = np.linalg.norm(observed - predicted, axis=1) <= outlier
         use = use[near]
         sigma = np.sqrt(np.maximum(np.trace(tracks.covariances[row, use], axis1=1, axis2=2) / 3, 1e-12))
-        result.frames[f] = (observed[near], part[use], offset[use], np.maximum(sigma, 1e-3) / TRACK_SIGMA_REFERENCE)
+        result.frames[f] = (observed[near], part[use], offset[use], np.maximum(sigma, SIGMA_FLOOR))
     return result
+
+
+class SequentialAnchors:
+    """Tracks for a body fitted frame by frame (``BodyTracker``, ``elastocap body``): a
+    track is attached at the first frame where it is tracked (its frame nearest the first
+    fitted frame), to the part it lies on in that frame's fitted state, and observed in
+    the later frames as ``BodyObservations.anchored``.
+
+    ``positions`` and ``covariances`` are ``tracks``' arrays moved into the body's frame
+    (``rotation``: world -> body, applied as ``points @ rotation``)."""
+
+    def __init__(self, model: BodyModel, tracks: Tracks, rotation: NDArray[np.float64] | None = None) -> None:
+        self.model = model
+        self.frames = [int(v) for v in tracks.frames]
+        r = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+        tracked = tracks.flags == TrackFlag.TRACKED
+        self.positions = np.where(tracked[..., None], np.nan_to_num(tracks.positions) @ r, np.nan)
+        cov = np.nan_to_num(tracks.covariances)
+        self.sigma = np.sqrt(np.maximum(np.trace(cov, axis1=2, axis2=3) / 3, SIGMA_FLOOR**2))
+        self.tracked = tracked
+        n = len(tracks.ids)
+        self.attached = np.zeros(n, bool)
+        self.part = np.zeros(n, np.int64)
+        self.offset = np.zeros((n, 3))
+
+    def observations(self, frame: int) -> tuple[NDArray[np.float64], ...] | None:
+        """``anchored`` for ``frame``: the attached tracks tracked there (None if none)."""
+        if frame not in self.frames:
+            return None
+        row = self.frames.index(frame)
+        use = np.flatnonzero(self.attached & self.tracked[row])
+        if len(use) == 0:
+            return None
+        return self.positions[row, use], self.part[use], self.offset[use], self.sigma[row, use]
+
+    def attach(self, frame: int, state: BodyState) -> int:
+        """Attach the tracks tracked at ``frame`` and not attached yet to ``state``'s parts;
+        returns how many."""
+        if frame not in self.frames:
+            return 0
+        row = self.frames.index(frame)
+        which = np.flatnonzero(~self.attached & self.tracked[row])
+        if len(which):
+            points = self.positions[row, which]
+            self.part[which] = nearest_part(self.model, state, points)
+            rotations, origins = self.model.pose(state)
+            self.offset[which] = np.einsum("tji,tj->ti", rotations[self.part[which]], points - origins[self.part[which]])
+            self.attached[which] = True
+        return len(which)

@@ -91,7 +91,8 @@ def _body(args: argparse.Namespace) -> int:
     from elastocap.pipeline.hull import parse_frames
 
     capture = Capture.open(args.capture)
-    written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
+    written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames),
+                             tracks=not args.no_tracks, progress=not args.quiet)
     print(f"wrote {written}")
     return 0
 
@@ -279,6 +280,8 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
     body.add_argument("--out", required=True, help="output folder")
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    body.add_argument("--no-tracks", action="store_true",
+                      help="do not attach OUT/tracks/ points to body parts (by default they pin the parts they lie on)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
     from elastocap.cameras.commands import add_rig_parser
