@@ -107,7 +107,11 @@ impl<const D: usize> FrameTracks<D> {
         check_finite("track_precisions", &flat)?;
         let phi_rows: Vec<[f64; 1]> = phi.iter().map(|&v| [v]).collect();
         check_finite("track_phi", &phi_rows)?;
-        for (argument, value) in [("tracks", weight), ("track_sigma", sigma), ("track_scale", scale)] {
+        for (argument, value) in [
+            ("tracks", weight),
+            ("track_sigma", sigma),
+            ("track_scale", scale),
+        ] {
             if !(value.is_finite() && (value > 0.0 || (argument == "tracks" && value == 0.0))) {
                 return Err(Error::InvalidOption {
                     argument,
@@ -163,7 +167,10 @@ impl<const D: usize> FrameTracks<D> {
         if self.weight == 0.0 {
             return term;
         }
-        let (c2, base) = (self.scale * self.scale, self.weight * self.sigma * self.sigma);
+        let (c2, base) = (
+            self.scale * self.scale,
+            self.weight * self.sigma * self.sigma,
+        );
         for (t, point) in self.material_points(x).iter().enumerate() {
             let residual: [f64; D] = std::array::from_fn(|a| point[a] - self.targets[t][a]);
             let m = quadratic_form(&self.precisions[t], &residual);
@@ -180,7 +187,8 @@ impl<const D: usize> FrameTracks<D> {
                 }
                 let xi = x[i as usize];
                 let target = std::array::from_fn(|a| xi[a] - w.signum() * residual[a] / total);
-                let metric = self.precisions[t].map(|row| row.map(|v| v * robust * w.abs() * total));
+                let metric =
+                    self.precisions[t].map(|row| row.map(|v| v * robust * w.abs() * total));
                 term.pulls.push((i, target, metric));
             }
         }
