@@ -82,3 +82,7 @@ def test_empty_and_bad_tracks(scene: tuple) -> None:
     with pytest.raises(InvalidInputError, match="not finite"):
         fit_body(MODEL, frames, init=[first, first], tracks=nan)
     assert TrackFlag.TRACKED == 0
+    # Anchored observations given directly are checked too.
+    bad = BodyObservations(points=frames[0].points, anchored=(np.zeros((2, 3)), np.array([0, 99]), np.zeros((2, 3)), np.full(2, 0.01)))
+    with pytest.raises(InvalidInputError, match="part indices"):
+        fit_body(MODEL, [bad], init=first)

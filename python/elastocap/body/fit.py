@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
 from elastocap.body.model import BodyModel, BodyState
+from elastocap.body.tracks import anchored_arrays, append_tracks, attach_tracks
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays", "silhouette_samples"]
@@ -249,23 +250,9 @@ def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None,
     joint_part = np.array([names[n] for n in obs.joints], dtype=np.int64)
     offsets, scales = np.zeros((len(joints), 3)), np.ones(len(joints))
     if obs.anchored is not None:
-        from elastocap.body.tracks import TRACK_SIGMA_REFERENCE
-
-        try:
-            at, part, offset, sigma = (np.asarray(v) for v in obs.anchored)
-        except (TypeError, ValueError):
-            raise InvalidInputError(f"frames[{f}].anchored must be (points, part, offset, sigma)") from None
-        t = len(at)
-        if at.shape != (t, 3) or part.shape != (t,) or offset.shape != (t, 3) or sigma.shape != (t,):
-            raise InvalidInputError(f"frames[{f}].anchored must be points (T, 3), part (T,), offset (T, 3), sigma (T,)")
-        if not (np.isfinite(at).all() and np.isfinite(offset).all() and np.isfinite(sigma).all() and (sigma > 0).all()):
-            raise InvalidInputError(f"frames[{f}].anchored holds non-finite values or a sigma that is not positive")
-        if t and not ((part >= 0) & (part < len(names))).all():
-            raise InvalidInputError(f"frames[{f}].anchored part indices must be in 0..{len(names)}")
-        joints = np.concatenate([joints, at.astype(np.float64)])
-        joint_part = np.concatenate([joint_part, part.astype(np.int64)])
-        offsets = np.concatenate([offsets, offset.astype(np.float64)])
-        scales = np.concatenate([scales, sigma.astype(np.float64) / TRACK_SIGMA_REFERENCE])
+        at, part, offset, scale = anchored_arrays(obs.anchored, f"frames[{f}].anchored", len(names))
+        joints, joint_part = np.concatenate([joints, at]), np.concatenate([joint_part, part])
+        offsets, scales = np.concatenate([offsets, offset]), np.concatenate([scales, scale])
     return points, origins, directions, joints, joint_part, point_scale, sides, offsets, scales
 
 
@@ -376,8 +363,6 @@ def fit_body(
     per_frame = [_frame(model, obs, f, cameras, max_rays_per_mask) for f, obs in enumerate(frames)]
     attached = None
     if tracks is not None:
-        from elastocap.body.tracks import TRACK_SIGMA_REFERENCE, attach_tracks
-
         numbers = list(range(n)) if frame_numbers is None else [int(v) for v in frame_numbers]
         if len(numbers) != n:
             raise InvalidInputError(f"frame_numbers must hold one number per frame ({n}), got {len(numbers)}")
@@ -418,13 +403,7 @@ def fit_body(
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
     if attached is not None:
-        # The tracks' observations after the frames' own joints.
-        extra = [(f, *a) for f, a in enumerate(attached.frames) if len(a[0])]
-        observations["joints"] = np.ascontiguousarray(np.concatenate([observations["joints"]] + [e[1] for e in extra]))
-        observations["joint_part"] = np.concatenate([observations["joint_part"]] + [e[2] for e in extra]).astype(np.int64)
-        observations["joint_frame"] = np.concatenate([observations["joint_frame"]] + [np.full(len(e[1]), e[0], np.int64) for e in extra])
-        observations["joint_offset"] = np.ascontiguousarray(np.concatenate([observations["joint_offset"]] + [e[3] for e in extra]))
-        observations["joint_scale"] = np.ascontiguousarray(np.concatenate([observations["joint_scale"]] + [e[4] / TRACK_SIGMA_REFERENCE for e in extra]))
+        append_tracks(observations, attached)
     result = model._core.fit(
         observations,
         np.ascontiguousarray(start_shape),

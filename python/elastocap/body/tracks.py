@@ -14,6 +14,7 @@ is left out of that frame (a wrong track cannot drag a limb).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +24,7 @@ from elastocap.body.model import BodyModel, BodyState
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
-__all__ = ["SequentialAnchors", "TrackObservations", "attach_tracks", "nearest_part"]
+__all__ = ["SequentialAnchors", "TrackObservations", "anchored_arrays", "append_tracks", "attach_tracks", "nearest_part"]
 
 # The track sigma that fit_body's sigma_joint stands for: a track of this standard
 # deviation weighs as one joint observation.
@@ -162,3 +163,40 @@ class SequentialAnchors:
             self.offset[which] = np.einsum("tji,tj->ti", rotations[self.part[which]], points - origins[self.part[which]])
             self.attached[which] = True
         return len(which)
+
+
+def anchored_arrays(anchored: Any, name: str, n_parts: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """``BodyObservations.anchored`` checked: ``(points (T, 3), part (T,), offset (T, 3),
+    joint_scale (T,))``, the scale being sigma over :data:`TRACK_SIGMA_REFERENCE`.
+
+    Raises
+    ------
+    InvalidInputError
+        Wrong shapes, non-finite values, a sigma that is not positive, a part index out of
+        range; the message names ``name``.
+    """
+    try:
+        at, part, offset, sigma = (np.asarray(v) for v in anchored)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be (points, part, offset, sigma)") from None
+    t = len(at)
+    if at.shape != (t, 3) or part.shape != (t,) or offset.shape != (t, 3) or sigma.shape != (t,):
+        raise InvalidInputError(f"{name} must be points (T, 3), part (T,), offset (T, 3), sigma (T,)")
+    if not (np.isfinite(at).all() and np.isfinite(offset).all() and np.isfinite(sigma).all() and (sigma > 0).all()):
+        raise InvalidInputError(f"{name} holds non-finite values or a sigma that is not positive")
+    if t and not ((part >= 0) & (part < n_parts)).all():
+        raise InvalidInputError(f"{name} part indices must be in 0..{n_parts}")
+    return at.astype(np.float64), part.astype(np.int64), offset.astype(np.float64), sigma.astype(np.float64) / TRACK_SIGMA_REFERENCE
+
+
+def append_tracks(observations: dict[str, Any], attached: TrackObservations) -> None:
+    """Append the tracks' joint observations (with offsets and scales) to the core's
+    observation arrays, after the frames' own joints."""
+    extra = [(f, *a) for f, a in enumerate(attached.frames) if len(a[0])]
+    for key, column in (("joints", 1), ("joint_part", 2), ("joint_offset", 3)):
+        observations[key] = np.ascontiguousarray(np.concatenate([observations[key]] + [e[column] for e in extra]))
+    observations["joint_part"] = observations["joint_part"].astype(np.int64)
+    observations["joint_frame"] = np.concatenate([observations["joint_frame"]] + [np.full(len(e[1]), e[0], np.int64) for e in extra])
+    observations["joint_scale"] = np.ascontiguousarray(
+        np.concatenate([observations["joint_scale"]] + [e[4] / TRACK_SIGMA_REFERENCE for e in extra])
+    )
