@@ -159,6 +159,7 @@ def fit_sequence(
     coverage: float = 2.0,
     volume: float = 4.0,
     silhouette: float = 0.0,
+    silhouette_stage: str = "refine",
     cameras: Sequence[Any] | None = None,
     masks: Sequence[Sequence[Any]] | Mapping[int, Sequence[Any]] | None = None,
     predict: bool = True,
@@ -255,6 +256,8 @@ def fit_sequence(
     """
     if silhouette > 0 and (cameras is None or masks is None):
         raise InvalidInputError("silhouette > 0 needs cameras and masks")
+    if silhouette_stage not in ("refine", "chain", "joint"):
+        raise InvalidInputError(f"silhouette_stage must be 'refine', 'chain' or 'joint', got {silhouette_stage!r}")
     if len(model.surface_faces) == 0:
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
@@ -271,6 +274,9 @@ def fit_sequence(
     field_of = target_field if model.dim == 3 else _mask_field
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
+    # Where each fitted frame's neighbours start from: its fit, or with the silhouette
+    # term as a refinement, its fit to the hull alone.
+    starts: dict[int, NDArray[np.float64]] = {}
     # (frame, the neighbour it starts from, the neighbour's neighbour): outward from the rest
     # frame, in the order of the frame numbers.
     rest = frames.index(rest_frame)
@@ -281,41 +287,46 @@ def fit_sequence(
     for frame, neighbour, second in order:
         if frame in previous:
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
+            starts[frame] = result.fits[frame].positions
             continue
         if neighbour is None:
             start = model.nodes
         else:
-            start = result.fits[neighbour].positions
-            if predict and second is not None and second in result.fits:
+            start = starts[neighbour]
+            if predict and second is not None and second in starts:
                 # The elastic solve sees only the start, so a leg that swings 0.5 m per
                 # frame is met half-way instead of pulled back onto the nearest limb.
-                start = 2 * start - result.fits[second].positions
+                start = 2 * start - starts[second]
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
             views = silhouette_views(cameras, masks[frame])
+        options = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
+                       self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
+                       # A body keeps its volume; a 2-D silhouette does not keep its area.
+                       volume=volume if model.dim == 3 else 0.0)
         clock = time.perf_counter()
-        positions, metrics = fitter.fit_frame(
-            values,
-            origin,
-            spacing,
-            np.ascontiguousarray(start),
-            stiffness=stiffness,
-            contact=contact,
-            max_iterations=max_iterations,
-            invalidate=invalidate,
-            self_intersection=self_intersection,
-            hold_contacts=hold_contacts,
-            coverage=coverage,
-            # A body keeps its volume; a 2-D silhouette does not keep its area.
-            volume=volume if model.dim == 3 else 0.0,
-            silhouette=silhouette,
-            views=views,
-        )
+        staged = views is not None and silhouette_stage != "joint"
+        positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **options,
+                                              silhouette=0.0 if staged else silhouette,
+                                              views=None if staged else views)
+        chained = positions
+        if staged:
+            # The masks' pulls go to the nearest mask outline, which is a neighbouring
+            # limb's when the frame starts far from its pose: the frame is first fitted
+            # to the hull alone (whose terms have their invalidation), then refined
+            # against the masks from there, where the nearest outline is the limb's own.
+            positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained), **options,
+                                                  silhouette=silhouette, views=views)
+            refined["iterations"] += metrics["iterations"]
+            metrics = refined
+            if silhouette_stage == "chain":
+                chained = positions
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
         fit = FrameFit(frame, positions, dict(metrics))
         result.fits[frame] = fit
+        starts[frame] = chained
         if callback is not None:
             callback(fit)
     return result
