@@ -151,8 +151,9 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
     model = elastocap.ElasticModel.from_mesh(hull_meshes[rest_frame], n_nodes=nodes, k=20, rotation="warped")
     log(f"model: {model.n_nodes} nodes ({len(model.surface_nodes)} on the surface) in {time.perf_counter() - clock:.1f} s")
     extra = dict(options or {})
-    if extra.get("silhouette", 0) > 0:
-        extra.update(cameras=rig.cameras, masks=masks)
+    # The masks and cameras, as the pipeline gives them (fit_sequence's silhouette term is
+    # on when they are given; '{"silhouette": 0}' turns it off).
+    extra.update(cameras=rig.cameras, masks=masks)
     fit = elastocap.fit_sequence(model, hulls, rest_frame=rest_frame, stiffness=stiffness, coverage=coverage, **extra)
     surface_faces = model.surface.faces
     ours = {f: fit.fits[f].positions[model.surface_nodes] for f in fit.frames}
