@@ -33,7 +33,7 @@ from elastocap.hull.sdf import SDF
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 
 # The silhouette term's weight when cameras and masks are given (benches/README.md, issue 17:
-# horse gallop fit/hull 0.961 -> 0.818, drift 1.81% -> 1.69% of the diagonal).
+# horse gallop fit/hull 0.961 -> 0.802, drift 1.81% -> 1.66% of the diagonal).
 SILHOUETTE = 1.0
 
 
@@ -163,7 +163,7 @@ def fit_sequence(
     coverage: float = 2.0,
     volume: float = 4.0,
     silhouette: float | None = None,
-    silhouette_stage: str = "refine",
+    silhouette_stage: str = "chain",
     cameras: Sequence[Any] | None = None,
     masks: Sequence[Sequence[Any]] | Mapping[int, Sequence[Any]] | None = None,
     predict: bool = True,
@@ -228,15 +228,17 @@ def fit_sequence(
         (normal across the camera's ray) whose outline lies inside the mask are drawn out
         to the mask's outline, each across the outline in the plane normal to the ray. The
         masks are exact to a pixel where a carved hull is exact to a voxel. Horse gallop
-        (benches/eval_horse.py): fitted/hull mean distance 0.96 -> 0.82.
-    silhouette_stage : {"refine", "chain", "joint"}
-        How the silhouette term enters: "refine" (default) fits each frame to the hull
-        first, refines that fit against the masks, and starts the next frame from the
-        hull-only fit; "chain" starts the next frame from the refined fit; "joint" fits
-        with every term at once from the start. A mask's pull goes to the nearest outline,
-        a neighbouring limb's when the frame starts far from its pose: jointly through
-        the horse gallop the legs were drawn into each other's silhouettes (drift 3.85% of
-        the diagonal, worst frame 1.66x the hull's error), refined 1.69% and 0.88x.
+        (benches/eval_horse.py): fitted/hull mean distance 0.96 -> 0.80.
+    silhouette_stage : {"chain", "refine", "joint"}
+        How the silhouette term enters. "chain" (default): each frame is fitted to the
+        hull first (whose terms have their invalidation), the fit is then refined against
+        the masks from there, and the next frame starts from the refined fit. "refine": the
+        same, but the next frame starts from the hull-only fit. "joint": every term at once
+        from the frame's start. A mask's pull goes to the nearest outline, a neighbouring
+        limb's when the frame starts far from its pose; after the hull-only fit the nearest
+        outline is the limb's own. Horse gallop (benches/eval_horse.py, 5,873 nodes):
+        joint drift 3.85% of the diagonal with a worst frame 1.66x the hull's error (legs
+        drawn into each other's silhouettes), refine 1.74% and 0.87x, chain 1.66% and 0.87x.
     cameras : sequence of Camera, optional
         The rig's cameras (``Rig.cameras``), for the silhouette term.
     masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional
@@ -271,8 +273,8 @@ def fit_sequence(
         silhouette = SILHOUETTE if cameras is not None and masks is not None and model.dim == 3 else 0.0
     if silhouette > 0 and (cameras is None or masks is None):
         raise InvalidInputError("silhouette > 0 needs cameras and masks")
-    if silhouette_stage not in ("refine", "chain", "joint"):
-        raise InvalidInputError(f"silhouette_stage must be 'refine', 'chain' or 'joint', got {silhouette_stage!r}")
+    if silhouette_stage not in ("chain", "refine", "joint"):
+        raise InvalidInputError(f"silhouette_stage must be 'chain', 'refine' or 'joint', got {silhouette_stage!r}")
     if len(model.surface_faces) == 0:
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
