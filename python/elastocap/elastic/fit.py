@@ -35,6 +35,9 @@ __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 # The silhouette term's weight when cameras and masks are given (benches/README.md, issue 17:
 # horse gallop fit/hull 0.961 -> 0.802, drift 1.81% -> 1.66% of the diagonal).
 SILHOUETTE = 1.0
+# The most a frame's refinement against the masks may take its volume farther from rest
+# (a fraction of the rest volume; the volume bound of issue 17).
+REFINED_VOLUME_CHANGE = 0.05
 
 
 @dataclass(frozen=True)
@@ -333,10 +336,19 @@ def fit_sequence(
             # limb's when the frame starts far from its pose: the frame is first fitted
             # to the hull alone (whose terms have their invalidation), then refined
             # against the masks from there, where the nearest outline is the limb's own.
-            positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained), **options,
-                                                  silhouette=silhouette, views=views)
-            refined["iterations"] += metrics["iterations"]
-            metrics = refined
+            refined_positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained),
+                                                          **options, silhouette=silhouette, views=views)
+            # A refinement that takes the volume farther from rest than the volume bound
+            # (5%) is not the masks' precision but their coarseness: on images where a limb
+            # is a few pixels wide (96 x 72, 160 nodes) it swelled the surface to 3x the
+            # rest volume. The hull-only fit is kept then.
+            before = abs(model.enclosed_measure(chained) / rest_volume - 1)
+            after = abs(model.enclosed_measure(refined_positions) / rest_volume - 1)
+            kept = bool(after <= before + REFINED_VOLUME_CHANGE)
+            if kept:
+                refined["iterations"] += metrics["iterations"]
+                positions, metrics = refined_positions, refined
+            metrics["silhouette_kept"] = kept
             if silhouette_stage == "chain":
                 chained = positions
         metrics["seconds"] = time.perf_counter() - clock

@@ -74,7 +74,7 @@ def run_fit_stage(
     k: int = 20,
     rotation: str = "warped",
     stiffness: float = 1.0,
-    silhouette: float | None = None,
+    silhouette: float = 0.0,
     resolution: int = 128,
     reprojection: bool = True,
     progress: bool = True,
@@ -94,7 +94,9 @@ def run_fit_stage(
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
         As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks (on by default: None is fit_sequence's default weight).
+        capture's cameras and masks. Off by default here: on a capture of 96 x 72 images
+        (a limb a few pixels wide) the term's fits were not reproducible from run to run,
+        which a resumed run needs (benches/README.md, issue 17).
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
@@ -158,7 +160,7 @@ def run_fit_stage(
         bar.update(1)
 
     targets = _LazyHulls(out, frames)
-    masks = _LazyMasks(cap) if silhouette is None or silhouette > 0 else None
+    masks = _LazyMasks(cap) if silhouette > 0 else None
     result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, silhouette=silhouette,
                           cameras=cap.rig.cameras, masks=masks, done=done, callback=write)
     bar.close()
