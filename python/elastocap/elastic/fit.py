@@ -242,6 +242,9 @@ def fit_sequence(
         outline is the limb's own. Horse gallop (benches/eval_horse.py, 5,873 nodes):
         joint drift 3.85% of the diagonal with a worst frame 1.66x the hull's error (legs
         drawn into each other's silhouettes), refine 1.74% and 0.87x, chain 1.66% and 0.87x.
+        A refinement that takes the volume more than 5% of rest farther from it than the
+        hull-only fit is dropped (metric ``silhouette_kept``). On coarse images (a limb a
+        few pixels wide) the term's fits are not reproducible from run to run.
     cameras : sequence of Camera, optional
         The rig's cameras (``Rig.cameras``), for the silhouette term.
     masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional
