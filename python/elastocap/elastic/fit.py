@@ -324,7 +324,7 @@ def fit_sequence(
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
             views = silhouette_views(cameras, masks[frame])
-        options = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
+        options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
                        # A body keeps its volume; a 2-D silhouette does not keep its area.
                        volume=volume if model.dim == 3 else 0.0)
