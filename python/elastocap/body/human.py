@@ -1,6 +1,6 @@
-"""The default human body model: 17 parts, 40 metaballs, proportions of an adult of about
-1.75 m, joint limits in degrees. Body frame: x to the body's left, y forward, z up; every
-part's z axis runs along its bone."""
+"""The default human body model: 17 parts, 42 metaballs, proportions of an adult of about
+1.75 m, joint limits in degrees. Body frame: x to the body's left, y backward (the body
+faces -y), z up; every part's z axis runs along its bone."""
 
 from __future__ import annotations
 
@@ -44,13 +44,16 @@ def _side(sign: int) -> list[dict[str, Any]]:
         },
         {
             "name": f"{s}_forearm", "parent": f"{s}_upperarm", "offset": [0.0, 0.0, 0.29],
-            "joints": [_joint("x", -145 if sign > 0 else 0, 0 if sign > 0 else 145)],
+            # Both forearms' x axes point to the body's right: a positive angle bends the elbow
+            # forward (-y), on both sides.
+            "joints": [_joint("x", 0, 145)],
             "balls": [_ball((0, 0, 0.07), (0.036, 0.04, 0.09)), _ball((0, 0, 0.19), (0.028, 0.032, 0.08))],
         },
         {
             "name": f"{s}_hand", "parent": f"{s}_forearm", "offset": [0.0, 0.0, 0.26],
             "joints": [_joint("x", -70, 70)],
-            "balls": [_ball((0, 0, 0.06), (0.022, 0.045, 0.06)), _ball((0, 0.0, 0.13), (0.016, 0.04, 0.04))],
+            # A relaxed hand (fingers curled), not a flat palm.
+            "balls": [_ball((0, 0, 0.06), (0.03, 0.045, 0.06)), _ball((0, 0.0, 0.12), (0.025, 0.038, 0.04))],
         },
         {
             "name": f"{s}_thigh", "parent": "pelvis", "offset": [0.09 * sign, 0.0, -0.05],
@@ -65,9 +68,17 @@ def _side(sign: int) -> list[dict[str, Any]]:
         },
         {
             "name": f"{s}_foot", "parent": f"{s}_shin", "offset": [0.0, 0.0, 0.42],
-            "rest": _rot_x(-90),
-            "joints": [_joint("x", -40, 40)],
-            "balls": [_ball((0, -0.05, 0.02), (0.04, 0.035, 0.06)), _ball((0, -0.06, 0.12), (0.045, 0.03, 0.07))],
+            # rot_x(-90) turned about the bone by half a turn: the toes point forward (-y).
+            "rest": np.round(np.diag([-1.0, -1.0, 1.0]) @ np.array(_rot_x(-90)), 12).tolist(),
+            # Positive points the toes down (plantar flexion, up to ~60 degrees in a walk's
+            # swing), negative lifts them.
+            "joints": [_joint("x", -40, 65)],
+            # A heel behind the ankle, the sole and the toes.
+            "balls": [
+                _ball((0, -0.055, -0.04), (0.035, 0.035, 0.04)),
+                _ball((0, -0.05, 0.03), (0.04, 0.035, 0.06)),
+                _ball((0, -0.06, 0.12), (0.045, 0.03, 0.07)),
+            ],
         },
     ]
 
@@ -100,7 +111,7 @@ def default_human_description() -> dict[str, Any]:
         {
             "name": "head", "parent": "chest", "offset": [0.0, 0.0, 0.29],
             "joints": [_joint("x", -40, 50), _joint("y", -40, 40)],
-            "balls": [_ball((0, 0, 0.04), (0.05, 0.05, 0.06)), _ball((0, 0.015, 0.16), (0.075, 0.09, 0.11))],
+            "balls": [_ball((0, 0, 0.04), (0.05, 0.05, 0.06)), _ball((0, -0.015, 0.16), (0.075, 0.09, 0.11))],
         },
     ]
     parts += _side(+1) + _side(-1)
