@@ -1,4 +1,4 @@
-"""The default human body model: 17 parts, 42 metaballs, proportions of an adult of about
+"""The default human body model: 16 parts, 36 metaballs, proportions of an adult of about
 1.75 m, joint limits in degrees. Body frame: x to the body's left, y backward (the body
 faces -y), z up; every part's z axis runs along its bone."""
 
@@ -52,8 +52,7 @@ def _side(sign: int) -> list[dict[str, Any]]:
         {
             "name": f"{s}_hand", "parent": f"{s}_forearm", "offset": [0.0, 0.0, 0.26],
             "joints": [_joint("x", -70, 70)],
-            # A relaxed hand (fingers curled), not a flat palm.
-            "balls": [_ball((0, 0, 0.06), (0.03, 0.045, 0.06)), _ball((0, 0.0, 0.12), (0.025, 0.038, 0.04))],
+            "balls": [_ball((0, 0, 0.06), (0.022, 0.045, 0.06)), _ball((0, 0.0, 0.13), (0.016, 0.04, 0.04))],
         },
         {
             "name": f"{s}_thigh", "parent": "pelvis", "offset": [0.09 * sign, 0.0, -0.05],
