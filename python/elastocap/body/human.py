@@ -1,4 +1,4 @@
-"""The default human body model: 16 parts, 36 metaballs, proportions of an adult of about
+"""The default human body model: 16 parts, 34 metaballs, proportions of an adult of about
 1.75 m, joint limits in degrees. Body frame: x to the body's left, y backward (the body
 faces -y), z up; every part's z axis runs along its bone."""
 
@@ -72,12 +72,7 @@ def _side(sign: int) -> list[dict[str, Any]]:
             # Positive points the toes down (plantar flexion, up to ~60 degrees in a walk's
             # swing), negative lifts them.
             "joints": [_joint("x", -40, 65)],
-            # A heel behind the ankle, the sole and the toes.
-            "balls": [
-                _ball((0, -0.055, -0.04), (0.035, 0.035, 0.04)),
-                _ball((0, -0.05, 0.03), (0.04, 0.035, 0.06)),
-                _ball((0, -0.06, 0.12), (0.045, 0.03, 0.07)),
-            ],
+            "balls": [_ball((0, -0.05, 0.02), (0.04, 0.035, 0.06)), _ball((0, -0.06, 0.12), (0.045, 0.03, 0.07))],
         },
     ]
 

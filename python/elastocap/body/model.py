@@ -161,7 +161,7 @@ class BodyModel:
 
     @classmethod
     def default_human(cls) -> BodyModel:
-        """An adult of about 1.75 m: 16 parts, 36 metaballs, 25 joint angles with limits.
+        """An adult of about 1.75 m: 16 parts, 34 metaballs, 25 joint angles with limits.
 
         Its body frame has z up, y backward (the body faces -y) and x to the body's left; the pelvis sits at the
         root translation. For a world with y up, use ``rest_state(up="y")``.
