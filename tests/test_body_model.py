@@ -125,3 +125,40 @@ def test_silhouette_contains_the_projected_skin_and_no_more() -> None:
     hull[pixels[:, 1], pixels[:, 0]] = True
     covered = binary_dilation(hull, iterations=3)
     assert (mask & ~covered).sum() <= 0.01 * mask.sum()
+
+
+def _joint_moves(state, joint: str, angle: float, part: str, base: str) -> np.ndarray:
+    motion = state.motion.copy()
+    motion[MODEL.motion_names.index(joint)] = angle
+    _, origins = MODEL.pose(state.replace(motion=motion))
+    _, rest = MODEL.pose(state)
+    i, j = MODEL.part_names.index(part), MODEL.part_names.index(base)
+    return (origins[i] - origins[j]) - (rest[i] - rest[j])
+
+
+def test_limbs_bend_the_way_a_persons_do_on_both_sides() -> None:
+    """Inside the joint limits, elbows and hips swing the limb forward (the way the toes and
+    the face point), knees bend back; both sides alike (the right elbow and the knees were
+    mirrored once, so the model could not fit a walking figure)."""
+    state = MODEL.rest_state()
+    centres, _ = MODEL.ball_centers(state)
+    toes = centres[MODEL.ball_part == MODEL.part_names.index("l_foot")].mean(axis=0)
+    forward = np.sign(toes[1] - MODEL.pose(state)[1][MODEL.part_names.index("l_foot")][1])
+    head = centres[MODEL.ball_part == MODEL.part_names.index("head")]
+    assert np.sign(head[-1, 1] - head[0, 1]) == forward
+    for side in "lr":
+        names = MODEL.motion_names
+
+        def inside(joint: str) -> tuple[float, float]:
+            k = names.index(joint)
+            return float(MODEL.lower[k]), float(MODEL.upper[k])
+
+        lo, hi = inside(f"{side}_forearm.0")
+        bend = hi if abs(hi) > abs(lo) else lo
+        assert _joint_moves(state, f"{side}_forearm.0", 0.8 * bend, f"{side}_hand", f"{side}_forearm")[1] * forward > 0.1
+        lo, hi = inside(f"{side}_shin.0")
+        bend = hi if abs(hi) > abs(lo) else lo
+        assert _joint_moves(state, f"{side}_shin.0", 0.5 * bend, f"{side}_foot", f"{side}_shin")[1] * forward < -0.1
+        lo, hi = inside(f"{side}_thigh.0")
+        flex = hi if abs(hi) > abs(lo) else lo
+        assert _joint_moves(state, f"{side}_thigh.0", 0.5 * flex, f"{side}_shin", f"{side}_thigh")[1] * forward > 0.1

@@ -1,6 +1,6 @@
-"""The default human body model: 17 parts, 40 metaballs, proportions of an adult of about
-1.75 m, joint limits in degrees. Body frame: x to the body's left, y forward, z up; every
-part's z axis runs along its bone."""
+"""The default human body model: 16 parts, 34 metaballs, proportions of an adult of about
+1.75 m, joint limits in degrees. Body frame: x to the body's left, y backward (the body
+faces -y), z up; every part's z axis runs along its bone."""
 
 from __future__ import annotations
 
@@ -44,7 +44,9 @@ def _side(sign: int) -> list[dict[str, Any]]:
         },
         {
             "name": f"{s}_forearm", "parent": f"{s}_upperarm", "offset": [0.0, 0.0, 0.29],
-            "joints": [_joint("x", -145 if sign > 0 else 0, 0 if sign > 0 else 145)],
+            # Both forearms' x axes point to the body's right: a positive angle bends the elbow
+            # forward (-y), on both sides.
+            "joints": [_joint("x", 0, 145)],
             "balls": [_ball((0, 0, 0.07), (0.036, 0.04, 0.09)), _ball((0, 0, 0.19), (0.028, 0.032, 0.08))],
         },
         {
@@ -65,8 +67,11 @@ def _side(sign: int) -> list[dict[str, Any]]:
         },
         {
             "name": f"{s}_foot", "parent": f"{s}_shin", "offset": [0.0, 0.0, 0.42],
-            "rest": _rot_x(-90),
-            "joints": [_joint("x", -40, 40)],
+            # rot_x(-90) turned about the bone by half a turn: the toes point forward (-y).
+            "rest": np.round(np.diag([-1.0, -1.0, 1.0]) @ np.array(_rot_x(-90)), 12).tolist(),
+            # Positive points the toes down (plantar flexion, up to ~60 degrees in a walk's
+            # swing), negative lifts them.
+            "joints": [_joint("x", -40, 65)],
             "balls": [_ball((0, -0.05, 0.02), (0.04, 0.035, 0.06)), _ball((0, -0.06, 0.12), (0.045, 0.03, 0.07))],
         },
     ]
@@ -100,7 +105,7 @@ def default_human_description() -> dict[str, Any]:
         {
             "name": "head", "parent": "chest", "offset": [0.0, 0.0, 0.29],
             "joints": [_joint("x", -40, 50), _joint("y", -40, 40)],
-            "balls": [_ball((0, 0, 0.04), (0.05, 0.05, 0.06)), _ball((0, 0.015, 0.16), (0.075, 0.09, 0.11))],
+            "balls": [_ball((0, 0, 0.04), (0.05, 0.05, 0.06)), _ball((0, -0.015, 0.16), (0.075, 0.09, 0.11))],
         },
     ]
     parts += _side(+1) + _side(-1)

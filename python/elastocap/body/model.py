@@ -163,7 +163,7 @@ class BodyModel:
     def default_human(cls) -> BodyModel:
         """An adult of about 1.75 m: 16 parts, 34 metaballs, 25 joint angles with limits.
 
-        Its body frame has z up, y forward and x to the body's left; the pelvis sits at the
+        Its body frame has z up, y backward (the body faces -y) and x to the body's left; the pelvis sits at the
         root translation. For a world with y up, use ``rest_state(up="y")``.
         """
         return cls(default_human_description())
