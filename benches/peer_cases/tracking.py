@@ -138,6 +138,7 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
 
 def _speed_row(folder: Path, repeats: int) -> dict[str, Any]:
     from elastocap import Capture, _core
+    from elastocap.tracking.tracker import STEP_ITERATIONS
 
     capture = Capture.open(folder)
     names = capture.rig.names
@@ -158,7 +159,8 @@ def _speed_row(folder: Path, repeats: int) -> dict[str, Any]:
     params = dict(winSize=(15, 15), maxLevel=3, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01))
 
     def ours() -> Any:
-        return _core.track_step(grey[0], grey[1], pts, nan, size=15, radius=6, min_correlation=0.75, forward_backward=0.6)
+        return _core.track_step(grey[0], grey[1], pts, nan, size=15, radius=6, min_correlation=0.5, forward_backward=0.6,
+                                max_iterations=STEP_ITERATIONS)
 
     def peer() -> None:
         for k in range(len(names)):

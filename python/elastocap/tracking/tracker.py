@@ -42,6 +42,11 @@ _TEXTURE_OVER_NOISE = 1.0
 _BOX_CORRELATION = 0.5
 # Largest correction of a frame-to-frame match by its anchor, pixels.
 _ANCHOR_REACH = 1.5
+# Gauss-Newton iterations of the frame-to-frame match: from the box search's start a
+# match that will converge does so in a few; the rest wander along the weak direction of a
+# smooth texture (measured on the textured capture: 8 instead of 15 keeps 1.6% more views
+# and costs 23% less CPU).
+STEP_ITERATIONS = 8
 # Largest distance of a rescued view from its linear prediction, pixels.
 _RESCUE_REACH = 3.0
 # The frame-to-frame failures a view's anchor may rescue.
@@ -274,7 +279,7 @@ class _Tracker:
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
                 np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
                 min_correlation=min(self.min_correlation, _BOX_CORRELATION), forward_backward=self.o["forward_backward"],
-                min_texture=float(min(self.texture)))
+                min_texture=float(min(self.texture)), max_iterations=STEP_ITERATIONS)
             uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
             # The box search only has to find the start (it does not model rotation or
             # scale); the least-squares match, which does, must reach the threshold.
