@@ -312,8 +312,8 @@ def _write_surface_points(root: Path, figure: CapsuleFigure, rig: Rig, frames: i
         if n == 0:
             # The texture coordinates the points show in frame 0 (on the field's zero level,
             # a fraction of a millimetre from the mesh they were sampled on).
-            c = figure.capsules(0)
-            local = np.einsum("nji,nj->ni", c.frames[part], positions[0] - c.starts[part])
+            pose = figure.capsules(0)
+            local = np.einsum("nji,nj->ni", pose.frames[part], positions[0] - pose.starts[part])
         material[n] = material_mask(figure, n, part, local, positions[n])
         for c, camera in enumerate(rig.cameras):
             depth = load_npz(root / "ground_truth" / "depth" / camera.name / f"{n:06d}.npz", required=["depth"])["depth"]
@@ -401,8 +401,8 @@ def load_textured_truth(folder: str | Path) -> TexturedTruth:
     else:
         # Captures written before the field: recovered from frame 0, where every point is
         # exactly on its part.
-        c = figure.capsules(int(data["frames"][0]))
-        local = np.einsum("nji,nj->ni", c.frames[part], positions[0] - c.starts[part])
+        pose = figure.capsules(int(data["frames"][0]))
+        local = np.einsum("nji,nj->ni", pose.frames[part], positions[0] - pose.starts[part])
         material = np.stack([material_mask(figure, int(f), part, local, x) for f, x in zip(data["frames"], positions)])
     return TexturedTruth(
         figure=figure,
