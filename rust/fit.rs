@@ -24,6 +24,7 @@ pub mod silhouette;
 mod solve;
 mod stop;
 pub mod surface;
+pub mod tracks;
 pub mod volume;
 mod workspace;
 
@@ -36,6 +37,7 @@ use contact::{contact_terms, find_contacts, Contact};
 use coverage::{coverage_term, TargetSamples};
 use silhouette::{silhouette, SilhouetteView};
 use stop::StopRule;
+use tracks::FrameTracks;
 use volume::volume_term;
 pub use workspace::FitWorkspace;
 
@@ -91,6 +93,8 @@ pub struct FrameTargets<'a, const D: usize> {
     pub samples: Option<&'a TargetSamples<D>>,
     /// The cameras and their masks' signed distances, for the silhouette term (3-D only).
     pub silhouettes: Option<&'a [SilhouetteView]>,
+    /// Tracked points attached to the model, for the track term ([`tracks`]).
+    pub tracks: Option<&'a FrameTracks<D>>,
 }
 
 impl Default for FitOptions {
@@ -252,8 +256,14 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             &workspace.support,
             options.silhouette,
         );
+        let tracked = targets.tracks.map(|t| t.term(&x)).unwrap_or_default();
         if stop.should_stop(
-            elastic + surface.distance_term() + coverage.energy + penalty + outline.energy,
+            elastic
+                + surface.distance_term()
+                + coverage.energy
+                + penalty
+                + outline.energy
+                + tracked.energy,
             penetrating,
         ) {
             break;
@@ -262,7 +272,7 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             held.clone_from(&contacts);
         }
         metrics.iterations = iteration + 1;
-        let system = assemble(
+        let mut system = assemble(
             model,
             workspace,
             &rotations,
@@ -272,6 +282,7 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             alpha,
             options.contact,
         )?;
+        tracked.add_to(&mut system);
         let clock = std::time::Instant::now();
         let before: Vec<f64> = x.iter().flatten().copied().collect();
         let status = solve::solve(

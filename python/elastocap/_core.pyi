@@ -216,6 +216,10 @@ class FitCore:
         volume: float = 4.0,
         silhouette: float = 0.0,
         views: list[tuple[list[float], list[float], list[float], list[float], NDArray[np.float64]]] | None = None,
+        tracks: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
+        track_weight: float = 1.0,
+        track_sigma: float = 1.0,
+        track_scale: float = 10.0,
     ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
 
 @final

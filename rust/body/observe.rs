@@ -34,6 +34,12 @@ pub struct Observations {
     pub joint_part: Vec<usize>,
     /// Frame of each joint observation.
     pub joint_frame: Vec<usize>,
+    /// Where each joint observation sits in its part's frame (metres; a tracked surface
+    /// point attached to the part, issue 15); empty: all at the part's origin (the joint).
+    pub joint_offset: Vec<[f64; 3]>,
+    /// Per-joint factor on `sigma[2]` (e.g. a track's standard deviation over it); empty:
+    /// all 1.
+    pub joint_scale: Vec<f64>,
     /// A-priori standard deviations `[point, ray, joint]`: points and rays in field units
     /// (F - T), joints in metres. Weights are `1 / sigma^2`.
     pub sigma: [f64; 3],
@@ -106,6 +112,12 @@ impl Observations {
         1.0 / (self.sigma[0] * self.point_scale.get(i).copied().unwrap_or(1.0))
     }
 
+    /// The weight `1 / (sigma[2] * joint_scale[i])` of joint observation `i`.
+    #[inline]
+    pub fn joint_weight(&self, i: usize) -> f64 {
+        1.0 / (self.sigma[2] * self.joint_scale.get(i).copied().unwrap_or(1.0))
+    }
+
     /// The kind of ray `i` (see [`Observations::ray_side`]).
     #[inline]
     pub fn side(&self, i: usize) -> i8 {
@@ -136,6 +148,12 @@ impl Observations {
         if !self.ray_scale.is_empty() {
             check_len("ray_scale", self.ray_scale.len(), self.origins.len())?;
         }
+        if !self.joint_offset.is_empty() {
+            check_len("joint_offset", self.joint_offset.len(), self.joints.len())?;
+        }
+        if !self.joint_scale.is_empty() {
+            check_len("joint_scale", self.joint_scale.len(), self.joints.len())?;
+        }
         if !self.ray_side.is_empty() {
             check_len("ray_side", self.ray_side.len(), self.origins.len())?;
         }
@@ -143,11 +161,12 @@ impl Observations {
             .point_scale
             .iter()
             .chain(&self.ray_scale)
+            .chain(&self.joint_scale)
             .find(|s| !(s.is_finite() && **s > 0.0))
         {
             return Err(Error::BadModel {
                 reason: format!(
-                    "point and ray sigma scales must be positive and finite, got {bad}"
+                    "point, ray and joint sigma scales must be positive and finite, got {bad}"
                 ),
             });
         }
@@ -157,6 +176,7 @@ impl Observations {
         check_index("joint_part", &self.joint_part, skeleton.n_parts())?;
         check_finite("points", &self.points)?;
         check_finite("joints", &self.joints)?;
+        check_finite("joint_offset", &self.joint_offset)?;
         super::check_rays(&self.origins, &self.directions)?;
         if self.points.len() + self.origins.len() + self.joints.len() == 0 || self.frames == 0 {
             return Err(Error::Empty {
@@ -248,10 +268,15 @@ impl Residual {
                 w * residual
             }
             Residual::Joint(i, k) => {
-                let w = 1.0 / obs.sigma[2];
+                let w = obs.joint_weight(i);
                 let b = obs.joint_part[i];
                 let pose = &field.pose;
-                let origin = pose.origin[b];
+                // The observed point: the part's origin, or a point fixed in its frame (its
+                // offset is in metres, so the part's own coefficients do not move it).
+                let origin = match obs.joint_offset.get(i) {
+                    Some(offset) => pose.origin[b] + pose.rotation[b] * Vector3::from(*offset),
+                    None => pose.origin[b],
+                };
                 if let Some(row) = row {
                     row.iter_mut().for_each(|v| *v = 0.0);
                     let n_motion = field.skeleton.n_motion;

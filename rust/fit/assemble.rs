@@ -36,7 +36,7 @@ impl<const D: usize> FitSystem<D> {
     }
 
     /// Adds a pull of model node `node` towards `target` with metric `scale * weight`.
-    fn pull(&mut self, node: u32, weight: &Block<D>, target: &[f64; D], scale: f64) {
+    pub(super) fn pull(&mut self, node: u32, weight: &Block<D>, target: &[f64; D], scale: f64) {
         let node = node as usize;
         add_scaled(&mut self.extra[node], weight, scale);
         let wt = mat_vec(weight, target);

@@ -377,6 +377,11 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         joints: points(d, "joints")?,
         joint_part: index(d, "joint_part", usize::MAX)?,
         joint_frame: index(d, "joint_frame", frames)?,
+        joint_offset: match d.get_item("joint_offset")? {
+            Some(v) if !v.is_none() => points(d, "joint_offset")?,
+            _ => Vec::new(),
+        },
+        joint_scale: optional(d, "joint_scale")?,
         sigma: [sigma[0], sigma[1], sigma[2]],
         log_epsilon: match d.get_item("log_epsilon")? {
             Some(v) if !v.is_none() => Some(v.extract()?),

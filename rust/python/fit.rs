@@ -12,6 +12,7 @@ use super::{c_slice, invalid_input, rows};
 use crate::camera::Camera;
 use crate::fit::coverage::TargetSamples;
 use crate::fit::silhouette::SilhouetteView;
+use crate::fit::tracks::FrameTracks;
 use crate::fit::{fit_frame_with, FitOptions, FitWorkspace, FrameMetrics, FrameTargets};
 use crate::grid_sample::GridField;
 
@@ -105,7 +106,8 @@ impl FitCore {
     #[pyo3(signature = (values, origin, spacing, start, *, stiffness = 1.0, contact = 1.0,
         max_iterations = 10, stop_fraction = 0.01, invalidate = true, self_intersection = true,
         solver_tolerance = 1e-6, solver_max_iterations = 500, matrix_free = false, coarse = true,
-        hold_contacts = false, coverage = 2.0, volume = 4.0, silhouette = 0.0, views = None))]
+        hold_contacts = false, coverage = 2.0, volume = 4.0, silhouette = 0.0, views = None,
+        tracks = None, track_weight = 1.0, track_sigma = 1.0, track_scale = 10.0))]
     #[allow(clippy::too_many_arguments)]
     fn fit_frame<'py>(
         &self,
@@ -129,6 +131,10 @@ impl FitCore {
         volume: f64,
         silhouette: f64,
         views: Option<Vec<View<'py>>>,
+        tracks: Option<Tracked<'py>>,
+        track_weight: f64,
+        track_sigma: f64,
+        track_scale: f64,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let shape = values.shape();
         let grid = [shape[0], shape[1], shape[2]];
@@ -156,8 +162,12 @@ impl FitCore {
             .lock()
             .map_err(|_| invalid_input("a previous fit panicked; build a new FitCore".into()))?;
         let core = self.model.get();
+        let mut track_distance = None;
         let (positions, m) = match (&mut *workspace, core.spatial(), core.planar()) {
             (Workspace::Spatial(w), Some(model), _) => {
+                let tracks = tracks
+                    .map(|t| frame_tracks(model.len(), t, track_weight, track_sigma, track_scale))
+                    .transpose()?;
                 let start = rows::<3>(&start, "start")?;
                 let (x, m) = py.detach(|| {
                     let samples = (coverage > 0.0)
@@ -166,9 +176,11 @@ impl FitCore {
                     let targets = FrameTargets {
                         samples: samples.as_ref(),
                         silhouettes: views.as_deref(),
+                        tracks: tracks.as_ref(),
                     };
                     fit_frame_with(model, w, &field, &targets, start, &options)
                 })?;
+                track_distance = tracks.as_ref().map(|t| t.mean_mahalanobis(&x));
                 (positions_out(py, x), m)
             }
             (Workspace::Planar(w), _, Some(model)) => {
@@ -176,6 +188,11 @@ impl FitCore {
                     return Err(invalid_input(format!(
                         "a 2-D model fits to a field one voxel thick: values must have shape (nx, ny, 1), got {shape:?}"
                     )));
+                }
+                if tracks.is_some() {
+                    return Err(invalid_input(
+                        "tracks are 3-D points: a 2-D model does not take them".into(),
+                    ));
                 }
                 let start = rows::<2>(&start, "start")?;
                 let (x, m) = py.detach(|| {
@@ -185,6 +202,7 @@ impl FitCore {
                     let targets = FrameTargets {
                         samples: samples.as_ref(),
                         silhouettes: None,
+                        tracks: None,
                     };
                     fit_frame_with(model, w, &field, &targets, start, &options)
                 })?;
@@ -193,6 +211,9 @@ impl FitCore {
             _ => unreachable!("the workspace matches the model's dimension"),
         };
         let metrics = metrics_dict(py, &m)?;
+        if let Some(distance) = track_distance {
+            metrics.set_item("track_mahalanobis", distance)?;
+        }
         Ok((positions, metrics))
     }
 }
@@ -206,6 +227,45 @@ type View<'py> = (
     Vec<f64>,
     PyReadonlyArray2<'py, f64>,
 );
+
+/// The track term's arrays: nodes (T, k), MLS weights (T, k), tracked positions (T, 3) and
+/// precisions (T, 3, 3).
+type Tracked<'py> = (
+    PyReadonlyArray2<'py, i64>,
+    PyReadonlyArray2<'py, f64>,
+    PyReadonlyArray2<'py, f64>,
+    PyReadonlyArray3<'py, f64>,
+);
+
+fn frame_tracks(
+    n: usize,
+    (nodes, phi, targets, precisions): Tracked<'_>,
+    weight: f64,
+    sigma: f64,
+    scale: f64,
+) -> PyResult<FrameTracks<3>> {
+    let k = nodes.shape()[1];
+    let shapes = [phi.shape(), &precisions.shape()[1..]];
+    if shapes[0] != nodes.shape() || shapes[1] != [3, 3] || targets.shape()[1] != 3 {
+        return Err(invalid_input(format!(
+            "tracks must be nodes (T, k), phi (T, k), positions (T, 3), precisions (T, 3, 3); got {:?}, {:?}, {:?}, {:?}",
+            nodes.shape(), phi.shape(), targets.shape(), precisions.shape()
+        )));
+    }
+    let node_list = indices(c_slice(&nodes, "track_nodes")?, "track_nodes")?;
+    let phi = c_slice(&phi, "track_phi")?.to_vec();
+    let targets = rows::<3>(&targets, "track_positions")?.to_vec();
+    let flat = c_slice(&precisions, "track_precisions")?;
+    let precisions = flat
+        .as_chunks::<9>()
+        .0
+        .iter()
+        .map(|m| [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]])
+        .collect();
+    Ok(FrameTracks::new(
+        n, k, node_list, phi, targets, precisions, weight, sigma, scale,
+    )?)
+}
 
 fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
     views

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
 from elastocap.body.model import BodyModel, BodyState
+from elastocap.body.tracks import anchored_arrays, append_tracks, attach_tracks
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyFit", "BodyObservations", "fit_body", "silhouette_rays", "silhouette_samples"]
@@ -38,6 +39,11 @@ class BodyObservations:
         through a pixel inside the silhouette (must meet the skin), -1 outside it (must
         miss it); see :func:`silhouette_samples`. Default: all outline rays. Rays drawn
         from ``masks`` are outline rays.
+    anchored : tuple or None
+        Tracked points attached to body parts (:mod:`elastocap.body.tracks`): ``(points
+        (T, 3) world metres, part (T,) int, offset (T, 3) metres in the part's frame, sigma
+        (T,) metres)``; each pulls its part's point ``offset`` to ``points`` with weight
+        ``1 / sigma_joint^2`` times ``(0.01 / sigma)^2``.
     point_sigma : (N,) array_like or None
         Standard deviation of each point (metres), e.g. from stereo's or a track's
         covariance: a point's weight is ``(POINT_SIGMA_REFERENCE / point_sigma)^2`` times
@@ -51,6 +57,7 @@ class BodyObservations:
     joints: Mapping[str, Any] = field(default_factory=dict)
     point_sigma: Any = None
     ray_side: Any = None
+    anchored: Any = None
 
 
 #: The point standard deviation (metres) that ``fit_body(sigma_point=...)`` (field units)
@@ -241,7 +248,12 @@ def _frame(model: BodyModel, obs: Any, f: int, cameras: Sequence[Camera] | None,
         raise InvalidInputError(f"frames[{f}].joints names unknown parts {unknown}; parts are {model.part_names}")
     joints = _rows3(f"frames[{f}].joints", [obs.joints[n] for n in obs.joints] if obs.joints else None)
     joint_part = np.array([names[n] for n in obs.joints], dtype=np.int64)
-    return points, origins, directions, joints, joint_part, point_scale, sides
+    offsets, scales = np.zeros((len(joints), 3)), np.ones(len(joints))
+    if obs.anchored is not None:
+        at, part, offset, scale = anchored_arrays(obs.anchored, f"frames[{f}].anchored", len(names))
+        joints, joint_part = np.concatenate([joints, at]), np.concatenate([joint_part, part])
+        offsets, scales = np.concatenate([offsets, offset]), np.concatenate([scales, scale])
+    return points, origins, directions, joints, joint_part, point_scale, sides, offsets, scales
 
 
 def fit_body(
@@ -260,6 +272,10 @@ def fit_body(
     max_rays_per_mask: int | None = None,
     residual: str = "log",
     log_epsilon: float = 0.01,
+    tracks: Any = None,
+    frame_numbers: Sequence[int] | None = None,
+    rest_frame: int | None = None,
+    track_outlier: float = 0.1,
 ) -> BodyFit:
     """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
     silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
@@ -299,6 +315,22 @@ def fit_body(
     log_epsilon : float, keyword-only
         ``eps`` of the "log" residual: below ``F ~ eps`` it flattens again, so far
         outliers do not pull.
+    tracks : Tracks, optional, keyword-only
+        Tracked surface points (:func:`elastocap.track_points`; world metres, the frames'
+        world). Each is attached to the part it lies on at its frame nearest
+        ``rest_frame``, at a fixed place in that part's frame, and pulled to its tracked
+        position in the other frames with weight ``1 / sigma_joint^2`` times
+        ``(0.01 m / its sigma)^2`` (:mod:`elastocap.body.tracks`). The fit then runs twice:
+        without tracks (to attach them), and with them from that result. An empty set
+        changes nothing.
+    frame_numbers : sequence of int, optional, keyword-only
+        The frame number of each entry of ``frames`` (the tracks' frames); default
+        ``0 .. len(frames) - 1``.
+    rest_frame : int, optional, keyword-only
+        The frame the tracks are anchored about (default the first).
+    track_outlier : float, keyword-only
+        A track farther than this (metres) from where the fit without tracks puts its
+        point is left out of that frame.
 
     Returns
     -------
@@ -329,6 +361,22 @@ def fit_body(
     motion = np.ascontiguousarray(np.stack([m for _, m in checked]))
     start_shape = checked[0][0] if shape is None else model.check_state(BodyState(as_float_array("shape", shape), checked[0][1]))[0]
     per_frame = [_frame(model, obs, f, cameras, max_rays_per_mask) for f, obs in enumerate(frames)]
+    attached = None
+    if tracks is not None:
+        numbers = list(range(n)) if frame_numbers is None else [int(v) for v in frame_numbers]
+        if len(numbers) != n:
+            raise InvalidInputError(f"frame_numbers must hold one number per frame ({n}), got {len(numbers)}")
+        options = dict(cameras=cameras, shape=shape, sigma_point=sigma_point, sigma_ray=sigma_ray, sigma_joint=sigma_joint,
+                       max_iterations=max_iterations, refresh_every=refresh_every, outlier_distance=outlier_distance,
+                       max_rays_per_mask=max_rays_per_mask, residual=residual, log_epsilon=log_epsilon)
+        first = fit_body(model, frames, init=init, **options)  # type: ignore[arg-type]
+        attached = attach_tracks(model, first.states, tracks, numbers,
+                                 rest_frame=numbers[0] if rest_frame is None else int(rest_frame),
+                                 outlier=as_positive("track_outlier", track_outlier))
+        if attached.count == 0:
+            return first
+        motion = np.ascontiguousarray(first.motion)
+        start_shape = first.shape if shape is None else start_shape
 
     def stack(k: int) -> NDArray[np.float64]:
         return np.ascontiguousarray(np.concatenate([p[k] for p in per_frame]).reshape(-1, 3))
@@ -350,8 +398,12 @@ def fit_body(
         "log_epsilon": as_positive("log_epsilon", log_epsilon) if residual == "log" else None,
         "point_scale": np.ascontiguousarray(np.concatenate([p[5] for p in per_frame])),
         "ray_side": np.ascontiguousarray(np.concatenate([p[6] for p in per_frame])),
+        "joint_offset": stack(7),
+        "joint_scale": np.ascontiguousarray(np.concatenate([p[8] for p in per_frame])),
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
+    if attached is not None:
+        append_tracks(observations, attached)
     result = model._core.fit(
         observations,
         np.ascontiguousarray(start_shape),

@@ -124,6 +124,7 @@ class _Frame:
     directions: NDArray[np.float64]
     side: NDArray[np.int8]
     joints: Mapping[str, Any]
+    anchored: Any = None
 
     @property
     def empty(self) -> bool:
@@ -134,7 +135,8 @@ class _Frame:
         if rays is not None and len(o) > rays:
             keep = np.linspace(0, len(o) - 1, rays).round().astype(int)
             o, d, s = o[keep], d[keep], s[keep]
-        return BodyObservations(points=self.points, point_sigma=self.point_sigma, origins=o, directions=d, ray_side=s, joints=self.joints)
+        return BodyObservations(points=self.points, point_sigma=self.point_sigma, origins=o, directions=d, ray_side=s, joints=self.joints,
+                                anchored=self.anchored)
 
     def centre(self) -> NDArray[np.float64] | None:
         """Where the body is: the points' median, else the point nearest to all rays."""
@@ -249,7 +251,8 @@ class BodyTracker:
                 origins.append(o)
                 directions.append(d)
                 sides.append(s)
-        return _Frame(points, sigma, np.concatenate(origins), np.concatenate(directions), np.concatenate(sides), dict(obs.joints))
+        return _Frame(points, sigma, np.concatenate(origins), np.concatenate(directions), np.concatenate(sides), dict(obs.joints),
+                      obs.anchored)
 
     def quality(self, state: BodyState, frame: _Frame) -> FrameQuality:
         d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)

@@ -17,11 +17,13 @@ from elastocap._io import load_npz, save_bytes, save_image, save_mesh
 from elastocap.body.fit import BodyObservations
 from elastocap.body.model import Z_UP_TO_WORLD, BodyModel, BodyState
 from elastocap.body.track import BodyTracker
+from elastocap.body.tracks import SequentialAnchors
 from elastocap.capture.folder import Capture
 from elastocap.hull.grid import check_baseline
 from elastocap.pipeline.hull import with_masks
 from elastocap.pipeline.pictures import contact_sheet
 from elastocap.render import render_silhouette
+from elastocap.tracking.tracks import load_tracks
 
 __all__ = ["run_body_stage"]
 
@@ -61,6 +63,7 @@ def run_body_stage(
     *,
     frames: Iterable[int] | None = None,
     max_rays_per_mask: int = 300,
+    tracks: bool = True,
     progress: bool = True,
 ) -> Path:
     """Track the default human through a capture and write ``out/body/``: ``fit.json``
@@ -74,6 +77,12 @@ def run_body_stage(
     :class:`~elastocap.body.track.BodyTracker` does the fitting: a global pose search on
     the first frame, constant-velocity prediction after it, one shape fitted over the first
     frames. A subject the model cannot explain is refused (``InvalidInputError``).
+
+    With ``tracks`` (default) and ``OUT/tracks`` present, tracked points are also
+    correspondences: each is attached to the body part it lies on at the first frame
+    where it is tracked and pulls that part's point in the later frames
+    (:class:`~elastocap.body.tracks.SequentialAnchors`); ``fit.json`` says how many
+    (``tracks_attached``, 0 without).
 
     Each frame's state is saved as it finishes (``out/body/frames/<frame>.json``, written
     atomically), so a run that was stopped resumes after the last frame saved.
@@ -97,6 +106,10 @@ def run_body_stage(
     cameras = {n: cap.rig[n].replace(R=cap.rig[n].R @ Z_UP_TO_WORLD) for n in names}
     tracker = BodyTracker(model, cameras=[cameras[n] for n in names], rays_per_mask=max_rays_per_mask)
     settings = {"max_rays_per_mask": max_rays_per_mask, "cameras": names, "model": model.to_dict(), "tracker": 1}
+    anchors = None
+    if tracks and any((out / "tracks").glob("[0-9]*.npz")):
+        anchors = SequentialAnchors(model, load_tracks(out), Z_UP_TO_WORLD)
+    attached = 0
     for frame in tqdm(wanted, desc="body", unit="frame", disable=not progress):
         masks = cap.masks(frame) if cap.has_masks else None
         stereo = _stereo_points(out, frame)
@@ -104,13 +117,17 @@ def run_body_stage(
             masks=None if masks is None else [masks[n] for n in names],
             points=None if stereo is None else stereo[0] @ Z_UP_TO_WORLD,
             point_sigma=None if stereo is None else stereo[1],
+            anchored=None if anchors is None else anchors.observations(frame),
         )
         saved = _load_frame_state(out, frame, settings, model)
         if saved is not None:
             tracker.resume(observed, saved)
-            continue
-        state = tracker.update(observed)
-        _save_frame_state(out, frame, settings, state)
+            state = saved
+        else:
+            state = tracker.update(observed)
+            _save_frame_state(out, frame, settings, state)
+        if anchors is not None:
+            attached += anchors.attach(frame, state)
     track = tracker.result()
     (out / "body").mkdir(parents=True, exist_ok=True)
     meshes = []
@@ -142,6 +159,7 @@ def run_body_stage(
         "quality": [{"median_distance": q.median_distance, "explained": q.explained, "observations": q.observations} for q in track.quality],
         "searched": track.searched,
         "observed": track.observed,
+        "tracks_attached": attached,
     }
     save_bytes(result_file, json.dumps(record, indent=1).encode())
     return result_file

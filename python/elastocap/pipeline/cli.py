@@ -78,6 +78,7 @@ def _fit(args: argparse.Namespace) -> int:
         rotation=args.rotation,
         stiffness=args.stiffness,
         resolution=args.resolution,
+        tracks=not args.no_tracks,
         progress=not args.quiet,
     )
     print(f"fitted {len(result.fits)} frame(s) into {Path(args.out) / 'fit'}; figures in {Path(args.out) / 'metrics.json'}")
@@ -90,7 +91,8 @@ def _body(args: argparse.Namespace) -> int:
     from elastocap.pipeline.hull import parse_frames
 
     capture = Capture.open(args.capture)
-    written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
+    written = run_body_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames),
+                             tracks=not args.no_tracks, progress=not args.quiet)
     print(f"wrote {written}")
     return 0
 
@@ -264,6 +266,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     fit.add_argument("--stiffness", type=float, default=1.0, help="elastic stiffness vs. surface pull (default: 1)")
     fit.add_argument("--resolution", type=int, default=128, help="hull voxels along the longest side (default: 128)")
+    fit.add_argument("--no-tracks", action="store_true",
+                     help="ignore OUT/tracks/ (by default its tracks, from elastocap track, pin the fit)")
     fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(run=_fit)
     body = commands.add_parser(
@@ -276,6 +280,8 @@ def _parser() -> argparse.ArgumentParser:
     body.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
     body.add_argument("--out", required=True, help="output folder")
     body.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
+    body.add_argument("--no-tracks", action="store_true",
+                      help="do not attach OUT/tracks/ points to body parts (by default they pin the parts they lie on)")
     body.add_argument("--quiet", action="store_true", help="no progress bar")
     body.set_defaults(run=_body)
     from elastocap.cameras.commands import add_rig_parser

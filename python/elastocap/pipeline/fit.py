@@ -28,6 +28,8 @@ from elastocap._io import load_npz, save_bytes, save_mesh, save_npz
 from elastocap.capture.folder import Capture
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.elastic.tracks import select_frames
+from elastocap.tracking.tracks import load_tracks
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.pipeline.reprojection import CORE_IOU_FLOOR, ReprojectionWarning, iou_drops, reprojection_iou
 
@@ -77,6 +79,7 @@ def run_fit_stage(
     silhouette: float = 0.0,
     resolution: int = 128,
     reprojection: bool = True,
+    tracks: bool = True,
     progress: bool = True,
 ) -> SequenceFit:
     """Fit every frame of a capture; returns the fit (finished frames read back).
@@ -94,13 +97,19 @@ def run_fit_stage(
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
         As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks.
+        capture's cameras and masks. Off by default here: on a capture of 96 x 72 images
+        (a limb a few pixels wide) the term's fits were not reproducible from run to run,
+        which a resumed run needs (benches/README.md, issue 17).
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
         Measure each fitted frame's silhouette against the masks (IoU per camera, in the
         frame's ``.npz`` and ``metrics.json``) and warn (:class:`ReprojectionWarning`)
         naming the frames where a camera's IoU drops.
+    tracks : bool
+        Use the tracks of ``out/tracks/`` (``elastocap track``) when there are any
+        (:func:`~elastocap.elastic.fit.fit_sequence`'s ``tracks``); ``metrics.json`` says
+        whether they were used (``summary.tracks``: the number of tracks, 0 without).
     progress : bool
         Show progress bars.
     """
@@ -159,14 +168,17 @@ def run_fit_stage(
 
     targets = _LazyHulls(out, frames)
     masks = _LazyMasks(cap) if silhouette > 0 else None
+    tracked = None
+    if tracks and any((out / "tracks").glob("[0-9]*.npz")):
+        tracked = select_frames(load_tracks(out), frames)
     result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, silhouette=silhouette,
-                          cameras=cap.rig.cameras, masks=masks, done=done, callback=write)
+                          cameras=cap.rig.cameras, masks=masks, done=done, callback=write, tracks=tracked)
     bar.close()
     # Frames fitted before an interruption come back with their positions only: their
     # figures are in their files, so a resumed run reports what an uninterrupted one does.
     for frame, metrics in done_metrics.items():
         result.fits[frame].metrics.update(metrics)
-    drops = _write_metrics(out, result, cap.rig.names)
+    drops = _write_metrics(out, result, cap.rig.names, 0 if tracked is None else len(tracked.ids))
     if drops:
         listed = "; ".join(f"frame {frame}: {', '.join(names)}" for frame, names in drops.items())
         warnings.warn(
@@ -214,7 +226,7 @@ class _LazyMasks(Mapping[int, list[Any]]):
         return [masks.get(name) for name in self._cap.rig.names]
 
 
-def _write_metrics(out: Path, result: SequenceFit, cameras: list[str]) -> dict[int, list[str]]:
+def _write_metrics(out: Path, result: SequenceFit, cameras: list[str], tracks: int = 0) -> dict[int, list[str]]:
     """``OUT/metrics.json`` from the frames' files; returns the frames whose reprojection
     IoU drops (:func:`iou_drops`)."""
     per_frame = []
@@ -227,7 +239,7 @@ def _write_metrics(out: Path, result: SequenceFit, cameras: list[str]) -> dict[i
             figures["reprojection_iou"] = dict(zip(cameras, data["reprojection_iou"].tolist()))
             cores[frame] = figures["reprojection_core_iou"] = dict(zip(cameras, data["reprojection_core_iou"].tolist()))
         per_frame.append({"frame": frame, **figures})
-    summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame}
+    summary: dict[str, Any] = {"frames": len(per_frame), "rest_frame": result.rest_frame, "tracks": tracks}
     for key in ("mean_distance", "max_distance", "volume_ratio", "seconds", "iterations", "penetrating"):
         values = [f[key] for f in per_frame if key in f]
         if values:

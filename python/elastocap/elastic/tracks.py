@@ -1,0 +1,218 @@
+"""Tracks in the elastic fit (SPEC 5.1; issue 15, item 4): tracked 3-D surface points
+attached to the model as material points and pulled, frame by frame, to their tracked
+positions (the term itself is ``rust/fit/tracks.rs``).
+
+A track is anchored at its frame nearest the rest frame (the rest frame itself when it is
+tracked there). When that frame is fitted, the tracked point is attached to the model: its
+MLS shape-function weights over the ``k`` nodes nearest to it in that frame's fitted
+positions (SPEC 4.2's linear basis and cubic-spline weights), computed once. In a frame
+fitted later where the track has a position, the material point ``sum_i phi_i x_i`` is
+pulled to it. Fitting runs outward from the rest frame, so the anchor of a track is fitted
+before its other frames, except for a track anchored before the rest frame that also has
+positions after it with none in between: it is not used in those later frames (they are
+fitted before its anchor).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from elastocap._core import InvalidInputError
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.tracks import Tracks
+
+__all__ = ["TrackAttachments", "check_tracks", "material_weights", "select_frames"]
+
+# MLS support: c times the distance to the farthest of the k nodes (SPEC 4.1's c = 1.1),
+# enlarged by 1.25 where the moment matrix is ill-conditioned (as rust/mls.rs repairs).
+_SUPPORT_FACTOR = 1.1
+_ENLARGEMENT = 1.25
+_RCOND_MIN = 1e-3
+
+
+def check_tracks(tracks: Tracks | None, frames: Sequence[int]) -> Tracks | None:
+    """``tracks`` checked against the targets' ``frames``: None for no tracks (None, no
+    track or no frame), else the tracks.
+
+    Raises
+    ------
+    InvalidInputError
+        Not a :class:`Tracks`; a tracked position or covariance that is not finite, or a
+        covariance that is not symmetric positive definite; frames of the tracks that are
+        not frames of the targets.
+    """
+    if tracks is None:
+        return None
+    if not isinstance(tracks, Tracks):
+        raise InvalidInputError(f"tracks must be elastocap.Tracks (elastocap.load_tracks), got {type(tracks).__name__}")
+    if len(tracks.ids) == 0 or len(tracks.frames) == 0:
+        return None
+    tracked = tracks.flags == TrackFlag.TRACKED
+    # Tracks' constructor checks this too, but a Tracks can be changed in place (its arrays
+    # are not read-only).
+    if not np.isfinite(tracks.positions[tracked]).all():
+        f, n = np.argwhere(tracked & ~np.isfinite(tracks.positions).all(axis=2))[0]
+        raise InvalidInputError(f"tracks: position of track {tracks.ids[n]} at frame {tracks.frames[f]} is not finite though flagged TRACKED")
+    covariances = tracks.covariances[tracked]
+    good = np.isfinite(covariances).all(axis=(1, 2))
+    if good.all():
+        symmetric = np.allclose(covariances, covariances.transpose(0, 2, 1), rtol=1e-6, atol=1e-12)
+        good = np.linalg.eigvalsh(0.5 * (covariances + covariances.transpose(0, 2, 1))).min(axis=1) > 0
+        good &= symmetric
+    if not good.all():
+        f, n = np.argwhere(tracked)[np.flatnonzero(~good)[0]]
+        raise InvalidInputError(
+            f"tracks: covariance of track {tracks.ids[n]} at frame {tracks.frames[f]} is not finite, symmetric and positive definite"
+        )
+    missing = sorted(set(int(v) for v in tracks.frames) - set(int(v) for v in frames))
+    if missing:
+        raise InvalidInputError(
+            f"tracks hold frames {missing[:5]}{'...' if len(missing) > 5 else ''} that are not frames of the targets "
+            f"({min(frames)}..{max(frames)}); select the tracks of the fitted frames"
+        )
+    return tracks
+
+
+def _spline(r: NDArray[np.float64]) -> NDArray[np.float64]:
+    """SPEC 4.2's cubic spline w(r), r >= 0."""
+    return np.where(r <= 0.5, 2 / 3 - 4 * r**2 + 4 * r**3, np.where(r <= 1, 4 / 3 * (1 - r) ** 3, 0.0))
+
+
+def material_weights(points: NDArray[np.float64], nodes: NDArray[np.float64], k: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """MLS shape functions of ``nodes`` evaluated at ``points`` (SPEC 4.2, linear basis).
+
+    Parameters
+    ----------
+    points : (T, 3) float64
+        Where to evaluate, world units.
+    nodes : (N, 3) float64
+        Node positions, world units.
+    k : int
+        Nodes per point (the nearest ones), at most N.
+
+    Returns
+    -------
+    neighbours : (T, k) int64
+    phi : (T, k) float64
+        ``phi @ nodes[neighbours]`` reproduces ``points`` (linear reproduction) and rows sum
+        to 1.
+    """
+    k = min(k, len(nodes))
+    distance, neighbours = cKDTree(nodes).query(points, k=k)
+    neighbours = np.asarray(neighbours, np.int64).reshape(len(points), k)
+    distance = np.asarray(distance).reshape(len(points), k)
+    support = _SUPPORT_FACTOR * np.maximum(distance.max(axis=1), 1e-12)
+    phi = np.zeros((len(points), k))
+    todo = np.arange(len(points))
+    for _ in range(5):
+        offset = (nodes[neighbours[todo]] - points[todo, None, :]) / support[todo, None, None]
+        weight = _spline(np.abs(offset)).prod(axis=2)
+        basis = np.concatenate([np.ones(offset.shape[:2] + (1,)), offset], axis=2)
+        moments = np.einsum("tk,tki,tkj->tij", weight, basis, basis)
+        diagonal = np.sqrt(np.maximum(np.einsum("tii->ti", moments), 1e-300))
+        scaled = moments / diagonal[:, :, None] / diagonal[:, None, :]
+        ok = 1 / np.linalg.cond(scaled) >= _RCOND_MIN
+        unit = np.zeros((len(todo), 4))
+        unit[:, 0] = 1
+        gamma = np.zeros((len(todo), 4))
+        if ok.any():
+            gamma[ok] = np.linalg.solve(moments[ok], unit[ok][:, :, None])[:, :, 0]
+        phi[todo[ok]] = weight[ok] * np.einsum("tki,ti->tk", basis[ok], gamma[ok])
+        todo = todo[~ok]
+        if len(todo) == 0:
+            break
+        support[todo] *= _ENLARGEMENT
+    if len(todo):
+        raise InvalidInputError(f"tracks: the nodes around {len(todo)} tracked points do not span space (MLS weights undefined)")
+    return neighbours, phi
+
+
+@dataclass
+class TrackAttachments:
+    """The tracks of a fit and the material points they are attached to.
+
+    ``anchor[n]`` is the index (into ``tracks.frames``) of track n's frame nearest the rest
+    frame (-1 without any position); ``neighbours`` / ``phi`` hold its attachment once that
+    frame is fitted (``attached[n]``).
+    """
+
+    tracks: Tracks
+    k: int
+    anchor: NDArray[np.int64] = field(init=False)
+    neighbours: NDArray[np.int64] = field(init=False)
+    phi: NDArray[np.float64] = field(init=False)
+    attached: NDArray[np.bool_] = field(init=False)
+
+    @classmethod
+    def build(cls, tracks: Tracks, rest_frame: int, k: int) -> TrackAttachments:
+        """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point."""
+        self = cls(tracks, k)
+        tracked = tracks.flags == TrackFlag.TRACKED
+        # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
+        gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
+        cost = np.where(tracked, gap[:, None], np.iinfo(np.int64).max)
+        self.anchor = np.where(tracked.any(axis=0), cost.argmin(axis=0), -1)
+        n = len(tracks.ids)
+        self.neighbours = np.zeros((n, k), np.int64)
+        self.phi = np.zeros((n, k))
+        self.attached = np.zeros(n, bool)
+        return self
+
+    def _row(self, frame: int) -> int | None:
+        rows = np.flatnonzero(self.tracks.frames == frame)
+        return int(rows[0]) if len(rows) else None
+
+    def attach(self, frame: int, positions: NDArray[np.float64]) -> int:
+        """Attach the tracks anchored at ``frame`` to the model at its fitted ``positions``
+        (N, 3); returns how many."""
+        row = self._row(frame)
+        if row is None:
+            return 0
+        which = np.flatnonzero(self.anchor == row)
+        if len(which):
+            points = self.tracks.positions[row, which]
+            self.neighbours[which], self.phi[which] = material_weights(points, positions, self.k)
+            self.attached[which] = True
+        return len(which)
+
+    def frame_arrays(
+        self, frame: int, sigma: float
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
+        """The track term's arrays for ``frame`` (``_core.FitCore.fit_frame(tracks=)``):
+        nodes (T, k), weights (T, k), tracked positions (T, 3) and precisions
+        ``(Sigma + sigma^2 I)^-1`` (T, 3, 3) of the attached tracks tracked there, not
+        anchored there; None when there are none."""
+        row = self._row(frame)
+        if row is None:
+            return None
+        use = self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row)
+        if not use.any():
+            return None
+        covariance = self.tracks.covariances[row, use]
+        precision = np.linalg.inv(0.5 * (covariance + covariance.transpose(0, 2, 1)) + sigma**2 * np.eye(3))
+        return (
+            np.ascontiguousarray(self.neighbours[use]),
+            np.ascontiguousarray(self.phi[use]),
+            np.ascontiguousarray(self.tracks.positions[row, use]),
+            np.ascontiguousarray(precision),
+        )
+
+
+def select_frames(tracks: Tracks, frames: Sequence[int]) -> Tracks:
+    """The part of ``tracks`` at ``frames`` (frames of the tracks not listed are dropped;
+    listed frames the tracks do not have stay absent)."""
+    keep = np.isin(tracks.frames, np.asarray(list(frames), np.int64))
+    views = None if tracks.views is None else tracks.views[keep]
+    return Tracks(
+        frames=tracks.frames[keep],
+        ids=tracks.ids,
+        positions=tracks.positions[keep],
+        covariances=tracks.covariances[keep],
+        flags=tracks.flags[keep],
+        views=views,
+    )
