@@ -197,3 +197,29 @@ def test_bad_arguments(tmp_path: Path) -> None:
         write_textured_capture(tmp_path / "a", cameras=1, progress=False)
     with pytest.raises(InvalidInputError):
         load_textured_truth(tmp_path)
+
+
+def test_material_points_keep_their_texture_and_the_others_are_flagged(truth: TexturedTruth) -> None:
+    """The truth follows the texture wherever it is flagged material: a point shows the colour
+    it had in frame 0 (the pattern at the same coordinates of the same part); near the
+    joints the blended surface slides under the points, and those are flagged."""
+    from elastocap.synth.textured_render import material_mask, material_points, seed_material_points
+
+    assert truth.material.shape == (2, 600) and truth.material[0].all()
+    figure = CapsuleFigure(3)
+    part, local = seed_material_points(figure, 3000, spacing=0.01, seed=3)
+    start_points = material_points(figure, 0, part, local)
+    c = figure.capsules(0)
+    local = np.einsum("nji,nj->ni", c.frames[part], start_points - c.starts[part])
+    start = figure.surface_colours(start_points, 0).astype(int)
+    flagged = []
+    for frame in (4, 9, 17):
+        points = material_points(figure, frame, part, local)
+        material = material_mask(figure, frame, part, local, points)
+        change = np.abs(figure.surface_colours(points, frame).astype(int) - start).max(axis=1)
+        assert change[material].max() <= 1  # uint8 rounding only
+        flagged.append(~material)
+        # Points slid by the blend (or on another part's pattern) do change colour.
+        assert (change[~material] > 1).mean() > 0.2
+    share = np.mean(flagged)
+    assert 0.01 < share < 0.25

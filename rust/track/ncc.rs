@@ -76,6 +76,7 @@ pub(crate) struct BoxScratch {
     sum: Vec<f64>,
     square: Vec<f64>,
     scores: Vec<f64>,
+    dots: Vec<f32>,
 }
 
 /// Searches the template patch (side `size`, around `point` in `template_image`) in
@@ -123,15 +124,25 @@ pub(crate) fn box_search(
     let n = (size * size) as f64;
     let shifts = 2 * radius + 1;
     scratch.scores.clear();
+    scratch.dots.clear();
+    scratch.dots.resize(shifts, 0.0);
     let (mut best, mut best_at) = (f64::NEG_INFINITY, (radius, radius));
     for r in 0..shifts {
-        for c in 0..shifts {
-            let mut dot = 0.0f32;
-            for tr in 0..size {
-                let w = &scratch.window[(r + tr) * side + c..(r + tr) * side + c + size];
-                let t = &template[tr * size..(tr + 1) * size];
-                dot += w.iter().zip(t).map(|(a, b)| a * b).sum::<f32>();
+        // The dot products of one row of shifts at once: each template sample times a run
+        // of `shifts` window samples, a loop the compiler vectorises (the per-shift dot
+        // product of `size^2` terms is a serial sum it cannot).
+        let dots = &mut scratch.dots[..shifts];
+        dots.fill(0.0);
+        for tr in 0..size {
+            let row = &scratch.window[(r + tr) * side..(r + tr + 1) * side];
+            for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
+                for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
+                    *dot += w * t;
+                }
             }
+        }
+        for c in 0..shifts {
+            let dot = scratch.dots[c];
             let s = box_sum(&scratch.sum, r, c);
             let ss = box_sum(&scratch.square, r, c);
             let variance = ss - s * s / n;

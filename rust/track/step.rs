@@ -7,7 +7,13 @@ use rayon::prelude::*;
 use super::flags::Flag;
 use super::ncc::{box_search, BoxScratch};
 use crate::error::{Error, Result};
-use crate::lsm::{match_patches, ImageView, MatchOptions, MatchOutput, Status, PARAMETERS};
+use crate::lsm::{
+    match_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS,
+};
+
+/// Gauss-Newton iterations of the forward-backward check's match (started at the inverse
+/// of the forward map).
+const BACKWARD_ITERATIONS: usize = 5;
 
 /// Options of the temporal step, the same for every point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -204,13 +210,16 @@ pub fn track_camera(
     if back_of.is_empty() {
         return Ok(());
     }
-    let backward = run_matches(
-        current,
-        &back_points,
-        previous,
-        &back_starts,
-        &options.matching,
-    )?;
+    // The check only has to land within `forward_backward` (tenths of a pixel) of the
+    // start, from the inverse map, which is already within hundredths of it when the
+    // forward match is right: bilinear resampling (its bias is hundredths of a pixel) and
+    // a few iterations are enough, and cost a quarter of the forward match.
+    let check = MatchOptions {
+        max_iterations: options.matching.max_iterations.min(BACKWARD_ITERATIONS),
+        interpolation: Interpolation::Bilinear,
+        ..options.matching
+    };
+    let backward = run_matches(current, &back_points, previous, &back_starts, &check)?;
     let block = PARAMETERS * PARAMETERS;
     for (j, &k) in back_of.iter().enumerate() {
         let p = active[k];

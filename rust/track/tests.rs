@@ -129,3 +129,40 @@ fn ncc_at_peaks_at_the_match() {
     assert_eq!(best, 5, "{scores:?}");
     assert!(scores[5] > 0.999);
 }
+
+#[test]
+fn box_search_scores_every_shift_as_ncc_does() {
+    // The row-at-once dot products of the box search against the correlation computed
+    // patch by patch (`ncc_at`, a plain normalised dot product) at every integer shift.
+    let (a, b) = (texture(120, 100, [0.0; 2]), texture(120, 100, [1.7, -2.3]));
+    let view = |data| ImageView {
+        data,
+        width: 120,
+        height: 100,
+    };
+    let (ta, tb) = (view(&a), view(&b));
+    let (point, prediction, size, radius) = ([60.0, 50.0], [60.4, 49.3], 15, 6);
+    let mut scratch = super::ncc::BoxScratch::default();
+    let best =
+        super::ncc::box_search(&ta, point, &tb, prediction, size, radius, &mut scratch).unwrap();
+    let shifts = 2 * radius + 1;
+    let candidates: Vec<[f64; 2]> = (0..shifts * shifts)
+        .map(|i| {
+            let (r, c) = (i / shifts, i % shifts);
+            [
+                prediction[0] + c as f64 - radius as f64,
+                prediction[1] + r as f64 - radius as f64,
+            ]
+        })
+        .collect();
+    let mut scores = vec![0.0; candidates.len()];
+    ncc_at(&ta, point, &tb, &candidates, size, &mut scores);
+    let top = (0..scores.len())
+        .max_by(|&i, &j| scores[i].total_cmp(&scores[j]))
+        .unwrap();
+    assert!((best.score - scores[top]).abs() < 1e-4, "{} vs {}", best.score, scores[top]);
+    // The integer peak is the shift nearest the true one; the parabola refines it.
+    let at = candidates[top];
+    assert!((best.centre[0] - at[0]).abs() <= 0.5 && (best.centre[1] - at[1]).abs() <= 0.5);
+    assert!((best.centre[0] - 61.7).abs() < 0.3 && (best.centre[1] - 47.7).abs() < 0.3, "{:?}", best.centre);
+}

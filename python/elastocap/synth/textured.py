@@ -18,7 +18,10 @@ one of :func:`~elastocap.synth.capture.write_synthetic_capture` plus::
                                                no ground truth)
       ground_truth/surface_points.npz          "frames" (F,) int64, "positions" (F, N, 3)
                                                float64 world metres, "visible" (F, C, N)
-                                               bool, "cameras" (C,) str, "part" (N,) int64
+                                               bool, "cameras" (C,) str, "part" (N,) int64,
+                                               "material" (F, N) bool (the point shows the
+                                               texture it was seeded on: false near joints,
+                                               where the blended surface slides under it)
       ground_truth/figure.json                 the figure, settings, frames and groups
 
 ``stereo.json`` is the capture format's one addition: any capture may carry it (a user
@@ -46,6 +49,7 @@ from elastocap.cameras import Camera, Rig
 from elastocap.synth.capsules import CapsuleFigure
 from elastocap.synth.capture import _check_resumable, _look_at_rotation, _save_rig, render_background
 from elastocap.synth.textured_render import (
+    material_mask,
     material_points,
     render_textured,
     seed_material_points,
@@ -302,13 +306,20 @@ def _write_surface_points(root: Path, figure: CapsuleFigure, rig: Rig, frames: i
     part, local = seed_material_points(figure, count, spacing=_SPACING, seed=seed)
     positions = np.empty((frames, count, 3))
     visible = np.zeros((frames, len(rig.cameras), count), dtype=bool)
+    material = np.zeros((frames, count), dtype=bool)
     for n in range(frames):
         positions[n] = material_points(figure, n, part, local)
+        if n == 0:
+            # The texture coordinates the points show in frame 0 (on the field's zero level,
+            # a fraction of a millimetre from the mesh they were sampled on).
+            pose = figure.capsules(0)
+            local = np.einsum("nji,nj->ni", pose.frames[part], positions[0] - pose.starts[part])
+        material[n] = material_mask(figure, n, part, local, positions[n])
         for c, camera in enumerate(rig.cameras):
             depth = load_npz(root / "ground_truth" / "depth" / camera.name / f"{n:06d}.npz", required=["depth"])["depth"]
             visible[n, c] = visible_points(positions[n], camera, depth)
     save_npz(path, frames=np.arange(frames, dtype=np.int64), positions=positions, visible=visible,
-             cameras=np.array(rig.names), part=part)
+             cameras=np.array(rig.names), part=part, material=material)
 
 
 @dataclass(frozen=True)
@@ -331,6 +342,10 @@ class TexturedTruth:
     part : (N,) int64
         Body part of each point (index into ``elastocap.synth.capsules.PARTS``).
     root : Path
+    material : (F, N) bool
+        Whether point ``n`` shows, in frame ``f``, the texture it was seeded on
+        (:func:`~elastocap.synth.textured_render.material_mask`): measures of tracking
+        (which follows the texture) use only material points.
     """
 
     figure: CapsuleFigure
@@ -342,6 +357,7 @@ class TexturedTruth:
     cameras: tuple[str, ...]
     part: NDArray[np.int64]
     root: Path
+    material: NDArray[np.bool_]
 
     def depth(self, camera: str, frame: int) -> NDArray[np.float32]:
         """``(H, W) float32``: the ground-truth depth of ``camera`` at ``frame`` (NaN off
@@ -377,14 +393,26 @@ def load_textured_truth(folder: str | Path) -> TexturedTruth:
     if not path.exists():
         raise InvalidInputError(f"{path} is missing: the capture is incomplete, rerun write_textured_capture")
     data = load_npz(path, required=["frames", "positions", "visible", "cameras", "part"])
+    figure = CapsuleFigure.from_dict(record)
+    positions = data["positions"].astype(np.float64)
+    part = data["part"].astype(np.int64)
+    if "material" in data:
+        material = data["material"].astype(bool)
+    else:
+        # Captures written before the field: recovered from frame 0, where every point is
+        # exactly on its part.
+        pose = figure.capsules(int(data["frames"][0]))
+        local = np.einsum("nji,nj->ni", pose.frames[part], positions[0] - pose.starts[part])
+        material = np.stack([material_mask(figure, int(f), part, local, x) for f, x in zip(data["frames"], positions)])
     return TexturedTruth(
-        figure=CapsuleFigure.from_dict(record),
+        figure=figure,
         rig=Rig.load(root),
         stereo_pairs=[list(group) for group in record["stereo_pairs"]],
         frames=data["frames"].astype(np.int64),
-        positions=data["positions"].astype(np.float64),
+        positions=positions,
         visible=data["visible"].astype(bool),
         cameras=tuple(str(name) for name in data["cameras"]),
-        part=data["part"].astype(np.int64),
+        part=part,
         root=root,
+        material=material,
     )

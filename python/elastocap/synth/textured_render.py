@@ -21,13 +21,24 @@ from elastocap.render import raster as _raster
 from elastocap.render.mesh import AMBIENT, DEFAULT_LIGHT, project_mesh
 from elastocap.synth.capsules import CapsuleFigure
 
-__all__ = ["VISIBILITY_TOLERANCE", "material_points", "render_textured", "seed_material_points"]
+__all__ = [
+    "MATERIAL_TOLERANCE", "VISIBILITY_TOLERANCE", "material_mask", "material_points", "render_textured",
+    "seed_material_points",
+]
 
 # A surface point counts as visible in a camera when one of the 2 x 2 pixel centres around
 # its projection sees the surface within this depth of it (metres). Limbs are several
 # centimetres thick, so an occluder is always further in front than this; surfaces seen at
 # grazing angles (where depth changes by more than this per pixel) count as not visible.
 VISIBILITY_TOLERANCE = 0.01
+
+# A surface point is material in a frame when the texture seen at its truth position is the
+# one it carried in frame 0: the same part's pattern, at pattern coordinates within this
+# distance (metres; 0.1 mm is 0.02 px at 640 x 480 from 3 m). Away from the joints the
+# truth is exact (distance 0); within the blend of two capsules the correction onto the
+# blended surface slides it by up to centimetres, and the renderer's nearest-part choice
+# can switch to the neighbouring part's pattern.
+MATERIAL_TOLERANCE = 1e-4
 
 
 def subpixel_camera(camera: Camera, n: int) -> Camera:
@@ -170,6 +181,22 @@ def material_points(
         )
         X = X - (f / np.maximum(np.einsum("ij,ij->i", gradient, gradient), 1e-12))[:, None] * gradient
     return X
+
+
+def material_mask(
+    figure: CapsuleFigure, frame: int, part: NDArray[np.int64], local: NDArray[np.float64], points: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """``(N,) bool``: which truth points ``points`` (their :func:`material_points` at
+    ``frame``) show the texture they were seeded on (:data:`MATERIAL_TOLERANCE`).
+
+    The renderer colours a surface point with the pattern of its nearest capsule, in that
+    capsule's frame (:meth:`CapsuleFigure.surface_colours`); a truth point is material when
+    that capsule is still its ``part`` and its coordinates there are still ``local``.
+    """
+    c = figure.capsules(frame)
+    nearest = np.argmin(figure.part_distances(points, frame), axis=1)
+    coordinates = np.einsum("nji,nj->ni", c.frames[part], points - c.starts[part])
+    return (nearest == part) & (np.linalg.norm(coordinates - local, axis=1) <= MATERIAL_TOLERANCE)
 
 
 def visible_points(

@@ -28,13 +28,16 @@ class TrackAccuracy(NamedTuple):
     (F, N) those frames; ``error`` (F, N) the largest image error per frame (NaN where not
     tracked), pixels; ``error3d`` (F, N) the 3-D distance to the truth in pixel
     equivalents (over the pixel footprint at the truth's depth, mean over the cameras that
-    see it)."""
+    see it); ``measured`` (N,) the tracks the figures are about: seeded, and (when the
+    truth says which points are material) seeded on a point that shows its own texture on
+    every frame, carried by such points only."""
 
     rms: NDArray[np.float64]
     through: NDArray[np.bool_]
     expected: NDArray[np.bool_]
     error: NDArray[np.float64]
     error3d: NDArray[np.float64]
+    measured: NDArray[np.bool_]
 
 
 def _kabsch(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -50,10 +53,13 @@ def _kabsch(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray[np.
 
 
 def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.float64], visible: NDArray[np.bool_],
-                   part: NDArray[np.int64] | None = None, *, neighbours: int = 8) -> TrackAccuracy:
+                   part: NDArray[np.int64] | None = None, *, neighbours: int = 8,
+                   material: NDArray[np.bool_] | None = None) -> TrackAccuracy:
     """Measure ``tracks`` against truth positions (F, M, 3) and visibility (F, C, M) of
     surface points on the same frames (``part`` (M,): neighbours are taken on the nearest
-    point's part only)."""
+    point's part only; ``material`` (F, M): where each truth point shows the texture it was
+    seeded on; only points material on every frame carry tracks, and a track whose nearest
+    truth point at its seeding is not one is left out of ``measured``)."""
     f, n = tracks.flags.shape
     tracked = tracks.flags == TrackFlag.TRACKED
     first = np.where(tracked.any(axis=0), np.argmax(tracked, axis=0), -1)
@@ -63,15 +69,20 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     error3d = np.full((f, n), np.nan)
     m = truth.shape[1]
     part_ = np.zeros(m, np.int64) if part is None else np.asarray(part)
+    usable = np.ones(m, bool) if material is None else np.asarray(material, bool).all(axis=0)
+    measured = first >= 0
     for s in np.unique(first[first >= 0]):
         rows = np.flatnonzero(first == s)
         x0 = tracks.positions[s, rows]
         tree = cKDTree(truth[s])
         _, nearest = tree.query(x0, k=1)
-        # Neighbours on the nearest point's part.
+        measured[rows] &= usable[nearest]
+        # Neighbours on the nearest point's part, among the material ones.
         near = np.zeros((rows.size, neighbours), np.int64)
         for p in np.unique(part_[nearest]):
-            on = np.flatnonzero(part_ == p)
+            on = np.flatnonzero((part_ == p) & usable)
+            if on.size == 0:
+                on = np.flatnonzero(part_ == p)
             sub = cKDTree(truth[s, on])
             sel = part_[nearest] == p
             _, idx = sub.query(x0[sel], k=min(neighbours, on.size))
@@ -104,4 +115,4 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     with np.errstate(all="ignore"):
         rms = np.where(counts > 0, np.sqrt(squares.sum(axis=0) / counts), np.nan)
     through = ~(expected & ~tracked).any(axis=0) & (first >= 0)
-    return TrackAccuracy(rms=rms, through=through, expected=expected, error=error, error3d=error3d)
+    return TrackAccuracy(rms=rms, through=through, expected=expected, error=error, error3d=error3d, measured=measured)

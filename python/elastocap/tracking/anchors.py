@@ -62,13 +62,33 @@ class Anchors:
                 reach: float, min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         """``uv`` (N, C, 2) refined against the anchors where held and tracked; returns the
         refined positions and where the anchor no longer matched (to be re-cut)."""
+        out, _, good = self._match(images, uv, self.held[: len(uv)] & np.isfinite(uv[..., 0]),
+                                   min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+        tried = self.held[: len(uv)] & np.isfinite(uv[..., 0])
+        return np.where(good[..., None], out, uv), tried & ~good
+
+    def rescue(self, images: Sequence[NDArray[np.float32]], starts: NDArray[np.float64], where: NDArray[np.bool_], *,
+               min_correlation: float, reach: float, min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Views the frame-to-frame match lost (``where`` (N, C), started at ``starts``
+        (N, C, 2)) matched again from their anchor patch: a weak or changing texture fails
+        the frame-to-frame check by chance far more often than the first-appearance patch
+        stops matching. Returns positions (N, C, 2) and covariances (N, C, 2, 2), NaN where
+        not found."""
+        out, cov, good = self._match(images, starts, where & self.held[: len(starts)] & np.isfinite(starts[..., 0]),
+                                     min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+        return np.where(good[..., None], out, np.nan), np.where(good[..., None, None], cov, np.nan)
+
+    def _match(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], *,
+               min_correlation: float, reach: float,
+               min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         n, c = uv.shape[:2]
         self.grow(n)
         out = uv.copy()
-        stale = np.zeros((n, c), bool)
+        cov = np.full((n, c, 2, 2), np.nan)
+        matched = np.zeros((n, c), bool)
         half = self.side // 2
         for k in range(c):
-            rows = np.flatnonzero(self.held[:n, k] & np.isfinite(uv[:, k, 0]))
+            rows = np.flatnonzero(where[:, k])
             if rows.size == 0:
                 continue
             per_row = int(np.ceil(np.sqrt(rows.size)))
@@ -83,5 +103,6 @@ class Anchors:
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
             out[rows[good], k] = pos[good]
-            stale[rows[~good], k] = True
-        return out, stale
+            cov[rows[good], k] = m.covariance[good, :2, :2]
+            matched[rows[good], k] = True
+        return out, cov, matched
