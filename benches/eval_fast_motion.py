@@ -6,8 +6,8 @@ bounding-box diagonal; the hull's own beside it), the fitted-to-hull ratio of th
 pooled distance, the coverage term's unexplained samples (%) and the volume ratio.
 
 Run: ``python benches/eval_fast_motion.py SEED FRAMES NODES RESOLUTION WIDTH HEIGHT
-'[{"coverage": 0.0}, {}, {"silhouette": 1.0}]' [--poisson P]`` (the silhouette term gets the
-capture's cameras and masks); the capture and hulls are kept in
+'[{"coverage": 0.0, "silhouette": 0.0}, {"silhouette": 0.0}, {}]' [--poisson P]`` (fit_sequence
+gets the capture's cameras and masks: its silhouette term is on unless the options turn it off); the capture and hulls are kept in
 ``/tmp/elastocap_fast_<seed>_<frames>_<width>`` and reused.
 """
 
@@ -53,7 +53,9 @@ def main() -> None:
     masks = [[capture.masks(f)[name] for name in capture.rig.names] for f in frames]
     for options in args.options:
         clock = time.perf_counter()
-        views = {"cameras": capture.rig.cameras, "masks": masks} if options.get("silhouette", 0) > 0 else {}
+        # The cameras and masks, as the pipeline gives them ('{"silhouette": 0}' turns the
+        # silhouette term off).
+        views = {"cameras": capture.rig.cameras, "masks": masks}
         fit = fit_sequence(model, hulls, **options, **views)
         seconds = (time.perf_counter() - clock) / args.frames
         errors = [surface_error(fit.surface(f), truths[f]) for f in frames]

@@ -32,6 +32,13 @@ from elastocap.hull.sdf import SDF
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 
+# The silhouette term's weight when cameras and masks are given (benches/README.md, issue 17:
+# horse gallop fit/hull 0.961 -> 0.802, drift 1.81% -> 1.66% of the diagonal).
+SILHOUETTE = 1.0
+# The most a frame's refinement against the masks may take its volume farther from rest
+# (a fraction of the rest volume; the volume bound of issue 17).
+REFINED_VOLUME_CHANGE = 0.05
+
 
 @dataclass(frozen=True)
 class FrameFit:
@@ -158,7 +165,8 @@ def fit_sequence(
     hold_contacts: bool = False,
     coverage: float = 2.0,
     volume: float = 4.0,
-    silhouette: float = 0.0,
+    silhouette: float | None = None,
+    silhouette_stage: str = "chain",
     cameras: Sequence[Any] | None = None,
     masks: Sequence[Sequence[Any]] | Mapping[int, Sequence[Any]] | None = None,
     predict: bool = True,
@@ -216,13 +224,27 @@ def fit_sequence(
         the body does not. 3-D models only (a 2-D silhouette's area changes with the pose).
         Measured on the fast-motion capture (seed 1, 30 frames, 2,500
         nodes): volume 0.886-1.000 of rest without it, 0.976-1.007 at 1, 0.991-1.008 at 4.
-    silhouette : float
+    silhouette : float, optional
         Weight of the silhouette term per surface node and camera (0 turns it off; needs
-        ``cameras`` and ``masks``): surface nodes projecting outside a camera's mask are
-        pushed in, and rim nodes (normal across the camera's ray) whose outline lies inside
-        the mask are drawn out to the mask's outline, each across the outline in the plane
-        normal to the ray. The masks are exact to a pixel where a carved hull is exact to a
-        voxel.
+        ``cameras`` and ``masks``; default 1 when they are given for a 3-D model, else 0):
+        surface nodes projecting outside a camera's mask are pushed in, and rim nodes
+        (normal across the camera's ray) whose outline lies inside the mask are drawn out
+        to the mask's outline, each across the outline in the plane normal to the ray. The
+        masks are exact to a pixel where a carved hull is exact to a voxel. Horse gallop
+        (benches/eval_horse.py): fitted/hull mean distance 0.96 -> 0.80.
+    silhouette_stage : {"chain", "refine", "joint"}
+        How the silhouette term enters. "chain" (default): each frame is fitted to the
+        hull first (whose terms have their invalidation), the fit is then refined against
+        the masks from there, and the next frame starts from the refined fit. "refine": the
+        same, but the next frame starts from the hull-only fit. "joint": every term at once
+        from the frame's start. A mask's pull goes to the nearest outline, a neighbouring
+        limb's when the frame starts far from its pose; after the hull-only fit the nearest
+        outline is the limb's own. Horse gallop (benches/eval_horse.py, 5,873 nodes):
+        joint drift 3.85% of the diagonal with a worst frame 1.66x the hull's error (legs
+        drawn into each other's silhouettes), refine 1.74% and 0.87x, chain 1.66% and 0.87x.
+        A refinement that takes the volume more than 5% of rest farther from it than the
+        hull-only fit is dropped (metric ``silhouette_kept``). On coarse images (a limb a
+        few pixels wide) the term's fits are not reproducible from run to run.
     cameras : sequence of Camera, optional
         The rig's cameras (``Rig.cameras``), for the silhouette term.
     masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional
@@ -253,8 +275,12 @@ def fit_sequence(
         positive stiffness; reported, not hidden). A linear solve that stops at its
         iteration cap is not an error: the frame's ``solver_converged`` metric is False.
     """
+    if silhouette is None:
+        silhouette = SILHOUETTE if cameras is not None and masks is not None and model.dim == 3 else 0.0
     if silhouette > 0 and (cameras is None or masks is None):
         raise InvalidInputError("silhouette > 0 needs cameras and masks")
+    if silhouette_stage not in ("chain", "refine", "joint"):
+        raise InvalidInputError(f"silhouette_stage must be 'chain', 'refine' or 'joint', got {silhouette_stage!r}")
     if len(model.surface_faces) == 0:
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
@@ -271,6 +297,9 @@ def fit_sequence(
     field_of = target_field if model.dim == 3 else _mask_field
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
+    # Where each fitted frame's neighbours start from: its fit, or with the silhouette
+    # term as a refinement, its fit to the hull alone.
+    starts: dict[int, NDArray[np.float64]] = {}
     # (frame, the neighbour it starts from, the neighbour's neighbour): outward from the rest
     # frame, in the order of the frame numbers.
     rest = frames.index(rest_frame)
@@ -281,41 +310,55 @@ def fit_sequence(
     for frame, neighbour, second in order:
         if frame in previous:
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
+            starts[frame] = result.fits[frame].positions
             continue
         if neighbour is None:
             start = model.nodes
         else:
-            start = result.fits[neighbour].positions
-            if predict and second is not None and second in result.fits:
+            start = starts[neighbour]
+            if predict and second is not None and second in starts:
                 # The elastic solve sees only the start, so a leg that swings 0.5 m per
                 # frame is met half-way instead of pulled back onto the nearest limb.
-                start = 2 * start - result.fits[second].positions
+                start = 2 * start - starts[second]
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
             views = silhouette_views(cameras, masks[frame])
+        options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
+                       self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
+                       # A body keeps its volume; a 2-D silhouette does not keep its area.
+                       volume=volume if model.dim == 3 else 0.0)
         clock = time.perf_counter()
-        positions, metrics = fitter.fit_frame(
-            values,
-            origin,
-            spacing,
-            np.ascontiguousarray(start),
-            stiffness=stiffness,
-            contact=contact,
-            max_iterations=max_iterations,
-            invalidate=invalidate,
-            self_intersection=self_intersection,
-            hold_contacts=hold_contacts,
-            coverage=coverage,
-            # A body keeps its volume; a 2-D silhouette does not keep its area.
-            volume=volume if model.dim == 3 else 0.0,
-            silhouette=silhouette,
-            views=views,
-        )
+        staged = views is not None and silhouette_stage != "joint"
+        positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **options,
+                                              silhouette=0.0 if staged else silhouette,
+                                              views=None if staged else views)
+        chained = positions
+        if staged:
+            # The masks' pulls go to the nearest mask outline, which is a neighbouring
+            # limb's when the frame starts far from its pose: the frame is first fitted
+            # to the hull alone (whose terms have their invalidation), then refined
+            # against the masks from there, where the nearest outline is the limb's own.
+            refined_positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained),
+                                                          **options, silhouette=silhouette, views=views)
+            # A refinement that takes the volume farther from rest than the volume bound
+            # (5%) is not the masks' precision but their coarseness: on images where a limb
+            # is a few pixels wide (96 x 72, 160 nodes) it swelled the surface to 3x the
+            # rest volume. The hull-only fit is kept then.
+            before = abs(model.enclosed_measure(chained) / rest_volume - 1)
+            after = abs(model.enclosed_measure(refined_positions) / rest_volume - 1)
+            kept = bool(after <= before + REFINED_VOLUME_CHANGE)
+            if kept:
+                refined["iterations"] += metrics["iterations"]
+                positions, metrics = refined_positions, refined
+            metrics["silhouette_kept"] = kept
+            if silhouette_stage == "chain":
+                chained = positions
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
         fit = FrameFit(frame, positions, dict(metrics))
         result.fits[frame] = fit
+        starts[frame] = chained
         if callback is not None:
             callback(fit)
     return result

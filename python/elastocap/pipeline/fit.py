@@ -94,7 +94,9 @@ def run_fit_stage(
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
         As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks.
+        capture's cameras and masks. Off by default here: on a capture of 96 x 72 images
+        (a limb a few pixels wide) the term's fits were not reproducible from run to run,
+        which a resumed run needs (benches/README.md, issue 17).
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
