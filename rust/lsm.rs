@@ -13,15 +13,18 @@
 //!
 //! Submodules: `sample` (template patch and gradients), `resample` (bilinear and bicubic
 //! resampling), `normal` (normal equations from patch sums), `gauss_newton` (one search
-//! image), `multi` (all search images of a point, joint
-//! covariance), `dense` (8x8 Cholesky), `types` (options, status, outputs).
+//! image; `line` its epipolar constraint), `sandwich` (its covariance under noisy template gradients), `multi` (all search
+//! images of a point, joint covariance), `dense` (8x8 Cholesky and inverse), `types`
+//! (options, status, outputs).
 
 mod dense;
 mod gauss_newton;
+mod line;
 mod multi;
 mod normal;
 mod resample;
 mod sample;
+mod sandwich;
 #[cfg(test)]
 mod tests;
 mod types;

@@ -15,7 +15,7 @@ import trimesh
 from elastocap import InvalidInputError, Rig
 from elastocap.geometry.mesh_distance import TriangleMesh
 from elastocap.pipeline.cli import main
-from elastocap.pipeline.stereo import choose_pairs, read_stereo_pairs, run_stereo_stage
+from elastocap.pipeline.stereo import choose_pairs, pair_volume, read_stereo_pairs, run_stereo_stage
 from elastocap.synth import load_textured_truth, stereo_rig, write_textured_capture
 
 SMALL = {"frames": 1, "cameras": 2, "image_size": (512, 384), "points": 1500, "progress": False, "seed": 3}
@@ -89,6 +89,32 @@ def test_files_picture_and_resume(stage: tuple[Path, Path, list[int]]) -> None:
     assert main(["stereo", str(capture), "--out", str(out), "--volume=-1.5,-0.3,-1.5,1.5,2.1,1.5", "--quiet"]) == 0
     assert main(["stereo", str(capture), "--out", str(out), "--volume=1,2", "--quiet"]) == 2
     assert (out / "points" / "000000.npz").stat().st_mtime_ns == before
+
+
+def test_four_camera_ring_needs_no_volume(tmp_path: Path) -> None:
+    # Facing pairs: "the space every camera sees" reached to within 0.2 m of the cameras
+    # and gave 0 points; each pair's own volume (pair_volume) covers what both its cameras
+    # see (seeds 0 and 2: 97-100% per pair).
+    capture = write_textured_capture(tmp_path / "capture", frames=1, cameras=4, image_size=(480, 360), progress=False, seed=1)
+    assert main(["stereo", str(capture), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    data = np.load(tmp_path / "out" / "points" / "000000.npz")
+    truth = load_textured_truth(capture)
+    names = [c.name for c in truth.rig.cameras]
+    assert len(data["pairs"]) == 2
+    for k, pair in enumerate(data["pairs"]):
+        left_name, right_name = str(pair).split("-")
+        left = truth.rig[left_name]
+        depth = left.to_camera(data["points"][data["group"] == k])[:, 2]
+        assert depth.min() > 1.0  # nothing near the cameras
+        both = truth.visible[0, names.index(left_name)] & truth.visible[0, names.index(right_name)]
+        uv, _ = left.project(truth.positions[0][both])
+        pixels = data["pixels"][data["group"] == k]
+        nearest = np.min(np.linalg.norm(uv[:, None] - pixels[None], axis=2), axis=1)
+        assert (nearest <= 1.5 * 2).mean() >= COVERAGE_MIN, pair
+    # A lone pair has no rig middle: the space every camera sees, as before (none here).
+    rig, _ = stereo_rig(2)
+    with pytest.raises(InvalidInputError, match="no point is seen"):
+        pair_volume(rig, ["cam00", "cam01"])
 
 
 def test_pairs_read_or_chosen_by_baseline(tmp_path: Path) -> None:

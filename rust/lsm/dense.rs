@@ -1,5 +1,6 @@
-//! Small dense symmetric positive definite systems (up to 8 unknowns): Cholesky, solves
-//! and inverses on fixed-size arrays, so an iteration allocates nothing.
+//! Small dense systems (up to 8 unknowns): Cholesky of symmetric positive definite ones,
+//! solves and inverses, and a general inverse, on fixed-size arrays, so an iteration
+//! allocates nothing.
 
 /// Largest system handled.
 pub(crate) const MAX: usize = 8;
@@ -74,6 +75,47 @@ impl Cholesky {
     }
 }
 
+/// The inverse of a general (not symmetric) 8x8 matrix by Gauss-Jordan elimination with
+/// partial pivoting; `None` when a pivot is below `1e-12` of its column's largest entry
+/// (numerically singular) or not finite.
+pub(crate) fn general_inverse(a: &[[f64; MAX]; MAX]) -> Option<[[f64; MAX]; MAX]> {
+    let mut m = *a;
+    let mut inv = [[0.0; MAX]; MAX];
+    for (i, row) in inv.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    let scale: [f64; MAX] =
+        std::array::from_fn(|j| (0..MAX).map(|i| a[i][j].abs()).fold(0.0, f64::max));
+    for j in 0..MAX {
+        let p = (j..MAX)
+            .max_by(|&x, &y| m[x][j].abs().total_cmp(&m[y][j].abs()))
+            .unwrap_or(j);
+        // Written so that NaN fails too.
+        if !(m[p][j].abs() > 1e-12 * scale[j]) || !m[p][j].is_finite() {
+            return None;
+        }
+        m.swap(j, p);
+        inv.swap(j, p);
+        let d = 1.0 / m[j][j];
+        for k in 0..MAX {
+            m[j][k] *= d;
+            inv[j][k] *= d;
+        }
+        for i in 0..MAX {
+            if i != j {
+                let f = m[i][j];
+                if f != 0.0 {
+                    for k in 0..MAX {
+                        m[i][k] -= f * m[j][k];
+                        inv[i][k] -= f * inv[j][k];
+                    }
+                }
+            }
+        }
+    }
+    Some(inv)
+}
+
 /// `a b` for 8x8 matrices.
 pub(crate) fn product(a: &[[f64; MAX]; MAX], b: &[[f64; MAX]; MAX]) -> [[f64; MAX]; MAX] {
     let mut c = [[0.0; MAX]; MAX];
@@ -133,5 +175,30 @@ mod tests {
         assert!(Cholesky::new(&singular, MAX).is_none());
         let nan = [[f64::NAN; MAX]; MAX];
         assert!(Cholesky::new(&nan, MAX).is_none());
+    }
+
+    #[test]
+    fn inverts_a_general_matrix() {
+        let mut a = [[0.0; MAX]; MAX];
+        for i in 0..MAX {
+            for j in 0..MAX {
+                // Not symmetric, and a zero on the diagonal so that pivoting is needed.
+                a[i][j] = ((3 * i + 7 * j) % 11) as f64 - 5.0 + if i == j { 0.5 } else { 0.0 };
+            }
+        }
+        a[0][0] = 0.0;
+        let inv = general_inverse(&a).unwrap();
+        for (product, order) in [(product(&a, &inv), "a a^-1"), (product(&inv, &a), "a^-1 a")] {
+            for i in 0..MAX {
+                for j in 0..MAX {
+                    let expected = if i == j { 1.0 } else { 0.0 };
+                    assert!((product[i][j] - expected).abs() < 1e-10, "{order}");
+                }
+            }
+        }
+        let mut singular = a;
+        singular[5] = singular[1];
+        assert!(general_inverse(&singular).is_none());
+        assert!(general_inverse(&[[f64::NAN; MAX]; MAX]).is_none());
     }
 }

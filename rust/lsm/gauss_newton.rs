@@ -10,9 +10,12 @@
 //! residual is exact, so a fit that matches is still a fixed point.
 
 use super::dense::{Cholesky, MAX};
+use super::line::degenerate;
+pub(crate) use super::line::Line;
 use super::normal::Sums;
-use super::resample::sample_search;
+use super::resample::{sample_search, sample_search_ring};
 use super::sample::{dot, TemplatePatch};
+use super::sandwich::{meat, sandwich, sensitivity};
 use super::types::{ImageView, MatchOptions, Status};
 
 /// Unknowns per search image: `[d_u, d_v, D11, D12, D21, D22, gain, offset]`.
@@ -70,39 +73,6 @@ impl State {
     }
 }
 
-/// A line `normal . y + distance = 0` in search pixels, `|normal| = 1`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Line {
-    pub normal: [f64; 2],
-    pub distance: f64,
-}
-
-impl Line {
-    /// From `a u + b v + c = 0`; `None` when not finite or `(a, b) = 0` (no constraint).
-    pub fn new(coefficients: [f64; 3]) -> Option<Self> {
-        let [a, b, c] = coefficients;
-        let norm = a.hypot(b);
-        (norm > 0.0 && norm.is_finite() && c.is_finite()).then(|| Self {
-            normal: [a / norm, b / norm],
-            distance: c / norm,
-        })
-    }
-
-    fn signed_distance(&self, y: [f64; 2]) -> f64 {
-        self.normal[0] * y[0] + self.normal[1] * y[1] + self.distance
-    }
-
-    /// The constraint on a step, `c . step = h`, that puts the new centre on the line.
-    fn on_step(&self, state: &State) -> ([f64; U], f64) {
-        let [a11, a12, a21, a22] = state.a;
-        let [la, lb] = self.normal;
-        let mut c = [0.0; U];
-        c[0] = a11 * la + a21 * lb;
-        c[1] = a12 * la + a22 * lb;
-        (c, -self.signed_distance(state.b))
-    }
-}
-
 /// The result of matching one search image.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Outcome {
@@ -111,8 +81,12 @@ pub(crate) struct Outcome {
     pub iterations: u32,
     pub sigma0: f64,
     pub correlation: f64,
-    /// `(G^T G)^-1` (constrained where a line applies), in step coordinates.
+    /// The covariance over `sigma_0^2`, in step coordinates: the sandwich
+    /// `M (G^T G) M^T` (see `sandwich`; `(G^T G)^-1` when the widened patch leaves the
+    /// image), constrained where a line applies.
     pub cofactor: [[f64; U]; U],
+    /// The estimator's map `M` (a step is `M G^T e`), for the cross-image covariance.
+    pub map: [[f64; U]; U],
     /// The sums at the final state (the cross-image covariance needs them).
     pub sums: Sums,
 }
@@ -126,6 +100,7 @@ impl Outcome {
             sigma0: f64::NAN,
             correlation: f64::NAN,
             cofactor: [[f64::NAN; U]; U],
+            map: [[f64::NAN; U]; U],
             sums: Sums::default(),
         }
     }
@@ -196,36 +171,10 @@ fn solve(
     Some(step)
 }
 
-/// Whether the map `a` has run away from `start`: a reflection, or a singular value of
-/// `a start^-1` outside `[1 / max_scale, max_scale]`.
-fn degenerate(a: [f64; 4], start: [f64; 4], max_scale: f64) -> bool {
-    let det0 = start[0] * start[3] - start[1] * start[2];
-    let inv = [
-        start[3] / det0,
-        -start[1] / det0,
-        -start[2] / det0,
-        start[0] / det0,
-    ];
-    let m = [
-        a[0] * inv[0] + a[1] * inv[2],
-        a[0] * inv[1] + a[1] * inv[3],
-        a[2] * inv[0] + a[3] * inv[2],
-        a[2] * inv[1] + a[3] * inv[3],
-    ];
-    let e = 0.5 * (m[0] + m[3]);
-    let f = 0.5 * (m[0] - m[3]);
-    let g = 0.5 * (m[2] + m[1]);
-    let h = 0.5 * (m[2] - m[1]);
-    let q = e.hypot(h);
-    let r = f.hypot(g);
-    let (largest, smallest) = (q + r, q - r);
-    // Written so that NaN counts as degenerate.
-    !(smallest > 1.0 / max_scale && largest < max_scale)
-}
-
 /// Matches the template patch into one search image from `start` (row-major 2x3 map).
-/// `samples` and `residuals` are scratch of the patch's length; on return `residuals`
-/// holds `T - offset - gain S` at the final state when the outcome has an estimate.
+/// `samples` and `residuals` are scratch of the patch's length, `work` of
+/// [`work_len`]; on return `residuals` holds `T - offset - gain S` at the final state when
+/// the outcome has an estimate.
 pub(crate) fn match_image(
     patch: &TemplatePatch,
     image: &ImageView<'_>,
@@ -234,6 +183,7 @@ pub(crate) fn match_image(
     options: &MatchOptions,
     samples: &mut [f32],
     residuals: &mut [f32],
+    work: &mut [f32],
 ) -> Outcome {
     let mut state = State::from_affine(start);
     let start_a = state.a;
@@ -304,8 +254,14 @@ pub(crate) fn match_image(
         }
     }
     finish(
-        patch, image, state, line, options, status, iterations, samples, residuals,
+        patch, image, state, line, options, status, iterations, samples, residuals, work,
     )
+}
+
+/// Length of the scratch `match_image` needs beside samples and residuals: the widened
+/// patch (padded) and six columns over the patch.
+pub(crate) fn work_len(size: usize) -> usize {
+    (size + 2).pow(2).div_ceil(8) * 8 + 6 * size * size
 }
 
 /// Precision and fit quality at the final state.
@@ -320,8 +276,17 @@ fn finish(
     iterations: u32,
     samples: &mut [f32],
     residuals: &mut [f32],
+    work: &mut [f32],
 ) -> Outcome {
-    if !sample_search(
+    let (size, n) = (patch.size, patch.len());
+    let (ring, columns) = work.split_at_mut((size + 2).pow(2).div_ceil(8) * 8);
+    let widened = sample_search_ring(image, state.a, state.b, patch, options.interpolation, ring);
+    if widened {
+        for r in 0..size {
+            let from = (r + 1) * (size + 2) + 1;
+            samples[r * size..(r + 1) * size].copy_from_slice(&ring[from..from + size]);
+        }
+    } else if !sample_search(
         image,
         state.a,
         state.b,
@@ -332,7 +297,6 @@ fn finish(
         return Outcome::failed(Status::LeftImage, state, iterations);
     }
     let sums = Sums::new(patch, samples);
-    let n = patch.len();
     // Residuals, and the correlation from centred values: small numbers, so single
     // precision sums lose nothing that matters.
     let (gain, offset) = (state.gain as f32, state.offset as f32);
@@ -367,6 +331,7 @@ fn finish(
     let mut redundancy = n as f64 - U as f64;
     let mut pseudo = 0.0;
     let mut hard_c = None;
+    let mut soft = None;
     if let Some(line) = line {
         redundancy += 1.0;
         let (c, _) = line.on_step(&state);
@@ -376,9 +341,25 @@ fn finish(
             let w = square / (n as f64 - U as f64) / (options.line_sigma * options.line_sigma);
             let d = line.signed_distance(state.b);
             pseudo = w * d * d;
+            soft = Some((c, w));
+        }
+    }
+    let sigma0 = ((square + pseudo) / redundancy).sqrt();
+    let mut sandwiched = widened.then(|| {
+        let b = sensitivity(patch, &sums, state.gain, ring, columns);
+        // The template's share of the residual variance, the two images' noise taken equal.
+        let share = 1.0 / (1.0 + state.gain * state.gain);
+        (b, meat(&b, &normal, share))
+    });
+    if let Some((c, w)) = soft {
+        let (b, m) = match sandwiched.as_mut() {
+            Some((b, m)) => (Some(b), Some(m)),
+            None => (None, None),
+        };
+        for x in std::iter::once(&mut normal).chain(b).chain(m) {
             for i in 0..U {
                 for j in 0..U {
-                    normal[i][j] += w * c[i] * c[j];
+                    x[i][j] += w * c[i] * c[j];
                 }
             }
         }
@@ -386,23 +367,30 @@ fn finish(
     let Some(chol) = Cholesky::new(&normal, U) else {
         return Outcome::failed(Status::LowTexture, state, iterations);
     };
-    let mut cofactor = chol.inverse();
-    if let Some(c) = hard_c {
-        let y = chol.solve(&c);
-        let cy: f64 = (0..U).map(|i| c[i] * y[i]).sum();
-        for i in 0..U {
-            for j in 0..U {
-                cofactor[i][j] -= y[i] * y[j] / cy;
+    let (cofactor, map) = match sandwiched.and_then(|(b, m)| sandwich(&b, &m, hard_c)) {
+        Some(both) => both,
+        None => {
+            let mut cofactor = chol.inverse();
+            if let Some(c) = hard_c {
+                let y = chol.solve(&c);
+                let cy: f64 = (0..U).map(|i| c[i] * y[i]).sum();
+                for i in 0..U {
+                    for j in 0..U {
+                        cofactor[i][j] -= y[i] * y[j] / cy;
+                    }
+                }
             }
+            (cofactor, cofactor)
         }
-    }
+    };
     Outcome {
         status,
         state,
         iterations,
-        sigma0: ((square + pseudo) / redundancy).sqrt(),
+        sigma0,
         correlation,
         cofactor,
+        map,
         sums,
     }
 }

@@ -3,13 +3,13 @@
 //! Without a coupling constraint the normal equations of different search images do not
 //! share unknowns, so each image is solved on its own (8 unknowns). The estimates are still
 //! correlated: every search image is matched against the same noisy template. With
-//! $e_s = n_T - r_{1s} n_s$ the residual noise of image $s$ and $K_s = Q_s G_s^\top$ the
-//! estimator's linear map, $\mathrm{Cov}(\hat p_s, \hat p_t) = \sigma_T^2 Q_s G_s^\top G_t
-//! Q_t$ for $s \ne t$, where $\sigma_T^2$, the template's share of the noise, is estimated
+//! $e_s = n_T - r_{1s} n_s$ the residual noise of image $s$ and $K_s = M_s G_s^\top$ the
+//! estimator's linear map (`sandwich`), $\mathrm{Cov}(\hat p_s, \hat p_t) = \sigma_T^2 M_s
+//! G_s^\top G_t M_t^\top$ for $s \ne t$, where $\sigma_T^2$, the template's share of the noise, is estimated
 //! from the correlation of the residuals of different search images.
 
 use super::dense::{product, product_transposed, MAX};
-use super::gauss_newton::{match_image, Line, Outcome, State};
+use super::gauss_newton::{match_image, work_len, Line, Outcome, State};
 use super::sample::TemplatePatch;
 use super::types::{ImageView, MatchOptions, Status, PARAMETERS};
 
@@ -21,8 +21,9 @@ pub(crate) struct Scratch {
     patch: TemplatePatch,
     samples: Vec<f32>,
     residuals: Vec<f32>,
+    work: Vec<f32>,
     outcomes: Vec<Outcome>,
-    /// Per search image: `L_s Q_s`, step covariance mapped to the parameters.
+    /// Per search image: `L_s M_s`, the estimator's map to the parameters.
     maps: Vec<[[f64; U]; U]>,
     estimated: Vec<usize>,
 }
@@ -55,6 +56,7 @@ pub(crate) fn match_point(
     let n = size * size;
     scratch.samples.resize(n * s_count, 0.0);
     scratch.residuals.resize(n * s_count, 0.0);
+    scratch.work.resize(work_len(size), 0.0);
     scratch.outcomes.clear();
     let template_status = if !scratch
         .patch
@@ -75,6 +77,7 @@ pub(crate) fn match_point(
                 sigma0: f64::NAN,
                 correlation: f64::NAN,
                 cofactor: [[f64::NAN; U]; U],
+                map: [[f64::NAN; U]; U],
                 sums: Default::default(),
             },
             None => {
@@ -87,6 +90,7 @@ pub(crate) fn match_point(
                     options,
                     &mut scratch.samples[s * n..(s + 1) * n],
                     &mut scratch.residuals[s * n..(s + 1) * n],
+                    &mut scratch.work,
                 )
             }
         };
@@ -134,7 +138,7 @@ fn joint_covariance(scratch: &mut Scratch, n: usize, covariance: &mut [f64]) {
     for (s, o) in scratch.outcomes.iter().enumerate() {
         scratch
             .maps
-            .push(product(&to_parameters(o.state.a), &o.cofactor));
+            .push(product(&to_parameters(o.state.a), &o.map));
         if o.status.has_estimate() {
             scratch.estimated.push(s);
         }
@@ -167,7 +171,7 @@ fn joint_covariance(scratch: &mut Scratch, n: usize, covariance: &mut [f64]) {
         for &t in estimated.iter() {
             let block = if s == t {
                 let v = outcomes[s].sigma0 * outcomes[s].sigma0;
-                let mut c = product_transposed(&ms, &ls);
+                let mut c = product_transposed(&product(&ls, &outcomes[s].cofactor), &ls);
                 c.iter_mut().flatten().for_each(|x| *x *= v);
                 c
             } else {

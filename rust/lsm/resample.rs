@@ -129,14 +129,60 @@ pub(crate) fn sample_search(
     ) {
         return false;
     }
+    resample_at(image, a, b, &patch.dx, &patch.dy, out, interpolation);
+    true
+}
+
+/// Resamples the search image under `x -> A x + b` on the template's grid widened by one
+/// pixel on every side (`(size + 2)^2` samples, row by row, into `out`): central
+/// differences of it are the warped search patch's gradients in template coordinates.
+/// False (and `out` untouched) when the widened patch leaves the image.
+pub(crate) fn sample_search_ring(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    patch: &TemplatePatch,
+    interpolation: Interpolation,
+    out: &mut [f32],
+) -> bool {
+    let h = (patch.size / 2 + 1) as f64;
+    if !inside(
+        image,
+        b,
+        [[a[0] * h, a[1] * h], [a[2] * h, a[3] * h]],
+        interpolation,
+    ) {
+        return false;
+    }
+    resample_at(
+        image,
+        a,
+        b,
+        &patch.ring_dx,
+        &patch.ring_dy,
+        out,
+        interpolation,
+    );
+    true
+}
+
+/// Resamples at the offsets `dx, dy` (padded to a multiple of eight, at least `out.len()`).
+fn resample_at(
+    image: &ImageView<'_>,
+    a: [f64; 4],
+    b: [f64; 2],
+    dx: &[f32],
+    dy: &[f32],
+    out: &mut [f32],
+    interpolation: Interpolation,
+) {
     #[cfg(target_arch = "x86_64")]
     if wide() {
         // SAFETY: `wide` checked that the CPU has AVX2 and FMA.
-        unsafe { resample_wide(image, a, b, patch, out, interpolation) };
-        return true;
+        unsafe { resample_wide(image, a, b, dx, dy, out, interpolation) };
+        return;
     }
-    resample(image, a, b, patch, out, interpolation);
-    true
+    resample(image, a, b, dx, dy, out, interpolation);
 }
 
 /// Whether the CPU runs [`resample_wide`] (AVX2 and FMA, detected once; cached by std).
@@ -158,11 +204,12 @@ unsafe fn resample_wide(
     image: &ImageView<'_>,
     a: [f64; 4],
     b: [f64; 2],
-    patch: &TemplatePatch,
+    dx: &[f32],
+    dy: &[f32],
     out: &mut [f32],
     interpolation: Interpolation,
 ) {
-    resample(image, a, b, patch, out, interpolation);
+    resample(image, a, b, dx, dy, out, interpolation);
 }
 
 /// A separable interpolation kernel of `TAPS` taps per axis, the first at `floor - FIRST`.
@@ -203,13 +250,14 @@ fn resample(
     image: &ImageView<'_>,
     a: [f64; 4],
     b: [f64; 2],
-    patch: &TemplatePatch,
+    dx: &[f32],
+    dy: &[f32],
     out: &mut [f32],
     interpolation: Interpolation,
 ) {
     match interpolation {
-        Interpolation::Bilinear => resample_with::<2, Linear>(image, a, b, patch, out),
-        Interpolation::Bicubic => resample_with::<4, Cubic>(image, a, b, patch, out),
+        Interpolation::Bilinear => resample_with::<2, Linear>(image, a, b, dx, dy, out),
+        Interpolation::Bicubic => resample_with::<4, Cubic>(image, a, b, dx, dy, out),
     }
 }
 
@@ -218,7 +266,8 @@ fn resample_with<const TAPS: usize, K: Kernel<TAPS>>(
     image: &ImageView<'_>,
     a: [f64; 4],
     b: [f64; 2],
-    patch: &TemplatePatch,
+    offsets_x: &[f32],
+    offsets_y: &[f32],
     out: &mut [f32],
 ) {
     const LANES: usize = 8;
@@ -241,8 +290,8 @@ fn resample_with<const TAPS: usize, K: Kernel<TAPS>>(
     while start < n {
         let m = LANES.min(n - start);
         // All eight lanes (the offsets are padded): a fixed trip count vectorises.
-        let dx: &[f32; LANES] = patch.dx[start..start + LANES].try_into().expect("padded");
-        let dy: &[f32; LANES] = patch.dy[start..start + LANES].try_into().expect("padded");
+        let dx: &[f32; LANES] = offsets_x[start..start + LANES].try_into().expect("padded");
+        let dy: &[f32; LANES] = offsets_y[start..start + LANES].try_into().expect("padded");
         for l in 0..LANES {
             let u = frac[0] + a11 * dx[l] + a12 * dy[l];
             let v = frac[1] + a21 * dx[l] + a22 * dy[l];

@@ -18,6 +18,11 @@ pub(crate) struct TemplatePatch {
     pub dx: Vec<f32>,
     /// See `dx`.
     pub dy: Vec<f32>,
+    /// Offsets of the patch widened by one pixel on every side, `(size + 2)^2` row by
+    /// row, padded like `dx` (the final state's search gradients are sampled on it).
+    pub ring_dx: Vec<f32>,
+    /// See `ring_dx`.
+    pub ring_dy: Vec<f32>,
     /// Grey values.
     pub value: Vec<f32>,
     /// The six geometric Jacobian columns per pixel, `[gx, gy, gx dx, gx dy, gy dx, gy dy]`,
@@ -43,6 +48,8 @@ impl Default for TemplatePatch {
             size: 0,
             dx: Vec::new(),
             dy: Vec::new(),
+            ring_dx: Vec::new(),
+            ring_dy: Vec::new(),
             value: Vec::new(),
             geo: Vec::new(),
             geo_normal: [0.0; 36],
@@ -170,6 +177,17 @@ impl TemplatePatch {
         };
         self.dx = (0..padded).map(|i| offset(i, |i, s| i % s)).collect();
         self.dy = (0..padded).map(|i| offset(i, |i, s| i / s)).collect();
+        let m = size + 2;
+        let ring = (m * m).div_ceil(8) * 8;
+        let ring_offset = |i: usize, along: fn(usize, usize) -> usize| {
+            if i < m * m {
+                along(i, m) as f32 - h - 1.0
+            } else {
+                0.0
+            }
+        };
+        self.ring_dx = (0..ring).map(|i| ring_offset(i, |i, s| i % s)).collect();
+        self.ring_dy = (0..ring).map(|i| ring_offset(i, |i, s| i / s)).collect();
         self.value = vec![0.0; n];
         self.geo = vec![0.0; 6 * n];
         self.border = vec![0.0; (size + 2) * (size + 2)];

@@ -45,7 +45,17 @@ from elastocap.stereo.disparity_stage import write_disparity
 from elastocap.stereo.points import PairPoints, pair_points
 from elastocap.stereo.rectify import RectifiedPair, rectify_pair
 
-__all__ = ["choose_pairs", "ply_bytes", "read_stereo_pairs", "run_stereo_stage"]
+__all__ = ["choose_pairs", "pair_volume", "ply_bytes", "read_stereo_pairs", "run_stereo_stage"]
+
+# A rig around a scene looks at its middle: of the space a pair sees, what lies further from
+# the rig's vertical axis (through its middle, along the cameras' mean "up") than this share
+# of the pair's distance to that axis is close to the cameras. "The space every camera sees"
+# of a 4-camera ring reached to within 0.2 m of them (facing pairs see each other's near
+# space) and SGBM's range was useless: 0 points. The region is a cylinder, not a ball: the
+# rig's middle is at the cameras' mean height, not the scene's, and the box around a ball
+# reached back towards the cameras at its corners. 0.4 of 3 m keeps the depths of a pair of
+# the textured capture's rig between 1.3 and 4.7 m (tuned on seeds 0-1).
+CENTRE_REGION = 0.4
 
 
 def read_stereo_pairs(capture_root: str | Path, rig: Rig) -> list[list[str]] | None:
@@ -140,8 +150,8 @@ def run_stereo_stage(
         Camera groups; default ``CAPTURE/stereo.json`` or :func:`choose_pairs`.
     volume : (2, 3) array_like, optional
         Lower and upper corners of the capture volume (world units): SGBM's disparity
-        range and the points kept. Default: the box every camera sees
-        (:func:`~elastocap.hull.grid.space_seen_by`), which needs cameras around the scene.
+        range and the points kept. Default: per pair, the space both its cameras see within
+        the rig's centre region (:func:`pair_volume`), which needs cameras around the scene.
     pictures : bool, default True
         Write ``OUT/pictures/stereo/<frame>.png``.
     progress : bool, default True
@@ -159,15 +169,15 @@ def run_stereo_stage(
     groups = pairs if pairs is not None else read_stereo_pairs(cap.root, cap.rig) or choose_pairs(cap.rig)
     if not groups:
         raise InvalidInputError(f"{cap}: no camera pair to match (no stereo.json, and no two cameras look the same way)")
-    if volume is None:
-        volume = np.stack(space_seen_by(cap.rig))
-    else:
+    if volume is not None:
         volume = np.asarray(volume, dtype=np.float64)
         if volume.shape != (2, 3) or not np.isfinite(volume).all() or not (volume[1] > volume[0]).all():
             raise InvalidInputError(f"volume must be (2, 3) finite corners with lower < upper, got {volume.tolist()}")
     rectified: list[RectifiedPair] = []
+    volumes: list[Any] = []
     for group in groups:
         for other in group[1:]:
+            volumes.append(pair_volume(cap.rig, [group[0], other]) if volume is None else volume)
             # Centred on the images, not on the volume: the volume (all the space every camera
             # sees) projects lopsided from a raised pair, and centring on it cut the upper
             # body out of the rectified view of the textured capture's elevated pairs.
@@ -176,12 +186,12 @@ def run_stereo_stage(
     todo = [f for f in wanted if not all(p.exists() for p in _frame_files(out, f))]
     for frame in tqdm(todo, desc="stereo", unit="frame", disable=not progress):
         results = []
-        for pair in rectified:
+        for pair, seen in zip(rectified, volumes):
             left, right = cap.image(pair.left.name, frame), cap.image(pair.right.name, frame)
             mask = cap.mask(pair.left.name, frame) if cap.has_masks else None
             if mask is not None:
                 mask = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-            result = pair_points(pair, left, right, volume, mask=mask, **options)
+            result = pair_points(pair, left, right, seen, mask=mask, **options)
             write_disparity(out, result.disparity, frame)
             # The silhouette stage reads the disparity mask per camera, in its own pixels.
             save_image(out / "disparity" / pair.left.name / f"{frame:06d}.png", result.disparity.mask_original.astype(np.uint8) * 255)
@@ -197,6 +207,47 @@ def run_stereo_stage(
         if pictures:
             save_image(out / "pictures" / "stereo" / f"{frame:06d}.png", stereo_picture(cap, frame, results))
     return todo
+
+
+def pair_volume(rig: Rig, names: list[str], *, samples: int = 40) -> NDArray[np.float64]:
+    """``(2, 3)`` lower and upper corners (world units) of the space both cameras ``names``
+    of ``rig`` see within the rig's centre region: a grid over the box around the rig's
+    cameras, kept where both cameras see it and no further from the rig's vertical axis
+    (through the cameras' mean centre, along their mean image "up") than ``CENTRE_REGION``
+    times the pair's distance to it. A rig that is one group of close cameras (no middle
+    to look at) gets :func:`~elastocap.hull.grid.space_seen_by`.
+
+    Raises
+    ------
+    InvalidInputError
+        When no grid point qualifies (a pair that does not look at the rig's middle).
+    """
+    cameras = list(rig.cameras)
+    centres = np.array([c.center for c in cameras])
+    middle = centres.mean(axis=0)
+    # Image rows point down: "up" is minus the second row of each rotation.
+    up = -np.mean([np.asarray(c.R)[1] for c in cameras], axis=0)
+    up /= max(float(np.linalg.norm(up)), 1e-12)
+
+    def off_axis(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        d = x - middle
+        return np.asarray(np.linalg.norm(d - np.outer(d @ up, up), axis=1))
+
+    pair = [rig[name] for name in names]
+    pair_distance = off_axis(np.array([c.center for c in pair]))
+    baseline = np.linalg.norm(pair[0].center - pair[-1].center)
+    if len(names) >= len(cameras) or pair_distance.min() <= baseline:
+        return np.stack(space_seen_by(rig))
+    reach = float(np.linalg.norm(centres - middle, axis=1).max())
+    axis = np.linspace(-reach, reach, samples)
+    points = middle + np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+    keep = off_axis(points) <= CENTRE_REGION * float(pair_distance.mean())
+    for camera in pair:
+        keep &= camera.visible(points)
+    if not keep.any():
+        raise InvalidInputError(f"cameras {names} see nothing of the rig's centre region: pass volume=")
+    step = 2 * reach / (samples - 1)
+    return np.stack([points[keep].min(axis=0) - step, points[keep].max(axis=0) + step])
 
 
 def projected_mask(camera: Any, points: NDArray[np.float64], *, closing: int = 3) -> NDArray[np.bool_]:

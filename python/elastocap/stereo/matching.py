@@ -76,8 +76,11 @@ class Matches(NamedTuple):
         Joint covariance of all search images' parameters, per point; search image ``s``
         occupies rows and columns ``8s .. 8s + 8`` in the order of :data:`PARAMETERS`
         (``u, v, a11, a12, a21, a22, gain, offset``). Blocks between search images are the
-        correlation the shared template induces. Rows and columns of matches without an
-        estimate are NaN.
+        correlation the shared template induces. It is the sandwich ``sigma0^2 B^-1 meat
+        B^-T`` (``B = G^T H``, the template's gradients against the warped search patch's),
+        which stays honest on faint texture where the template's noisy gradients made
+        ``sigma0^2 (G^T G)^-1`` too small (benches/README). Rows and columns of matches
+        without an estimate are NaN.
     correlation : (N, S) float64
         Normalised cross-correlation of the template patch and the resampled search patch
         at the final estimate.
