@@ -279,6 +279,77 @@ def test_epipolar_line_holds_the_centre() -> None:
     assert 0.03 < abs(m.positions[0, 0, 0] - truth[0, 2]) < 0.27
 
 
+def cramer_rao(texture: Texture, truth: np.ndarray, gain: float, size: int, noise: float = NOISE) -> np.ndarray:
+    """(2, 2) bound on the covariance of the matched centre (search pixels) for any unbiased
+    estimator of the 8 parameters from a ``size`` patch: ``noise^2 (1 + gain^2) (J^T J)^-1``
+    with ``J`` from the NOISE-FREE texture's exact gradients at the true map (noise in both
+    images; an estimator that knew the texture could do no better)."""
+    h = size // 2
+    grid = np.arange(-h, h + 1, dtype=float)
+    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
+    step = 1e-4
+    value = texture(dx, dy)
+    gx = (texture(dx + step, dy) - texture(dx - step, dy)) / (2 * step)
+    gy = (texture(dx, dy + step) - texture(dx, dy - step)) / (2 * step)
+    J = np.stack([gx, gy, gx * dx, gx * dy, gy * dx, gy * dy, value, np.ones_like(value)], axis=1)
+    C = noise**2 * (1 + gain**2) * np.linalg.inv(J.T @ J)
+    A = truth[:, :2]
+    return np.asarray(A @ C[:2, :2] @ A.T)
+
+
+def _accuracy(size: int, seeds: range, **options: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Statuses, centre errors of converged matches (px) and their Cramer-Rao bounds (2x2)
+    on procedural texture, the warps above, started 2 px off."""
+    status, errors, bounds = [], [], []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        texture = procedural(rng)
+        w = warp(rng)
+        template, images, truth, start = scene(texture, rng, *w)
+        m = _match(template, images, start, size=size, **options)
+        status.append(int(m.status[0, 0]))
+        if m.status[0, 0] == MatchStatus.CONVERGED:
+            errors.append(m.positions[0, 0] - truth[:, 2])
+            bounds.append(cramer_rao(texture, truth, w[4], size))
+    return np.array(status), np.array(errors), np.array(bounds)
+
+
+def test_size_11_is_at_the_cramer_rao_bound() -> None:
+    # Why issue 14's 0.02 px per axis cannot hold at size 11 on these scenes: the bound
+    # itself is above it, and the matcher is at the bound (seeds 1400-1799: 0.0234 px per
+    # axis against a bound of 0.0237). Seeds 1800-1999 were not looked at before this test.
+    status, errors, bounds = _accuracy(11, range(1800, 2000))
+    assert (status == MatchStatus.CONVERGED).mean() >= 0.93
+    rms = np.sqrt(np.mean(errors**2))
+    bound = np.sqrt(np.mean(np.trace(bounds, axis1=1, axis2=2)) / 2)
+    assert bound > 0.02
+    assert rms < 1.15 * bound
+
+
+def test_size_15_with_the_sigma0_rejection_meets_the_0_02_px_line() -> None:
+    # SPEC 7's rejection of poor matches by sigma0 (three times the two images' noise)
+    # removes the false minima that a larger patch sometimes settles in (seeds 1400-1799:
+    # 1 of 389 at size 15, 5 of 384 at 21, all with sigma0 > 20 against <= 3.4 for every
+    # correct match); the rest meet the issue's line per axis.
+    status, errors, _ = _accuracy(15, range(1800, 2000), max_sigma0=3 * np.sqrt(2) * NOISE)
+    assert (status == MatchStatus.CONVERGED).mean() >= 0.93
+    assert np.abs(errors).max() < 0.2
+    assert np.sqrt(np.mean(errors**2)) <= 0.02
+
+
+def test_rejection_marks_a_false_minimum_and_keeps_its_estimate() -> None:
+    # Seed 1650 at size 15: converges 2.1 px from the truth with sigma0 27 (noise 2).
+    rng = np.random.default_rng(1650)
+    template, images, truth, start = scene(procedural(rng), rng, *warp(rng))
+    plain = _match(template, images, start, size=15)
+    judged = _match(template, images, start, size=15, max_sigma0=3 * np.sqrt(2) * NOISE, min_correlation=0.9)
+    assert plain.status[0, 0] == MatchStatus.CONVERGED
+    assert np.linalg.norm(plain.positions[0, 0] - truth[:, 2]) > 1
+    assert judged.status[0, 0] == MatchStatus.REJECTED
+    np.testing.assert_array_equal(judged.positions, plain.positions)
+    assert np.isfinite(judged.covariance).all()
+
+
 def test_bad_patches_get_their_status_and_never_raise() -> None:
     rng = np.random.default_rng(4000)
     template, images, truth, start = scene(procedural(rng), rng, *warp(rng))
@@ -335,3 +406,11 @@ def test_bad_input_raises_naming_the_argument() -> None:
         match_patches(image, [[15, 15]], image, interpolation="nearest")
     with pytest.raises(InvalidInputError, match="tolerance"):
         match_patches(image, [[15, 15]], image, tolerance=0)
+    with pytest.raises(InvalidInputError, match="max_sigma0"):
+        match_patches(image, [[15, 15]], image, max_sigma0=-1.0)
+    with pytest.raises(InvalidInputError, match="max_sigma0"):
+        match_patches(image, [[15, 15]], image, max_sigma0="3")
+    with pytest.raises(InvalidInputError, match="min_correlation"):
+        match_patches(image, [[15, 15]], image, min_correlation=1.5)
+    with pytest.raises(InvalidInputError, match="min_correlation"):
+        match_patches(image, [[15, 15]], image, min_correlation=np.nan)

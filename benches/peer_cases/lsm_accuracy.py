@@ -23,21 +23,6 @@ import test_lsm as T  # noqa: E402
 from elastocap.stereo import MatchStatus  # noqa: E402
 
 
-def cramer_rao(texture: T.Texture, truth: np.ndarray, gain: float, size: int, noise: float = T.NOISE) -> np.ndarray:
-    """(2, 2) bound on the covariance of the matched centre, search pixels."""
-    h = size // 2
-    grid = np.arange(-h, h + 1, dtype=float)
-    dx, dy = (a.ravel() for a in np.meshgrid(grid, grid))
-    step = 1e-4
-    value = texture(dx, dy)
-    gx = (texture(dx + step, dy) - texture(dx - step, dy)) / (2 * step)
-    gy = (texture(dx, dy + step) - texture(dx, dy - step)) / (2 * step)
-    J = np.stack([gx, gy, gx * dx, gx * dy, gy * dx, gy * dy, value, np.ones_like(value)], axis=1)
-    C = noise**2 * (1 + gain**2) * np.linalg.inv(J.T @ J)
-    A = truth[:, :2]
-    return np.asarray(A @ C[:2, :2] @ A.T)
-
-
 def faint(seeds: range) -> None:
     print("| contrast | size | converged | RMS per axis | normalised variance (mean / median) |")
     for contrast in [4, 8, 15, 35]:
@@ -75,7 +60,7 @@ def sizes(seeds: range) -> None:
                     errors.append(e)
                     chi2.append(c)
                     if size == 11:
-                        bound.append(np.trace(cramer_rao(texture, truth, w[4], size)))
+                        bound.append(np.trace(T.cramer_rao(texture, truth, w[4], size)))
             e, c = np.array(errors), np.array(chi2)
             ok = np.linalg.norm(e, axis=1) <= 0.5
             b = np.array(bound)

@@ -50,6 +50,11 @@ class MatchStatus(IntEnum):
     #: ``max_iterations`` ran out before convergence (the estimate and its covariance are
     #: still reported).
     MAX_ITERATIONS = 4
+    #: Converged, but a poor match (SPEC 7's rejection): ``sigma0`` above ``max_sigma0`` or
+    #: the correlation below ``min_correlation``. A Gauss-Newton run that settles on a false
+    #: minimum stops as quietly as a good one; its residual gives it away (the estimate and
+    #: its covariance are still reported).
+    REJECTED = 5
 
 
 class Matches(NamedTuple):
@@ -125,6 +130,8 @@ def match_patches(
     max_shift: float | None = None,
     max_scale: float = 3.0,
     min_texture: float | None = None,
+    max_sigma0: float | None = None,
+    min_correlation: float | None = None,
     interpolation: str = "bicubic",
     threads: int | None = None,
 ) -> Matches:
@@ -175,6 +182,18 @@ def match_patches(
         weakest direction; below it a point is :attr:`MatchStatus.LOW_TEXTURE`. Default:
         twice the template image's noise level (Immerkær's estimator, a robust figure of
         the image's white-noise standard deviation).
+    max_sigma0 : float, optional, keyword-only
+        Converged matches whose ``sigma0`` (grey levels) exceeds this become
+        :attr:`MatchStatus.REJECTED`. Default: no limit. A correct match leaves the two
+        images' noise, ``sigma0 ~ sqrt(sigma_T^2 + gain^2 sigma_S^2)``; three times that
+        (``3 * sqrt(2) * noise_level(template)`` for images from one sensor) keeps every
+        correct match of the accuracy benchmark and drops every false minimum there (their
+        ``sigma0`` is 7-11 times the noise; benches/README.md, "LSM: SPEC 7's rejection").
+    min_correlation : float, optional, keyword-only
+        Converged matches whose correlation is below this become
+        :attr:`MatchStatus.REJECTED`. Default: no limit. It depends on the texture's
+        contrast against the noise (faint texture at noise 2 correlates ~0.75 when right),
+        so ``max_sigma0`` is the safer test.
     interpolation : {"bicubic", "bilinear"}, optional, keyword-only
         Resampling of the search images (and of sub-pixel template points). ``"bilinear"``
         is SPEC 7's; it damps and shifts the phase of texture near the Nyquist frequency,
@@ -241,6 +260,13 @@ def match_patches(
         raise InvalidInputError(f"min_texture must be a finite number >= 0, got {min_texture!r}")
     if threads is not None:
         threads = as_count("threads", threads)
+    if max_sigma0 is not None:
+        max_sigma0 = as_positive("max_sigma0", max_sigma0)
+    if min_correlation is not None:
+        limit = None if isinstance(min_correlation, (str, bytes)) else float(min_correlation)
+        if limit is None or not (np.isfinite(limit) and -1.0 <= limit <= 1.0):
+            raise InvalidInputError(f"min_correlation must be a number from -1 to 1, got {min_correlation!r}")
+        min_correlation = limit
     status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_patches(
         template_image,
         points_array,
@@ -257,6 +283,7 @@ def match_patches(
         interpolation=interpolation,
         threads=threads,
     )
+    status = _reject_poor(status, sigma0, correlation, max_sigma0, min_correlation)
     return Matches(
         status=status,
         positions=affine[..., 2].copy(),
@@ -268,6 +295,22 @@ def match_patches(
         correlation=correlation,
         iterations=iterations,
     )
+
+
+def _reject_poor(
+    status: NDArray[np.uint8],
+    sigma0: NDArray[np.float64],
+    correlation: NDArray[np.float64],
+    max_sigma0: float | None,
+    min_correlation: float | None,
+) -> NDArray[np.uint8]:
+    """``status`` with converged matches beyond the limits marked :attr:`MatchStatus.REJECTED`."""
+    poor = np.zeros(status.shape, dtype=bool)
+    if max_sigma0 is not None:
+        poor |= ~(sigma0 <= max_sigma0)
+    if min_correlation is not None:
+        poor |= ~(correlation >= min_correlation)
+    return np.where(poor & (status == MatchStatus.CONVERGED), np.uint8(MatchStatus.REJECTED), status).astype(np.uint8)
 
 
 def noise_level(image: Any) -> float:
