@@ -191,6 +191,40 @@ fn recovers_affine_warp_gain_and_offset_without_noise() {
 }
 
 #[test]
+fn without_the_sandwich_the_match_is_the_same_and_only_the_covariance_changes() {
+    // The tracker's forward-backward check turns the sandwich off: the position, shape,
+    // radiometry and correlation must not move, and the covariance becomes (G^T G)^-1
+    // scaled by sigma0^2 (the template taken noise-free), which is smaller.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let texture = Texture::new(&mut rng);
+    let (p, m, b) = ([30.0, 31.0], rotation_scale(5.0, 1.05, 0.0), [31.6, 30.2]);
+    let sc = scene(&texture, p, m, b, 1.1, 5.0, 2.0, &mut rng);
+    let view = |data| ImageView {
+        data,
+        width: sc.width,
+        height: sc.height,
+    };
+    let start = [1.0, 0.0, b[0] + 0.8, 0.0, 1.0, b[1] - 0.6];
+    let with = MatchOptions {
+        size: 15,
+        ..Default::default()
+    };
+    let without = MatchOptions {
+        sandwich: false,
+        ..with
+    };
+    let a = run(&view(&sc.template), &[p], &[view(&sc.search)], &[start], None, &with).unwrap();
+    let c = run(&view(&sc.template), &[p], &[view(&sc.search)], &[start], None, &without).unwrap();
+    assert_eq!(a.status, c.status);
+    assert_eq!(a.status[0], Status::Converged as u8);
+    assert_eq!(a.affine, c.affine);
+    assert_eq!(a.radiometry, c.radiometry);
+    assert_eq!(a.correlation, c.correlation);
+    let (va, vc) = (a.covariance[0], c.covariance[0]);
+    assert!(vc > 0.0 && vc.is_finite() && vc < va, "{vc} vs {va}");
+}
+
+#[test]
 fn flat_and_outside_patches_report_their_status() {
     let width = 40;
     let flat = vec![100.0f32; width * width];
