@@ -387,3 +387,36 @@ fn rejects_bad_arguments() {
     let flipped = [-1.0, 0.0, 5.0, 0.0, 1.0, 5.0];
     assert!(run(&image, &[[5.0, 5.0]], &[image], &[flipped], None, &options).is_err());
 }
+
+#[test]
+fn bilinear_template_rows_equal_the_per_sample_bilinear() {
+    // The unwarped template is blended row by row with one pair of weights; it must give
+    // the per-sample bilinear values (to rounding) at any sub-pixel centre.
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let texture = Texture::new(&mut rng);
+    let (w, h) = (48usize, 40usize);
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| texture.at((i % w) as f64, (i / w) as f64) as f32)
+        .collect();
+    let image = ImageView {
+        data: &data,
+        width: w,
+        height: h,
+    };
+    let mut patch = super::sample::TemplatePatch::default();
+    for centre in [[20.3, 17.8], [9.01, 9.99], [37.5, 29.25]] {
+        assert!(patch.sample(&image, centre, 15, Interpolation::Bilinear));
+        let base = [centre[0].floor(), centre[1].floor()];
+        for r in 0..15 {
+            for c in 0..15 {
+                let offset = [
+                    (centre[0] - base[0]) as f32 + (c as f32 - 7.0),
+                    (centre[1] - base[1]) as f32 + (r as f32 - 7.0),
+                ];
+                let want = super::resample::bilinear(&image, base, offset);
+                let got = patch.value[r * 15 + c];
+                assert!((got - want).abs() < 1e-3, "{centre:?} ({r}, {c}): {got} vs {want}");
+            }
+        }
+    }
+}
