@@ -213,8 +213,24 @@ fn without_the_sandwich_the_match_is_the_same_and_only_the_covariance_changes() 
         sandwich: false,
         ..with
     };
-    let a = run(&view(&sc.template), &[p], &[view(&sc.search)], &[start], None, &with).unwrap();
-    let c = run(&view(&sc.template), &[p], &[view(&sc.search)], &[start], None, &without).unwrap();
+    let a = run(
+        &view(&sc.template),
+        &[p],
+        &[view(&sc.search)],
+        &[start],
+        None,
+        &with,
+    )
+    .unwrap();
+    let c = run(
+        &view(&sc.template),
+        &[p],
+        &[view(&sc.search)],
+        &[start],
+        None,
+        &without,
+    )
+    .unwrap();
     assert_eq!(a.status, c.status);
     assert_eq!(a.status[0], Status::Converged as u8);
     assert_eq!(a.affine, c.affine);
@@ -415,7 +431,10 @@ fn bilinear_template_rows_equal_the_per_sample_bilinear() {
                 ];
                 let want = super::resample::bilinear(&image, base, offset);
                 let got = patch.value[r * 15 + c];
-                assert!((got - want).abs() < 1e-3, "{centre:?} ({r}, {c}): {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-3,
+                    "{centre:?} ({r}, {c}): {got} vs {want}"
+                );
             }
         }
     }
