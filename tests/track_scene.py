@@ -44,15 +44,16 @@ def _poses(frame: int, speed: float) -> list[tuple[NDArray[np.float64], NDArray[
     return [(body_r, body_c, 0.35), (_rotation_y(-2.0 * angle), limb_c, 0.16)]
 
 
-def _texture(rest: NDArray[np.float64], part: NDArray[np.int64], seed: int) -> NDArray[np.float64]:
-    """Grey level 0..255 of rest-frame points: random 3-D sinusoids, 1.5-9 cm wavelengths."""
+def _texture(rest: NDArray[np.float64], part: NDArray[np.int64], seed: int, contrast: float = 1.0) -> NDArray[np.float64]:
+    """Grey level 0..255 of rest-frame points: random 3-D sinusoids, 1.5-9 cm wavelengths,
+    their amplitudes times ``contrast``."""
     rng = np.random.default_rng([seed, 7])
     out = np.full(len(rest), 128.0)
     for _ in range(24):
         k = rng.normal(size=3)
         k *= 2 * np.pi / rng.uniform(0.015, 0.09) / np.linalg.norm(k)
         phase = rng.uniform(0, 2 * np.pi, size=2)
-        out += rng.uniform(8, 16) * np.sin(rest @ k + phase[part])
+        out += contrast * rng.uniform(8, 16) * np.sin(rest @ k + phase[part])
     return np.clip(out, 0, 255)
 
 
@@ -72,8 +73,10 @@ def _hits(origins: NDArray[np.float64], dirs: NDArray[np.float64], balls: list) 
 
 
 def write_scene(out: Path, *, frames: int = 12, cameras: int = 6, size: tuple[int, int] = (320, 240),
-                seed: int = 0, noise: float = 2.0, speed: float = 1.0, points: int = 400) -> SceneTruth:
-    """Render the scene into the capture folder ``out``; return the truth."""
+                seed: int = 0, noise: float = 2.0, speed: float = 1.0, points: int = 400,
+                fade: float = 1.0) -> SceneTruth:
+    """Render the scene into the capture folder ``out``; return the truth. The texture's
+    contrast is ``fade ** frame`` of frame 0's (the sensor noise stays)."""
     width, height = size
     rig = ring_rig(cameras, width=width, height=height, fov=28.0, seed=seed)
     rng = np.random.default_rng([seed, 3])
@@ -103,7 +106,7 @@ def write_scene(out: Path, *, frames: int = 12, cameras: int = 6, size: tuple[in
                 hit = origins[sel] + t[sel, None] * rays[sel]
                 rest = (hit - c) @ rot
                 shade = 0.6 + 0.4 * np.abs(np.einsum("ij,ij->i", (hit - c) / r, -rays[sel]))
-                grey[sel] = _texture(rest, np.full(sel.sum(), b), seed) * shade
+                grey[sel] = _texture(rest, np.full(sel.sum(), b), seed, fade**f) * shade
             grey += rng.normal(0, noise, size=grey.shape)
             image = np.clip(np.round(grey), 0, 255).astype(np.uint8).reshape(height, width)
             stem = f"{f:06d}"

@@ -371,6 +371,7 @@ def track_step(
     forward_backward: float = 0.3,
     max_iterations: int = 15,
     min_texture: float = 0.0,
+    shift_only_iterations: int = 1,
 ) -> tuple[NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]: ...
 def track_ncc_at(
     template: NDArray[np.float32],

@@ -280,7 +280,8 @@ fn finish(
 ) -> Outcome {
     let (size, n) = (patch.size, patch.len());
     let (ring, columns) = work.split_at_mut((size + 2).pow(2).div_ceil(8) * 8);
-    let widened = sample_search_ring(image, state.a, state.b, patch, options.interpolation, ring);
+    let widened = options.sandwich
+        && sample_search_ring(image, state.a, state.b, patch, options.interpolation, ring);
     if widened {
         for r in 0..size {
             let from = (r + 1) * (size + 2) + 1;

@@ -97,6 +97,29 @@ impl TemplatePatch {
                 let row = (v0 + r) * image.width + u0;
                 self.border[r * m..(r + 1) * m].copy_from_slice(&image.data[row..row + m]);
             }
+        } else if matches!(interpolation, Interpolation::Bilinear)
+            && base[0] >= reach as f64
+            && base[1] >= reach as f64
+            && (base[0] as usize) + reach + 1 < image.width
+            && (base[1] as usize) + reach + 1 < image.height
+        {
+            // The patch is not warped: every sample has the same sub-pixel weights, so
+            // rows of pixels are blended with them directly (the per-sample path finds
+            // the cell and the weights again for each of the (size + 2)^2 samples, which
+            // profiled at a sixth of the tracker's step).
+            let (tu, tv) = (frac[0], frac[1]);
+            let (u0, v0) = (base[0] as usize - reach, base[1] as usize - reach);
+            let width = image.width;
+            for r in 0..m {
+                let top = &image.data[(v0 + r) * width + u0..(v0 + r) * width + u0 + m + 1];
+                let bottom =
+                    &image.data[(v0 + r + 1) * width + u0..(v0 + r + 1) * width + u0 + m + 1];
+                for c in 0..m {
+                    let t = top[c] + tu * (top[c + 1] - top[c]);
+                    let b = bottom[c] + tu * (bottom[c + 1] - bottom[c]);
+                    self.border[r * m + c] = t + tv * (b - t);
+                }
+            }
         } else {
             for r in 0..m {
                 for c in 0..m {

@@ -191,6 +191,56 @@ fn recovers_affine_warp_gain_and_offset_without_noise() {
 }
 
 #[test]
+fn without_the_sandwich_the_match_is_the_same_and_only_the_covariance_changes() {
+    // The tracker's forward-backward check turns the sandwich off: the position, shape,
+    // radiometry and correlation must not move, and the covariance becomes (G^T G)^-1
+    // scaled by sigma0^2 (the template taken noise-free), which is smaller.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let texture = Texture::new(&mut rng);
+    let (p, m, b) = ([30.0, 31.0], rotation_scale(5.0, 1.05, 0.0), [31.6, 30.2]);
+    let sc = scene(&texture, p, m, b, 1.1, 5.0, 2.0, &mut rng);
+    let view = |data| ImageView {
+        data,
+        width: sc.width,
+        height: sc.height,
+    };
+    let start = [1.0, 0.0, b[0] + 0.8, 0.0, 1.0, b[1] - 0.6];
+    let with = MatchOptions {
+        size: 15,
+        ..Default::default()
+    };
+    let without = MatchOptions {
+        sandwich: false,
+        ..with
+    };
+    let a = run(
+        &view(&sc.template),
+        &[p],
+        &[view(&sc.search)],
+        &[start],
+        None,
+        &with,
+    )
+    .unwrap();
+    let c = run(
+        &view(&sc.template),
+        &[p],
+        &[view(&sc.search)],
+        &[start],
+        None,
+        &without,
+    )
+    .unwrap();
+    assert_eq!(a.status, c.status);
+    assert_eq!(a.status[0], Status::Converged as u8);
+    assert_eq!(a.affine, c.affine);
+    assert_eq!(a.radiometry, c.radiometry);
+    assert_eq!(a.correlation, c.correlation);
+    let (va, vc) = (a.covariance[0], c.covariance[0]);
+    assert!(vc > 0.0 && vc.is_finite() && vc < va, "{vc} vs {va}");
+}
+
+#[test]
 fn flat_and_outside_patches_report_their_status() {
     let width = 40;
     let flat = vec![100.0f32; width * width];
@@ -352,4 +402,40 @@ fn rejects_bad_arguments() {
     assert!(run(&image, &[[5.0, 5.0]], &[short], &[identity], None, &options).is_err());
     let flipped = [-1.0, 0.0, 5.0, 0.0, 1.0, 5.0];
     assert!(run(&image, &[[5.0, 5.0]], &[image], &[flipped], None, &options).is_err());
+}
+
+#[test]
+fn bilinear_template_rows_equal_the_per_sample_bilinear() {
+    // The unwarped template is blended row by row with one pair of weights; it must give
+    // the per-sample bilinear values (to rounding) at any sub-pixel centre.
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let texture = Texture::new(&mut rng);
+    let (w, h) = (48usize, 40usize);
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| texture.at((i % w) as f64, (i / w) as f64) as f32)
+        .collect();
+    let image = ImageView {
+        data: &data,
+        width: w,
+        height: h,
+    };
+    let mut patch = super::sample::TemplatePatch::default();
+    for centre in [[20.3, 17.8], [9.01, 9.99], [37.5, 29.25]] {
+        assert!(patch.sample(&image, centre, 15, Interpolation::Bilinear));
+        let base = [centre[0].floor(), centre[1].floor()];
+        for r in 0..15 {
+            for c in 0..15 {
+                let offset = [
+                    (centre[0] - base[0]) as f32 + (c as f32 - 7.0),
+                    (centre[1] - base[1]) as f32 + (r as f32 - 7.0),
+                ];
+                let want = super::resample::bilinear(&image, base, offset);
+                let got = patch.value[r * 15 + c];
+                assert!(
+                    (got - want).abs() < 1e-3,
+                    "{centre:?} ({r}, {c}): {got} vs {want}"
+                );
+            }
+        }
+    }
 }

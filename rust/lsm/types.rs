@@ -71,6 +71,11 @@ pub struct MatchOptions {
     pub shift_only_iterations: usize,
     /// Resampling of the template (at sub-pixel points) and the search images.
     pub interpolation: Interpolation,
+    /// The covariance with both images' noise (the sandwich: one widened resampling of the
+    /// search patch at the final state, about a quarter of a match); false gives
+    /// `(G^T G)^-1`, the template taken noise-free, for callers that only use the match's
+    /// position (the tracker's forward-backward check).
+    pub sandwich: bool,
 }
 
 impl Default for MatchOptions {
@@ -85,6 +90,7 @@ impl Default for MatchOptions {
             line_sigma: 0.0,
             shift_only_iterations: 1,
             interpolation: Interpolation::Bicubic,
+            sandwich: true,
         }
     }
 }

@@ -103,6 +103,7 @@ fn lsm_match_patches<'py>(
         line_sigma,
         shift_only_iterations,
         interpolation,
+        sandwich: true,
     };
     let width = PARAMETERS * s;
     let status = PyArray2::<u8>::zeros(py, [n, s], false);

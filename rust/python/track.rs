@@ -32,7 +32,8 @@ type Step<'py> = (
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (previous, current, last, before, *, size=11, radius=4,
-    min_correlation=0.8, forward_backward=0.3, max_iterations=15, min_texture=0.0))]
+    min_correlation=0.8, forward_backward=0.3, max_iterations=15, min_texture=0.0,
+    shift_only_iterations=1))]
 fn track_step<'py>(
     py: Python<'py>,
     previous: Vec<PyReadonlyArray2<'py, f32>>,
@@ -45,6 +46,7 @@ fn track_step<'py>(
     forward_backward: f64,
     max_iterations: usize,
     min_texture: f64,
+    shift_only_iterations: usize,
 ) -> PyResult<Step<'py>> {
     let c = previous.len();
     if current.len() != c {
@@ -82,6 +84,7 @@ fn track_step<'py>(
             // (hundredths of a pixel on sharp texture) is far below the tracker's error
             // on smooth printed textures (tenths).
             interpolation: Interpolation::Bilinear,
+            shift_only_iterations,
             ..MatchOptions::default()
         },
         radius,

@@ -214,9 +214,11 @@ pub fn track_camera(
     // start, from the inverse map, which is already within hundredths of it when the
     // forward match is right: bilinear resampling (its bias is hundredths of a pixel) and
     // a few iterations are enough, and cost a quarter of the forward match.
+    // Its covariance is not used: no sandwich (a quarter of a match).
     let check = MatchOptions {
         max_iterations: options.matching.max_iterations.min(BACKWARD_ITERATIONS),
         interpolation: Interpolation::Bilinear,
+        sandwich: false,
         ..options.matching
     };
     let backward = run_matches(current, &back_points, previous, &back_starts, &check)?;

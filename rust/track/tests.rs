@@ -160,9 +160,57 @@ fn box_search_scores_every_shift_as_ncc_does() {
     let top = (0..scores.len())
         .max_by(|&i, &j| scores[i].total_cmp(&scores[j]))
         .unwrap();
-    assert!((best.score - scores[top]).abs() < 1e-4, "{} vs {}", best.score, scores[top]);
+    assert!(
+        (best.score - scores[top]).abs() < 1e-4,
+        "{} vs {}",
+        best.score,
+        scores[top]
+    );
     // The integer peak is the shift nearest the true one; the parabola refines it.
     let at = candidates[top];
     assert!((best.centre[0] - at[0]).abs() <= 0.5 && (best.centre[1] - at[1]).abs() <= 0.5);
-    assert!((best.centre[0] - 61.7).abs() < 0.3 && (best.centre[1] - 47.7).abs() < 0.3, "{:?}", best.centre);
+    assert!(
+        (best.centre[0] - 61.7).abs() < 0.3 && (best.centre[1] - 47.7).abs() < 0.3,
+        "{:?}",
+        best.centre
+    );
+}
+
+#[test]
+fn box_search_fast_rows_score_as_the_general_rows_do() {
+    // Radius 6 runs the fixed-width rows (13 shifts in 16 lanes), radius 9 the general
+    // loop (19 shifts): the shared shifts must score the same (the dot products run in the
+    // same order; the window's summed-area tables differ in their last bits).
+    let (a, b) = (texture(120, 100, [0.0; 2]), texture(120, 100, [1.3, 2.1]));
+    let view = |data| ImageView {
+        data,
+        width: 120,
+        height: 100,
+    };
+    let (ta, tb) = (view(&a), view(&b));
+    let (point, prediction, size) = ([60.0, 50.0], [60.3, 50.6], 15);
+    let mut fast = super::ncc::BoxScratch::default();
+    let mut general = super::ncc::BoxScratch::default();
+    let best = super::ncc::box_search(&ta, point, &tb, prediction, size, 6, &mut fast).unwrap();
+    let wide = super::ncc::box_search(&ta, point, &tb, prediction, size, 9, &mut general).unwrap();
+    assert_eq!(fast.scores.len(), 13 * 13);
+    assert_eq!(general.scores.len(), 19 * 19);
+    for r in 0..13 {
+        for c in 0..13 {
+            let (a, b) = (
+                fast.scores[r * 13 + c],
+                general.scores[(r + 3) * 19 + c + 3],
+            );
+            assert!((a - b).abs() < 1e-9, "shift {r} {c}: {a} vs {b}");
+        }
+    }
+    assert!(
+        (best.centre[0] - wide.centre[0]).abs() < 1e-6
+            && (best.centre[1] - wide.centre[1]).abs() < 1e-6
+    );
+    assert!(
+        (best.centre[0] - 61.3).abs() < 0.3 && (best.centre[1] - 52.1).abs() < 0.3,
+        "{:?}",
+        best.centre
+    );
 }

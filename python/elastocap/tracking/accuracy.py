@@ -23,8 +23,8 @@ __all__ = ["TrackAccuracy", "track_accuracy"]
 
 class TrackAccuracy(NamedTuple):
     """Per track: ``rms`` (N,) RMS image error over its tracked frames and the cameras that
-    hold it where the truth is visible, pixels; ``through`` (N,) tracked on every frame
-    after its seeding where its truth is visible in at least two cameras; ``expected``
+    hold it where the truth is visible (every such view counts once), pixels; ``through``
+    (N,) tracked on every frame after its seeding where its truth is visible in at least two cameras; ``expected``
     (F, N) those frames; ``error`` (F, N) the largest image error per frame (NaN where not
     tracked), pixels; ``error3d`` (F, N) the 3-D distance to the truth in pixel
     equivalents (over the pixel footprint at the truth's depth, mean over the cameras that
@@ -71,6 +71,8 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     part_ = np.zeros(m, np.int64) if part is None else np.asarray(part)
     usable = np.ones(m, bool) if material is None else np.asarray(material, bool).all(axis=0)
     measured = first >= 0
+    squares = np.zeros(n)
+    counts = np.zeros(n, np.int64)
     for s in np.unique(first[first >= 0]):
         rows = np.flatnonzero(first == s)
         x0 = tracks.positions[s, rows]
@@ -110,9 +112,12 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 error[t, rows] = np.where(np.isfinite(errs).any(axis=0), np.nanmax(errs, axis=0), np.nan)
-    squares = np.where(np.isfinite(error), error**2, 0.0)
-    counts = np.isfinite(error).sum(axis=0)
+            # The RMS is over every view the track holds (the issue's "RMS image error"),
+            # not over the worst view of each frame.
+            held_errs = np.isfinite(errs)
+            squares[rows] += (np.where(held_errs, errs, 0.0) ** 2).sum(axis=0)
+            counts[rows] += held_errs.sum(axis=0)
     with np.errstate(all="ignore"):
-        rms = np.where(counts > 0, np.sqrt(squares.sum(axis=0) / counts), np.nan)
+        rms = np.where(counts > 0, np.sqrt(squares / counts), np.nan)
     through = ~(expected & ~tracked).any(axis=0) & (first >= 0)
     return TrackAccuracy(rms=rms, through=through, expected=expected, error=error, error3d=error3d, measured=measured)
