@@ -67,3 +67,26 @@ def test_least_volume_frame_rejects_bad_targets() -> None:
         least_volume_frame([])
     with pytest.raises(InvalidInputError, match="Hull or a trimesh"):
         least_volume_frame([np.zeros((4, 4), dtype=bool)])
+
+
+def test_the_fit_stage_builds_the_model_on_the_least_volume_hull(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from elastocap.pipeline.fit import load_model, run_fit_stage
+    from elastocap.pipeline.hull import load_hull
+    from elastocap.synth.capture import write_synthetic_capture
+
+    capture = write_synthetic_capture(tmp_path / "capture", frames=4, cameras=4, image_size=(96, 72), spacing=0.04,
+                                      progress=False)
+    out = tmp_path / "out"
+    fit = run_fit_stage(capture, out, resolution=32, n_nodes=150, reprojection=False, progress=False)
+    hulls = {f: load_hull(out, f) for f in range(4)}
+    expected = least_volume_frame(hulls)
+    assert fit.rest_frame == expected == load_model(out)[1]
+    assert json.loads((out / "metrics.json").read_text())["summary"]["rest_frame"] == expected
+    volumes = [target_volume(hulls[f]) for f in range(4)]
+    assert volumes[expected] == min(volumes)
+    # A given rest frame is kept.
+    given = run_fit_stage(capture, tmp_path / "given", rest_frame=3, resolution=32, n_nodes=150, reprojection=False,
+                          progress=False)
+    assert given.rest_frame == 3 == load_model(tmp_path / "given")[1]
