@@ -101,9 +101,11 @@ def run_fit_stage(
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
         As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks. Off by default here: on a capture of 96 x 72 images
-        (a limb a few pixels wide) the term's fits were not reproducible from run to run,
-        which a resumed run needs (benches/README.md, issue 17).
+        capture's cameras and masks. Off by default here for time, not accuracy: its
+        refinement makes the fit stage about 1.55x slower (the demo's 30 frames of 8
+        cameras at 1024 x 768: mean fit-to-truth 8.2 -> 7.4 mm, CPU +25%), which the
+        demo's 60 s cannot take (benches/README.md, branch limbs3). Its fits are
+        reproducible (two runs give the same positions bit for bit).
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
