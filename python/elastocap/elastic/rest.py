@@ -8,6 +8,10 @@ Of the frames of a sequence, the one whose hull encloses the least volume theref
 the least phantom volume (the body keeps its volume; the phantom changes with the pose),
 and its hull is the most trustworthy rest shape. Measured on the synthetic fast-motion
 capture (benches/README.md, branch limbs3).
+
+The argument needs masks that do not cut into the body: a frame whose masks miss part of it
+(a hole, a limb cut off) carves a hull with less than the body's volume and would be chosen;
+give the rest frame explicitly then.
 """
 
 from __future__ import annotations
