@@ -51,7 +51,7 @@ def signed_mask_distance(mask: NDArray[Any]) -> NDArray[np.float64]:
     # Distance to the nearest pixel centre of the other kind, minus half a pixel: the
     # outline. Exact, then rounded to float32 as OpenCV's own code path rounds it (its
     # output equals this bit for bit wherever it was reproducible: every image from
-    # 240 x 320 up), so the figures measured with it stand (see the module's note).
+    # 120 x 160 up), so the figures measured with it stand (see the module's note).
     exact = signed_distance(inside[:, :, None])[:, :, 0]
     distance = (np.abs(exact) + 0.5).astype(np.float32)  # to the other kind's nearest centre
     return np.ascontiguousarray(np.where(inside, np.float32(0.5) - distance, distance - np.float32(0.5)), dtype=np.float64)
