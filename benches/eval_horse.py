@@ -41,6 +41,7 @@ from scipy.spatial import cKDTree
 
 import elastocap
 from elastocap.elastic.measures import surface_error
+from elastocap.elastic.rest import least_volume_frame
 from elastocap.geometry._distance import distance_to_mesh
 from elastocap.render import render_silhouette
 from elastocap.synth.capture import ring_rig
@@ -131,7 +132,7 @@ def run_nricp(model: elastocap.ElasticModel, hull_meshes: list[trimesh.Trimesh],
     return out, seconds
 
 
-def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resolution: int = 128,
+def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int | str = 0, resolution: int = 128,
              stiffness: float = STIFFNESS, coverage: float = COVERAGE, options: dict[str, Any] | None = None,
              peer: bool = True, floor: bool = False, log: Any = print) -> dict[str, Any]:
     """Run the whole protocol on the first ``frames`` frames; returns the per-frame figures
@@ -139,12 +140,17 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int = 0, resol
     all_vertices, faces = load_horse()
     vertices = all_vertices[:frames]
     truth = [trimesh.Trimesh(v, faces, process=False) for v in vertices]
-    diagonal = float(np.linalg.norm(np.ptp(vertices[rest_frame], axis=0)))
     rig = horse_rig(vertices)
     clock = time.perf_counter()
     masks: list[list[np.ndarray]] = []
     hulls = carve(vertices, faces, rig, resolution, keep=masks)
     hull_meshes = [h.mesh() for h in hulls]
+    if rest_frame == "volume":
+        # The hull of least volume, the pipeline's choice (elastocap.elastic.rest).
+        rest_frame = least_volume_frame(hulls)
+        log(f"rest frame {rest_frame}: the hull of least volume")
+    rest_frame = int(rest_frame)
+    diagonal = float(np.linalg.norm(np.ptp(vertices[rest_frame], axis=0)))
     log(f"rendered and carved {frames} frames x {len(rig)} cameras in {time.perf_counter() - clock:.1f} s "
         f"(voxel {1000 * hulls[0].grid.spacing:.1f} mm)")
     clock = time.perf_counter()
@@ -261,7 +267,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=48, help="first N frames (default all 48)")
     parser.add_argument("--nodes", type=int, default=NODES, help=f"nodes of the elastic model (default {NODES})")
-    parser.add_argument("--rest-frame", type=int, default=0)
+    parser.add_argument("--rest-frame", default="0",
+                        help="the rest frame: a frame number (default 0, the figures' reference) or 'volume' (the hull of least volume)")
     parser.add_argument("--resolution", type=int, default=128, help="voxels along the longest side of the hull grid")
     parser.add_argument("--stiffness", type=float, default=STIFFNESS, help=f"fit_sequence's stiffness (default {STIFFNESS})")
     parser.add_argument("--coverage", type=float, default=COVERAGE, help=f"fit_sequence's coverage weight (default {COVERAGE})")
@@ -274,7 +281,7 @@ def main() -> None:
     args = parser.parse_args()
     if not HORSE.exists():
         sys.exit(f"{HORSE} not found (set ELASTOCAP_SHARED_DATA)")
-    result = evaluate(args.frames, args.nodes, rest_frame=args.rest_frame, resolution=args.resolution,
+    result = evaluate(args.frames, args.nodes, rest_frame=args.rest_frame if args.rest_frame == "volume" else int(args.rest_frame), resolution=args.resolution,
                       stiffness=args.stiffness, coverage=args.coverage, options=args.options,
                       peer=not args.no_peer, floor=args.floor)
     print_table(result)

@@ -35,7 +35,9 @@ pub fn squared_distance_to(
         .map(|&s| if s { 0.0 } else { f64::INFINITY })
         .collect();
     let mut b = vec![0.0; a.len()];
-    for axis in (0..3).rev() {
+    // An axis one voxel long changes nothing (each of its lines is one value): a mask's
+    // signed distance (H, W, 1) skips a pass over H x W lines of one value.
+    for axis in (0..3).rev().filter(|&axis| shape[axis] > 1) {
         transform_axis(&a, &mut b, shape, axis, spacing[axis] * spacing[axis]);
         std::mem::swap(&mut a, &mut b);
     }

@@ -5,7 +5,7 @@
 //! away from where the masks put it, and the fit inherits that. The masks themselves are
 //! exact to a pixel (a few millimetres where a voxel is a couple of centimetres). Each
 //! camera's mask comes as its signed distance $S$ in pixels (positive outside, zero on the
-//! outline; computed once per frame with OpenCV's distance transform). At an iterate, every
+//! outline; computed once per frame by an exact distance transform). At an iterate, every
 //! surface node $x_p$ is projected into every camera, $q = \pi(x_p)$:
 //!
 //! - a node projecting outside the mask ($S(q) > $ [`OUTSIDE_PIXELS`]), by no more than its

@@ -196,7 +196,9 @@ def fit_sequence(
         positions. Results, ``rest_frame`` and ``done`` use these frame numbers.
     rest_frame : int
         The frame the model was built from; fitting starts there (from the rest positions)
-        and runs forward to the last frame and backward to the first.
+        and runs forward to the last frame and backward to the first. The model keeps its
+        rest target's errors: :func:`elastocap.elastic.rest.least_volume_frame` picks the
+        hull with the least phantom volume without ground truth.
     stiffness : float
         alpha / beta of SPEC 5 in units of the shear modulus times the mean node spacing:
         1 balances a node's elastic diagonal with a fully confident surface term; larger is
@@ -251,8 +253,7 @@ def fit_sequence(
         joint drift 3.85% of the diagonal with a worst frame 1.66x the hull's error (legs
         drawn into each other's silhouettes), refine 1.74% and 0.87x, chain 1.66% and 0.87x.
         A refinement that takes the volume more than 5% of rest farther from it than the
-        hull-only fit is dropped (metric ``silhouette_kept``). On coarse images (a limb a
-        few pixels wide) the term's fits are not reproducible from run to run.
+        hull-only fit is dropped (metric ``silhouette_kept``).
     cameras : sequence of Camera, optional
         The rig's cameras (``Rig.cameras``), for the silhouette term.
     masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional

@@ -256,7 +256,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     fit.add_argument("capture", metavar="CAPTURE", help="capture folder (intri/extri or rig.json, masks/)")
     fit.add_argument("--out", required=True, help="output folder")
-    fit.add_argument("--rest-frame", type=int, default=None, help="frame the model is built from (default: first)")
+    fit.add_argument("--rest-frame", type=int, default=None, help="frame the model is built from (default: the frame whose hull encloses the least volume)")
     fit.add_argument("--nodes", type=int, default=2500, help="nodes of the elastic model (default: 2500)")
     fit.add_argument(
         "--rotation",

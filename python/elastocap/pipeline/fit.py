@@ -28,6 +28,7 @@ from elastocap._io import load_npz, save_bytes, save_mesh, save_npz
 from elastocap.capture.folder import Capture
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.elastic.rest import least_volume_frame
 from elastocap.elastic.tracks import select_frames
 from elastocap.tracking.tracks import load_tracks
 from elastocap.pipeline.hull import load_hull, run_hull_stage
@@ -91,15 +92,20 @@ def run_fit_stage(
     out : path
         Output folder; ``hull/`` is filled first when frames are missing there.
     rest_frame : int, optional
-        Capture frame number the model is built from (default: the first frame). Ignored
-        when ``out/model/rest.npz`` exists (a resumed run keeps its model).
+        Capture frame number the model is built from. Default: the frame whose hull
+        encloses the least volume (:func:`~elastocap.elastic.rest.least_volume_frame`: a
+        carved hull only adds phantom volume, and the model keeps its rest hull's for the
+        whole sequence). Ignored when ``out/model/rest.npz`` exists (a resumed run keeps
+        its model).
     n_nodes, k, rotation
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
         As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks. Off by default here: on a capture of 96 x 72 images
-        (a limb a few pixels wide) the term's fits were not reproducible from run to run,
-        which a resumed run needs (benches/README.md, issue 17).
+        capture's cameras and masks. Off by default here for time, not accuracy: its
+        refinement makes the fit stage about 1.55x slower (the demo's 30 frames of 8
+        cameras at 1024 x 768: mean fit-to-truth 8.2 -> 7.4 mm, CPU +25%), which the
+        demo's 60 s cannot take (benches/README.md, branch limbs3). Its fits are
+        reproducible (two runs give the same positions bit for bit).
     resolution : int
         Voxels along the longest side of each hull.
     reprojection : bool
@@ -120,7 +126,7 @@ def run_fit_stage(
     if _model_path(out).exists():
         model, rest = load_model(out)
     else:
-        rest = frames[0] if rest_frame is None else int(rest_frame)
+        rest = least_volume_frame(_LazyHulls(out, frames)) if rest_frame is None else int(rest_frame)
         if rest not in frames:
             raise InvalidInputError(f"rest frame {rest} is not in the capture (it has {frames[0]}..{frames[-1]})")
         model = ElasticModel.from_mesh(load_hull(out, rest).mesh(), n_nodes=n_nodes, k=k, rotation=rotation)

@@ -38,7 +38,7 @@ class CaptureOptions:
     resolution: int = _option(128, "int", "hull voxels along the longest side")
     tolerance: int = _option(0, "int", "cameras that may disagree when carving")
     nodes: int = _option(2500, "int", "nodes of the elastic model")
-    rest_frame: int | None = _option(None, "int?", "frame the elastic model is built from (not set: the first)")
+    rest_frame: int | None = _option(None, "int?", "frame the elastic model is built from (not set: the frame whose hull encloses the least volume)")
     rotation: str = _option("warped", "str", "rotation compensation of the elastic model", ("rhs", "warped", "none"))
     stiffness: float = _option(1.0, "float", "elastic stiffness against the surface pull")
     body: bool = _option(False, "bool", "fit the articulated human body model too (people only)")
