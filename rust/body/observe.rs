@@ -4,9 +4,9 @@
 use nalgebra::Vector3;
 
 use super::field::{Cutoff, Field};
+use super::fit::SHAPE_RANGE;
 use super::normal::PartTerms;
 use super::ray::ray_maximum_over;
-use super::fit::SHAPE_RANGE;
 use super::skeleton::Skeleton;
 use crate::error::check_finite;
 use crate::{Error, Result};
@@ -242,7 +242,10 @@ impl Observations {
                 });
             }
         }
-        for (name, bound) in [("shape_lower", &self.shape_lower), ("shape_upper", &self.shape_upper)] {
+        for (name, bound) in [
+            ("shape_lower", &self.shape_lower),
+            ("shape_upper", &self.shape_upper),
+        ] {
             if !bound.is_empty() {
                 check_len(name, bound.len(), n_shape)?;
             }
