@@ -151,7 +151,7 @@ def test_the_first_frame_search_finds_the_capsule_figure() -> None:
     scene = ClutterScene(1, cameras=8, size=(480, 360))
     surface = scene.figure.mesh(0, 0.01)
     cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in scene.rig.cameras]
-    tracker = BodyTracker(MODEL, cameras=cameras)
+    tracker = BodyTracker(MODEL, cameras=cameras, symmetric=True)
     state = tracker.update(BodyObservations(masks=[render_silhouette(surface, c) for c in scene.rig.cameras]))
     origins = MODEL.pose(state)[1] @ Z_UP_TO_WORLD.T
     truth = scene.joints(0)

@@ -35,6 +35,9 @@ EXPLAINED_DISTANCE = 0.02
 #: contours, 5% outlying points) at 0.73-0.77 (seeds 0, 1), a four-legged animal at 0.50
 #: (0.46 before the arms' restarts kept the raise: they now fit two of its legs).
 REFUSE_EXPLAINED = 0.6
+#: A tracked frame explaining this share less than the frames before is fitted again from
+#: the last frame's pose (not the constant-velocity prediction), the better kept.
+SLIP_SHARE = 0.02
 
 
 @dataclass(frozen=True)
@@ -186,10 +189,12 @@ class BodyTracker:
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
         body model cannot explain the subject.
-    symmetric : bool, default True, keyword-only
+    symmetric : bool, default False, keyword-only
         Fit one shape for each left part and its right twin
         (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
-        limb's length or width explain its pose's error.
+        limb's length or width explain its pose's error (the capsule figure,
+        ``benches/README.md``). Off by default because the synthetic body figure draws
+        each side's shape on its own (``elastocap.synth.body``, 4% apart).
     """
 
     def __init__(
@@ -207,7 +212,7 @@ class BodyTracker:
         max_iterations: int = 40,
         lost_distance: float = 0.015,
         refuse_distance: float = 0.03,
-        symmetric: bool = True,
+        symmetric: bool = False,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -316,6 +321,11 @@ class BodyTracker:
         reference = float(np.median(recent)) if recent else 1.0
         return quality.median_distance > self.lost_distance or quality.explained < min(reference - 0.1, 0.9)
 
+    def _slipped(self, quality: FrameQuality) -> bool:
+        """Explaining less than the frames before by more than :data:`SLIP_SHARE`."""
+        recent = [q.explained for q, seen in zip(self._quality[-10:], self._observed[-10:]) if seen]
+        return bool(recent) and quality.explained < float(np.median(recent)) - SLIP_SHARE
+
     def update(self, observations: BodyObservations | Mapping[str, Any]) -> BodyState:
         """Fits the next frame and returns its state (shape may still change until
         ``window`` frames have been seen; :meth:`result` has the final states).
@@ -347,6 +357,14 @@ class BodyTracker:
             return predicted
         fit = self._fit([frame], [predicted], shape=predicted.shape, iterations=self.max_iterations)
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
+        if self._slipped(quality) and not self._searched[-1]:
+            # Constant velocity overshoots where a limb turns back (the walk's clap): try
+            # from where the last frame stood too, and keep what explains more.
+            held = BodyState(predicted.shape, self._states[-1].motion.copy())
+            alternative = self._fit([frame], [held], shape=predicted.shape, iterations=self.max_iterations).states[0]
+            alternative_quality = self.quality(alternative, frame)
+            if alternative_quality.explained > quality.explained:
+                state, quality = alternative, alternative_quality
         if self._lost(quality):
             found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
             if (found_quality.median_distance, -found_quality.explained) < (quality.median_distance, -quality.explained):
