@@ -35,9 +35,6 @@ EXPLAINED_DISTANCE = 0.02
 #: contours, 5% outlying points) at 0.73-0.77 (seeds 0, 1), a four-legged animal at 0.50
 #: (0.46 before the arms' restarts kept the raise: they now fit two of its legs).
 REFUSE_EXPLAINED = 0.6
-#: A tracked frame explaining this share less than the frames before is fitted again from
-#: the last frame's pose (not the constant-velocity prediction), the better kept.
-SLIP_SHARE = 0.02
 
 
 @dataclass(frozen=True)
@@ -321,11 +318,6 @@ class BodyTracker:
         reference = float(np.median(recent)) if recent else 1.0
         return quality.median_distance > self.lost_distance or quality.explained < min(reference - 0.1, 0.9)
 
-    def _slipped(self, quality: FrameQuality) -> bool:
-        """Explaining less than the frames before by more than :data:`SLIP_SHARE`."""
-        recent = [q.explained for q, seen in zip(self._quality[-10:], self._observed[-10:]) if seen]
-        return bool(recent) and quality.explained < float(np.median(recent)) - SLIP_SHARE
-
     def update(self, observations: BodyObservations | Mapping[str, Any]) -> BodyState:
         """Fits the next frame and returns its state (shape may still change until
         ``window`` frames have been seen; :meth:`result` has the final states).
@@ -357,14 +349,6 @@ class BodyTracker:
             return predicted
         fit = self._fit([frame], [predicted], shape=predicted.shape, iterations=self.max_iterations)
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
-        if self._slipped(quality) and not self._searched[-1]:
-            # Constant velocity overshoots where a limb turns back (the walk's clap): try
-            # from where the last frame stood too, and keep what explains more.
-            held = BodyState(predicted.shape, self._states[-1].motion.copy())
-            alternative = self._fit([frame], [held], shape=predicted.shape, iterations=self.max_iterations).states[0]
-            alternative_quality = self.quality(alternative, frame)
-            if alternative_quality.explained > quality.explained:
-                state, quality = alternative, alternative_quality
         if self._lost(quality):
             found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
             if (found_quality.median_distance, -found_quality.explained) < (quality.median_distance, -quality.explained):
