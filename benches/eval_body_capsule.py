@@ -5,7 +5,8 @@ The figure and rig are those of :class:`elastocap.synth.clutter.ClutterScene` (8
 default); the observations are the true silhouettes and, for the stereo lines, points drawn
 on the true surface with 3 mm noise and 5% outliers in the volume (as the clutter scene's
 stereo points). The body is tracked with :class:`elastocap.body.track.BodyTracker` as the
-body stage does (global search on the first frame, then frame to frame).
+body stage does (global search on the first frame, then frame to frame), with left and
+right limbs sharing one shape (``symmetric=True``: the figure is left-right symmetric).
 
 Prints one JSON line per frame and a summary line per mode:
 
@@ -50,7 +51,7 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int) -> dict[str, object]:
     model = BodyModel.default_human()
     cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in scene.rig.cameras]
-    tracker = BodyTracker(model, cameras=cameras)
+    tracker = BodyTracker(model, cameras=cameras, symmetric=True)
     rng = np.random.default_rng([scene.seed, 0xE7A1])
     rows = []
     for f in range(start, start + stride * frames, stride):

@@ -162,3 +162,37 @@ def test_missing_rays_and_unobserved_parts_are_reported_not_raised() -> None:
     # only the far tails of the head's balls reach other parts' points
     np.testing.assert_allclose(fit.shape[2 * head : 2 * head + 2], [1.0, 1.0], atol=1e-6)
     assert np.isfinite(fit.motion).all()
+
+
+def test_tied_shape_groups_fit_one_coefficient_per_group() -> None:
+    """Mirrored groups give a left part and its right twin one shape, within the bounds."""
+    sc = scene(MODEL, 2, n_cameras=6)
+    groups = MODEL.mirrored_shape_groups()
+    assert groups.max() + 1 == MODEL.n_shape - 12  # six limb parts per side, length and width
+    lower, upper = np.full(MODEL.n_shape, 0.9), np.full(MODEL.n_shape, 1.2)
+    init = perturbed(MODEL, sc.truth, np.random.default_rng(7))
+    fit = fit_body(MODEL, [BodyObservations(points=sc.points)], init=init, shape_groups=groups, shape_bounds=(lower, upper), max_iterations=30)
+    for g in range(groups.max() + 1):
+        assert np.ptp(fit.shape[groups == g]) == 0.0
+    assert ((fit.shape >= 0.9) & (fit.shape <= 1.2)).all()
+    names = MODEL.part_names
+    left, right = names.index("l_shin"), names.index("r_shin")
+    assert fit.shape[2 * left] == fit.shape[2 * right] and fit.shape[2 * left + 1] == fit.shape[2 * right + 1]
+    # tied coefficients that sit in the data's reach: near the mean of the twins' truths
+    mean = 0.5 * (sc.truth.shape[2 * left] + sc.truth.shape[2 * right])
+    assert abs(fit.shape[2 * left] - mean) < 0.06
+
+
+@pytest.mark.parametrize(
+    "groups, bounds, match",
+    [
+        (np.arange(MODEL.n_shape) + 1, None, "shape_groups"),
+        (np.zeros(MODEL.n_shape - 1, dtype=int), None, "shape_groups"),
+        (None, (np.full(MODEL.n_shape, 1.2), np.full(MODEL.n_shape, 1.0)), "shape_bounds"),
+        (None, (np.zeros(MODEL.n_shape), np.ones(MODEL.n_shape)), "shape_bounds"),
+    ],
+)
+def test_bad_shape_groups_and_bounds_raise(groups, bounds, match: str) -> None:
+    sc = scene(MODEL, 1, n_points=200)
+    with pytest.raises(InvalidInputError, match=match):
+        fit_body(MODEL, [BodyObservations(points=sc.points)], shape_groups=groups, shape_bounds=bounds, max_iterations=2)

@@ -95,7 +95,17 @@ impl<'a> BodyProblem<'a> {
         self.skeleton.n_motion
     }
 
+    /// Shape unknowns the solver sees: one per group of tied coefficients.
     fn s(&self) -> usize {
+        if self.fixed_shape.is_some() {
+            0
+        } else {
+            self.obs.shape_groups(self.skeleton.n_shape())
+        }
+    }
+
+    /// Shape coefficients the field is built from (`2 P`).
+    fn s_full(&self) -> usize {
         if self.fixed_shape.is_some() {
             0
         } else {
@@ -103,16 +113,23 @@ impl<'a> BodyProblem<'a> {
         }
     }
 
-    fn shape<'x>(&'x self, x: &'x [f64]) -> &'x [f64] {
+    fn shape<'x>(&'x self, x: &'x [f64]) -> std::borrow::Cow<'x, [f64]> {
         match &self.fixed_shape {
-            Some(shape) => shape,
-            None => &x[self.obs.frames * self.m()..],
+            Some(shape) => std::borrow::Cow::Borrowed(shape),
+            None => {
+                let tied = &x[self.obs.frames * self.m()..];
+                if self.obs.shape_group.is_empty() {
+                    std::borrow::Cow::Borrowed(tied)
+                } else {
+                    std::borrow::Cow::Owned(self.obs.expand_shape(tied))
+                }
+            }
         }
     }
 
     fn field(&self, x: &[f64], f: usize) -> Result<Field<'a>> {
         let m = self.m();
-        let pose = self.skeleton.pose(self.shape(x), &x[f * m..(f + 1) * m])?;
+        let pose = self.skeleton.pose(&self.shape(x), &x[f * m..(f + 1) * m])?;
         Ok(Field::new(self.skeleton, pose))
     }
 
@@ -164,7 +181,8 @@ impl ArrowProblem for BodyProblem<'_> {
 
     fn linearize(&self, x: &[f64], normal: &mut ArrowNormal) -> Result<f64> {
         normal.clear();
-        let (m, s) = (self.m(), self.s());
+        let (m, s, reduced) = (self.m(), self.s_full(), self.s());
+        let group = |k: usize| self.obs.shape_group.get(k).copied().unwrap_or(k);
         let width = self.skeleton.n_motion + self.skeleton.n_shape();
         let mut cost = 0.0;
         for f in 0..self.obs.frames {
@@ -205,18 +223,21 @@ impl ArrowProblem for BodyProblem<'_> {
             let mut blocks = blocks;
             blocks.finish(&map, m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
-            normal.b[f * m * s..(f + 1) * m * s].copy_from_slice(&blocks.b);
-            normal
-                .c
-                .iter_mut()
-                .zip(&blocks.c)
-                .for_each(|(u, v)| *u += v);
             normal.g[f * m..(f + 1) * m].copy_from_slice(&blocks.g[..m]);
+            // Tied coefficients (one group's columns summed: J T with T the 0/1 map from
+            // groups to coefficients) enter as one unknown.
             let fm = self.obs.frames * m;
-            normal.g[fm..]
-                .iter_mut()
-                .zip(&blocks.g[m..])
-                .for_each(|(u, v)| *u += v);
+            for i in 0..m {
+                for k in 0..s {
+                    normal.b[f * m * reduced + i * reduced + group(k)] += blocks.b[i * s + k];
+                }
+            }
+            for k in 0..s {
+                for l in 0..s {
+                    normal.c[group(k) * reduced + group(l)] += blocks.c[k * s + l];
+                }
+                normal.g[fm + group(k)] += blocks.g[m + k];
+            }
             cost += blocks.cost;
         }
         Ok(cost)
@@ -229,8 +250,9 @@ impl ArrowProblem for BodyProblem<'_> {
             let k = i % m;
             *v = v.clamp(self.lower[k], self.upper[k]);
         }
-        for v in x[fm..].iter_mut() {
-            *v = v.clamp(SHAPE_RANGE.0, SHAPE_RANGE.1);
+        for (k, v) in x[fm..].iter_mut().enumerate() {
+            let (lo, hi) = self.obs.shape_bounds(k);
+            *v = v.clamp(lo, hi);
         }
     }
 
@@ -426,7 +448,7 @@ pub fn fit(
     let mut problem = first;
     if options.fit_shape {
         let mut joint = self::problem(skeleton, obs, shape, limits, options)?;
-        x.extend_from_slice(shape);
+        x.extend_from_slice(&obs.group_shape(shape));
         let second = levenberg_marquardt(&mut joint, &mut x, &options.lm)?;
         report = LmReport {
             iterations: report.iterations + second.iterations,
@@ -439,7 +461,7 @@ pub fn fit(
     problem.refresh(&x, usize::MAX)?;
     let fm = obs.frames * skeleton.n_motion;
     let shape = if options.fit_shape {
-        x[fm..].to_vec()
+        obs.expand_shape(&x[fm..])
     } else {
         shape.to_vec()
     };

@@ -4,6 +4,7 @@
 use nalgebra::Vector3;
 
 use super::field::{Cutoff, Field};
+use super::fit::SHAPE_RANGE;
 use super::normal::PartTerms;
 use super::ray::ray_maximum_over;
 use super::skeleton::Skeleton;
@@ -60,6 +61,15 @@ pub struct Observations {
     /// skin (only `F* > T` is penalised). Outline rays alone let a limb hide inside the
     /// silhouette of the torso; the one-sided rays say where the body is and is not.
     pub ray_side: Vec<i8>,
+    /// Shape unknown of each shape coefficient (`2 P`, groups numbered `0..G` with none
+    /// empty); empty: each coefficient its own. Coefficients of one group are tied (e.g. a
+    /// left and a right limb: a person's sides have the same proportions, and a fit free
+    /// to stretch one shin and not the other explains a mis-posed leg by its shape).
+    pub shape_group: Vec<usize>,
+    /// Lower and upper bound of each shape coefficient (`2 P`); empty: [`SHAPE_RANGE`].
+    pub shape_lower: Vec<f64>,
+    /// See `shape_lower`.
+    pub shape_upper: Vec<f64>,
 }
 
 /// Whether a one-sided ray of kind `side` with residual `r` (of `F* - T`'s sign) is
@@ -106,6 +116,58 @@ fn check_len(argument: &'static str, got: usize, expected: usize) -> Result<()> 
 }
 
 impl Observations {
+    /// Shape unknowns for `n_shape` coefficients: the number of groups, else `n_shape`.
+    pub fn shape_groups(&self, n_shape: usize) -> usize {
+        if self.shape_group.is_empty() {
+            n_shape
+        } else {
+            self.shape_group.iter().max().map_or(0, |g| g + 1)
+        }
+    }
+
+    /// Bounds of shape unknown `g`: the tightest over the coefficients of its group.
+    pub fn shape_bounds(&self, g: usize) -> (f64, f64) {
+        let bound = |k: usize| {
+            (
+                self.shape_lower.get(k).copied().unwrap_or(SHAPE_RANGE.0),
+                self.shape_upper.get(k).copied().unwrap_or(SHAPE_RANGE.1),
+            )
+        };
+        if self.shape_group.is_empty() {
+            return bound(g);
+        }
+        self.shape_group
+            .iter()
+            .enumerate()
+            .filter(|(_, &h)| h == g)
+            .fold((f64::MIN, f64::MAX), |(lo, hi), (k, _)| {
+                let (a, b) = bound(k);
+                (lo.max(a), hi.min(b))
+            })
+    }
+
+    /// The shape unknowns of the coefficients `shape`: each group's mean.
+    pub fn group_shape(&self, shape: &[f64]) -> Vec<f64> {
+        if self.shape_group.is_empty() {
+            return shape.to_vec();
+        }
+        let n = self.shape_groups(shape.len());
+        let (mut sum, mut count) = (vec![0.0; n], vec![0.0; n]);
+        for (&g, v) in self.shape_group.iter().zip(shape) {
+            sum[g] += v;
+            count[g] += 1.0;
+        }
+        sum.iter().zip(&count).map(|(s, c)| s / c).collect()
+    }
+
+    /// The shape coefficients of the unknowns `tied` (one per group).
+    pub fn expand_shape(&self, tied: &[f64]) -> Vec<f64> {
+        if self.shape_group.is_empty() {
+            return tied.to_vec();
+        }
+        self.shape_group.iter().map(|&g| tied[g]).collect()
+    }
+
     /// The weight `1 / (sigma[0] * point_scale[i])` of point `i`.
     #[inline]
     pub fn point_weight(&self, i: usize) -> f64 {
@@ -169,6 +231,34 @@ impl Observations {
                     "point, ray and joint sigma scales must be positive and finite, got {bad}"
                 ),
             });
+        }
+        let n_shape = skeleton.n_shape();
+        if !self.shape_group.is_empty() {
+            check_len("shape_group", self.shape_group.len(), n_shape)?;
+            let groups = self.shape_groups(n_shape);
+            if let Some(g) = (0..groups).find(|g| !self.shape_group.contains(g)) {
+                return Err(Error::BadModel {
+                    reason: format!("shape_group must number its groups 0..{groups} with none empty; group {g} is"),
+                });
+            }
+        }
+        for (name, bound) in [
+            ("shape_lower", &self.shape_lower),
+            ("shape_upper", &self.shape_upper),
+        ] {
+            if !bound.is_empty() {
+                check_len(name, bound.len(), n_shape)?;
+            }
+        }
+        if !self.shape_lower.is_empty() || !self.shape_upper.is_empty() {
+            for g in 0..self.shape_groups(n_shape) {
+                let (lo, hi) = self.shape_bounds(g);
+                if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo <= hi) {
+                    return Err(Error::BadModel {
+                        reason: format!("shape bounds must be finite with 0 < lower <= upper (over each group), got [{lo}, {hi}] for shape unknown {g}"),
+                    });
+                }
+            }
         }
         check_index("point_frame", &self.point_frame, self.frames)?;
         check_index("ray_frame", &self.ray_frame, self.frames)?;

@@ -396,6 +396,12 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
             }
             _ => Vec::new(),
         },
+        shape_group: match d.get_item("shape_group")? {
+            Some(v) if !v.is_none() => index(d, "shape_group", usize::MAX)?,
+            _ => Vec::new(),
+        },
+        shape_lower: optional(d, "shape_lower")?,
+        shape_upper: optional(d, "shape_upper")?,
     })
 }
 

@@ -182,6 +182,8 @@ def fit_body(
     frame_numbers: Sequence[int] | None = None,
     rest_frame: int | None = None,
     track_outlier: float = 0.1,
+    shape_groups: Any = None,
+    shape_bounds: Any = None,
 ) -> BodyFit:
     """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
     silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
@@ -237,6 +239,14 @@ def fit_body(
     track_outlier : float, keyword-only
         A track farther than this (metres) from where the fit without tracks puts its
         point is left out of that frame.
+    shape_groups : (2 P,) array_like of int, optional, keyword-only
+        Ties shape coefficients: those with the same number (groups ``0 .. G - 1``, none
+        empty) are fitted as one, from the mean of their starting values; e.g.
+        :meth:`BodyModel.mirrored_shape_groups` gives a left and a right limb one shape.
+        Default: each coefficient free.
+    shape_bounds : ((2 P,), (2 P,)) array_like, optional, keyword-only
+        Lower and upper bound of each shape coefficient (default 0.5 and 2 for all); a
+        tied group keeps within the tightest of its members' bounds.
 
     Returns
     -------
@@ -274,7 +284,8 @@ def fit_body(
             raise InvalidInputError(f"frame_numbers must hold one number per frame ({n}), got {len(numbers)}")
         options = dict(cameras=cameras, shape=shape, sigma_point=sigma_point, sigma_ray=sigma_ray, sigma_joint=sigma_joint,
                        max_iterations=max_iterations, refresh_every=refresh_every, outlier_distance=outlier_distance,
-                       max_rays_per_mask=max_rays_per_mask, residual=residual, log_epsilon=log_epsilon)
+                       max_rays_per_mask=max_rays_per_mask, residual=residual, log_epsilon=log_epsilon,
+                       shape_groups=shape_groups, shape_bounds=shape_bounds)
         first = fit_body(model, frames, init=init, **options)  # type: ignore[arg-type]
         attached = attach_tracks(model, first.states, tracks, numbers,
                                  rest_frame=numbers[0] if rest_frame is None else int(rest_frame),
@@ -308,6 +319,20 @@ def fit_body(
         "joint_scale": np.ascontiguousarray(np.concatenate([p[8] for p in per_frame])),
         "sigma": [as_positive("sigma_point", sigma_point), as_positive("sigma_ray", sigma_ray), as_positive("sigma_joint", sigma_joint)],
     }
+    if shape_groups is not None:
+        groups = np.asarray(shape_groups).reshape(-1)
+        if groups.shape != (model.n_shape,) or not np.issubdtype(groups.dtype, np.integer) or groups.min() < 0 \
+                or not np.array_equal(np.unique(groups), np.arange(groups.max() + 1)):
+            raise InvalidInputError(f"shape_groups must hold {model.n_shape} integers numbering groups 0..G-1 with none empty, got {shape_groups!r}")
+        observations["shape_group"] = np.ascontiguousarray(groups, dtype=np.int64)
+    if shape_bounds is not None:
+        try:
+            lower, upper = (as_float_array("shape_bounds", b).reshape(-1) for b in shape_bounds)
+        except (TypeError, ValueError):
+            raise InvalidInputError("shape_bounds must be a pair (lower, upper) of arrays") from None
+        if lower.shape != (model.n_shape,) or upper.shape != (model.n_shape,) or not ((lower > 0) & (lower <= upper)).all():
+            raise InvalidInputError(f"shape_bounds must be two arrays of {model.n_shape} values with 0 < lower <= upper")
+        observations["shape_lower"], observations["shape_upper"] = np.ascontiguousarray(lower), np.ascontiguousarray(upper)
     if attached is not None:
         append_tracks(observations, attached)
     result = model._core.fit(

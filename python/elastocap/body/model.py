@@ -234,6 +234,17 @@ class BodyModel:
             raise InvalidInputError(f"state.motion must have shape ({self.n_motion},), got {motion.shape}")
         return shape, motion
 
+    def mirrored_shape_groups(self) -> NDArray[np.int64]:
+        """Shape groups (``fit_body(shape_groups=...)``) that tie each left part's length and
+        width to its right twin's (parts named ``l_<x>`` and ``r_<x>``); other parts' stay
+        free. ``(n_shape,) int64``."""
+        keys = []
+        for name in self.part_names:
+            twin = name[2:] if name[:2] in ("l_", "r_") and {"l_" + name[2:], "r_" + name[2:]} <= set(self.part_names) else None
+            keys += [(twin or name, "length"), (twin or name, "width")]
+        numbers: dict[tuple[str, str], int] = {}
+        return np.array([numbers.setdefault(k, len(numbers)) for k in keys], dtype=np.int64)
+
     # -- kinematics and field -------------------------------------------------------------
 
     def pose(self, state: BodyState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

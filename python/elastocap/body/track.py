@@ -186,6 +186,12 @@ class BodyTracker:
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
         body model cannot explain the subject.
+    symmetric : bool, default False, keyword-only
+        Fit one shape for each left part and its right twin
+        (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
+        limb's length or width explain its pose's error (the capsule figure,
+        ``benches/README.md``). Off by default because the synthetic body figure draws
+        each side's shape on its own (``elastocap.synth.body``, 4% apart).
     """
 
     def __init__(
@@ -203,6 +209,7 @@ class BodyTracker:
         max_iterations: int = 40,
         lost_distance: float = 0.015,
         refuse_distance: float = 0.03,
+        symmetric: bool = False,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -215,6 +222,7 @@ class BodyTracker:
         self.max_iterations = as_count("max_iterations", max_iterations)
         self.lost_distance = as_positive("lost_distance", lost_distance)
         self.refuse_distance = as_positive("refuse_distance", refuse_distance)
+        self.symmetric = bool(symmetric)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -272,6 +280,7 @@ class BodyTracker:
             sigma_point=self._sigmas["sigma_point"],
             sigma_ray=self._sigmas["sigma_ray"],
             sigma_joint=self._sigmas["sigma_joint"],
+            shape_groups=self.model.mirrored_shape_groups() if self.symmetric and shape is None else None,
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:

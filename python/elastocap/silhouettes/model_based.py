@@ -43,8 +43,9 @@ SNAKE_DEFAULTS = {"alpha": 0.01, "beta": 0.02, "kappa": 10.0, "max_iterations": 
 #: Body tracker options in the loop: the tracker's own (one-sided rays inside and outside
 #: each silhouette, sigma_ray 0.1) now that a colour cut follows each contour (seed 1, 12
 #: frames: median IoU 0.948 -> 0.962 against outline rays only with sigma_ray 0.3, which
-#: suited the noisier contours before the cut).
-TRACKER_DEFAULTS: dict[str, Any] = {}
+#: suited the noisier contours before the cut), with left and right limbs sharing one shape
+#: (``benches/README.md``, branch clutter3).
+TRACKER_DEFAULTS: dict[str, Any] = {"symmetric": True}
 #: Pixels: the second contour starts from the first one where it lies within this of the
 #: fitted model's silhouette, and from the model's silhouette shrunk by it elsewhere.
 MODEL_MARGIN = 6
