@@ -74,20 +74,27 @@ def _neighbour_check(name: str, points: np.ndarray, k: int) -> dict[str, Any]:
     }
 
 
+# The polar decomposition is timed on all the matrices but checked against numpy's SVD on
+# this many of them: the SVD of a million took 2.5 s of the demo's minute.
+_POLAR_CHECKED = 100_000
+
+
 def _polar_check(n: int, rng: np.random.Generator) -> dict[str, Any]:
     matrices = rng.normal(size=(n, 3, 3))
     rotations, seconds = _timed(lambda: elastocap.polar_rotation(matrices))
-    u, _, vt = np.linalg.svd(matrices)
+    checked = min(n, _POLAR_CHECKED)
+    u, _, vt = np.linalg.svd(matrices[:checked])
     sign = np.sign(np.linalg.det(u @ vt))
     u[:, :, 2] *= sign[:, None]
     reference = u @ vt
     identity_error = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max()
     return {
         "matrices": n,
+        "checked_against_svd": checked,
         "seconds": round(seconds, 4),
         "max_orthonormality_error": float(identity_error),
         "min_det": float(np.linalg.det(rotations).min()),
-        "max_difference_to_svd_rotation": float(np.abs(rotations - reference).max()),
+        "max_difference_to_svd_rotation": float(np.abs(rotations[:checked] - reference).max()),
     }
 
 
