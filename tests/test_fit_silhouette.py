@@ -114,6 +114,60 @@ def test_the_signed_mask_distance_is_scipy_exact_transform_rounded_as_opencv(see
     np.testing.assert_allclose(signed, exact, rtol=1e-6, atol=0)
 
 
+@given(st.integers(0, 2**32 - 1), st.integers(3, 60), st.integers(3, 60), st.integers(1, 12))
+@settings(max_examples=60, deadline=None)
+def test_the_cropped_distance_is_exact_in_its_box_and_a_lower_bound_beyond(seed: int, height: int, width: int,
+                                                                          margin: int) -> None:
+    rng = np.random.default_rng(seed)
+    # A blob somewhere in the image, sometimes touching its border, with specks in it.
+    r0, c0 = rng.integers(0, height), rng.integers(0, width)
+    r1, c1 = rng.integers(r0, min(r0 + height // 2 + 1, height)), rng.integers(c0, min(c0 + width // 2 + 1, width))
+    mask = np.zeros((height, width), bool)
+    mask[r0:r1 + 1, c0:c1 + 1] = rng.random((r1 - r0 + 1, c1 - c0 + 1)) < rng.uniform(0.3, 1.0)
+    if not mask.any() or mask.all():
+        return
+    full, cropped = signed_mask_distance(mask), signed_mask_distance(mask, margin)
+    rows, columns = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    box = (slice(max(rows[0] - margin, 0), rows[-1] + margin + 1), slice(max(columns[0] - margin, 0), columns[-1] + margin + 1))
+    assert np.array_equal(cropped[box], full[box])
+    beyond = np.ones(mask.shape, bool)
+    beyond[box] = False
+    # (the exact distances are rounded to float32)
+    assert np.all(cropped[beyond] <= full[beyond] * (1 + 1e-6) + 1e-6)
+    assert np.all(cropped[beyond] >= margin + 0.5 - 1e-9)
+
+
+def test_a_fit_on_cropped_mask_distances_is_the_fit_on_exact_ones(moving_block: tuple, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The term reads a mask's distance only within a node's projected support: the crop
+    # must leave the fit unchanged to the bit.
+    import elastocap.elastic.fit as fit_module
+    from elastocap.elastic.silhouette import term_margins
+
+    _, hulls, masks, rig = moving_block
+    model = ElasticModel.from_mesh(hulls[0].mesh(), n_nodes=200)
+    seen: list[list] = []
+
+    def recording(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(term_margins(*args, **kwargs))
+        return seen[-1]
+
+    monkeypatch.setattr(fit_module, "term_margins", recording)
+    cropped = fit_sequence(model, hulls, cameras=rig.cameras, masks=masks)
+    assert seen and all(m is not None and 4 < m < 200 for margins in seen for m in margins)
+    monkeypatch.setattr(fit_module, "term_margins", lambda cameras, *a, **k: [None] * len(cameras))
+    exact = fit_sequence(model, hulls, cameras=rig.cameras, masks=masks)
+    for frame in exact.frames:
+        assert np.array_equal(cropped.fits[frame].positions, exact.fits[frame].positions), f"frame {frame}"
+
+
+def test_a_bad_crop_margin_is_refused() -> None:
+    mask = np.zeros((10, 10), bool)
+    mask[3:6, 3:6] = True
+    for margin in (0, -2, 1.5):
+        with pytest.raises(InvalidInputError, match="margin"):
+            signed_mask_distance(mask, margin)  # type: ignore[arg-type]
+
+
 def test_the_signed_mask_distance_is_opencv_own_path_bit_for_bit() -> None:
     # OpenCV's own code path (not IPP) gives the float32 rounding of the exact distance:
     # the figures measured with it stand.

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap.elastic.model import ElasticModel
-from elastocap.elastic.silhouette import silhouette_views
+from elastocap.elastic.silhouette import silhouette_views, term_margins
 from elastocap.elastic.tracks import TrackAttachments, check_tracks
 from elastocap.geometry.mesh_distance import TriangleMesh
 from elastocap.hull.carve import Hull
@@ -39,6 +39,8 @@ SILHOUETTE = 1.0
 # The most a frame's refinement against the masks may take its volume farther from rest
 # (a fraction of the rest volume; the volume bound of issue 17).
 REFINED_VOLUME_CHANGE = 0.05
+# The linear solve's relative residual per iteration.
+SOLVER_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -174,6 +176,7 @@ def fit_sequence(
     cameras: Sequence[Any] | None = None,
     masks: Sequence[Sequence[Any]] | Mapping[int, Sequence[Any]] | None = None,
     predict: bool = True,
+    solver_tolerance: float = SOLVER_TOLERANCE,
     tracks: Any = None,
     track_weight: float = 1.0,
     track_sigma: float | None = None,
@@ -264,6 +267,10 @@ def fit_sequence(
         of from the neighbour's fit. Measured on the horse gallop (fast leg swings, up to
         0.59 m per frame; benches/README.md): mean drift 2.85% -> 2.16% of the bounding-box
         diagonal over one gallop cycle.
+    solver_tolerance : float
+        Relative residual at which each iteration's linear solve (PCG) stops, against the
+        right-hand side's norm. Each iteration re-linearises (rotations, associations), so
+        a solve far more exact than the next iteration's change is wasted.
     tracks : Tracks, optional
         Tracked 3-D surface points (:func:`elastocap.track_points`,
         :func:`elastocap.load_tracks`; 3-D models only), frames keyed as ``targets``. Each
@@ -364,12 +371,18 @@ def fit_sequence(
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
-            views = silhouette_views(cameras, masks[frame])
+            # Only the band of each image the term can read is transformed exactly: a
+            # person fills a few percent of a frame (8 cameras of 1024 x 768: 0.57 s per
+            # frame exact everywhere).
+            surface = model.surface_nodes
+            margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
+            views = silhouette_views(cameras, masks[frame], margins)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
                        # A body keeps its volume; a 2-D silhouette does not keep its area.
                        volume=volume if model.dim == 3 else 0.0,
+                       solver_tolerance=solver_tolerance,
                        tracks=pulling, track_weight=track_weight, track_sigma=sigma, track_scale=track_scale)
         clock = time.perf_counter()
         staged = views is not None and silhouette_stage != "joint"
