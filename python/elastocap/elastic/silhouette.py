@@ -78,7 +78,8 @@ def signed_mask_distance(mask: NDArray[Any], margin: int | None = None) -> NDArr
     # centres, as a row and a column term, less the half pixel to the outline.
     dr = np.maximum(np.maximum(r0 - np.arange(inside.shape[0]), np.arange(inside.shape[0]) - r1), 0)
     dc = np.maximum(np.maximum(c0 - np.arange(inside.shape[1]), np.arange(inside.shape[1]) - c1), 0)
-    out = np.hypot(dr[:, None].astype(np.float64), dc[None, :].astype(np.float64)) - 0.5
+    # (a square root of the sums, not np.hypot: libm's hypot per pixel was 2% of a fit)
+    out = np.sqrt((dr.astype(np.float64) ** 2)[:, None] + (dc.astype(np.float64) ** 2)[None, :]) - 0.5
     box = (slice(max(r0 - margin, 0), r1 + margin + 1), slice(max(c0 - margin, 0), c1 + margin + 1))
     out[box] = _exact_signed(np.ascontiguousarray(inside[box]))
     return out
