@@ -30,6 +30,8 @@ class Anchors:
         self.size = size
         self.side = size + 6  # the patch, its gradient border and the bicubic margin
         self.patches = np.zeros((0, cameras, self.side, self.side), np.float32)
+        # The template weights around each patch (its frame's mask), 1 where none given.
+        self.weights = np.ones((0, cameras, self.side, self.side), np.float32)
         self.held = np.zeros((0, cameras), bool)
         # Where each patch was cut (frame number, position): a resumed run cuts it again.
         self.frame = np.full((0, cameras), -1, np.int64)
@@ -41,16 +43,21 @@ class Anchors:
         if extra > 0:
             c = self.held.shape[1]
             self.patches = np.concatenate([self.patches, np.zeros((extra, c, self.side, self.side), np.float32)])
+            self.weights = np.concatenate([self.weights, np.ones((extra, c, self.side, self.side), np.float32)])
             self.held = np.concatenate([self.held, np.zeros((extra, c), bool)])
             self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
             self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
 
-    def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int) -> None:
+    def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
+            weights: Sequence[NDArray[np.float32]] | None = None) -> None:
         """Take the patches around ``uv`` (N, C, 2) where ``where`` (N, C) from the images
-        of ``frame``."""
+        of ``frame``, and their template weights from ``weights`` (per camera, e.g. the
+        frame's masks; all 1 when not given)."""
         self.grow(len(uv))
         for p, k in zip(*np.nonzero(where)):
-            self.patches[p, k] = cv2.getRectSubPix(images[k], (self.side, self.side), (float(uv[p, k, 0]), float(uv[p, k, 1])))
+            centre = (float(uv[p, k, 0]), float(uv[p, k, 1]))
+            self.patches[p, k] = cv2.getRectSubPix(images[k], (self.side, self.side), centre)
+            self.weights[p, k] = 1.0 if weights is None else cv2.getRectSubPix(weights[k], (self.side, self.side), centre)
         self.held[: len(where)] |= where
         self.frame[: len(where)][where] = frame
         self.uv[: len(where)][where] = uv[where]
@@ -95,10 +102,13 @@ class Anchors:
             tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
             tiles[: rows.size] = self.patches[rows, k]
             mosaic = tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3).reshape(per_row * self.side, per_row * self.side)
+            tiles[: rows.size] = self.weights[rows, k]
+            weighs = tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3).reshape(per_row * self.side, per_row * self.side)
             index = np.arange(rows.size)
             centres = np.column_stack([(index % per_row) * self.side + half, (index // per_row) * self.side + half]).astype(float)
             m = match_patches(np.ascontiguousarray(mosaic), centres, [images[k]], initial=uv[rows, k][:, None, :],
-                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach)
+                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
+                              weights=np.ascontiguousarray(weighs))
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))

@@ -94,6 +94,7 @@ def track_points(
     neighbours: int = 8,
     anchor: bool = True,
     rescue: bool = True,
+    mask_weights: bool = True,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -140,6 +141,13 @@ def track_points(
         Refine each frame-to-frame match against the view's first-appearance patch
         (replaced when it stops matching), which stops the random-walk drift of chained
         matches (:mod:`elastocap.tracking.anchors`).
+    rescue : bool, default True, keyword-only
+        Views the frame-to-frame match lost are matched again from their anchor patch.
+    mask_weights : bool, default True, keyword-only
+        Weigh each template patch by its frame's silhouette mask in the frame-to-frame,
+        anchor and cross-camera matches (weighted least squares, pixels outside the mask
+        weigh 0): a patch on the silhouette's edge then follows the surface, not the
+        background in its corner. Most views of limbs lie within a patch of the edge.
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
@@ -176,6 +184,7 @@ def track_points(
         neighbours=as_count("neighbours", neighbours, minimum=3),
         anchor=bool(anchor),
         rescue=bool(rescue),
+        mask_weights=bool(mask_weights),
     )
     tracker = _Tracker(capture, spacing, size, radius, float(min_correlation), options)
     records: list[dict[str, NDArray[np.generic]]] = []
@@ -233,6 +242,8 @@ class _Tracker:
         self.x_before = np.zeros((0, 3))
         self.point_flags = np.zeros(0, np.uint8)
         self.grey: list[NDArray[np.float32]] | None = None
+        # The previous frame's template weights (its masks as 0/1 floats), when used.
+        self.weights: list[NDArray[np.float32]] | None = None
         self.anchors = Anchors(c, size) if options["anchor"] else None
         self.texture: list[float] = []
         self.keep_texture = 0.0
@@ -244,6 +255,11 @@ class _Tracker:
             self.texture = [_TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
             self.keep_texture = _KEEP_TEXTURE_OVER_NOISE / _TEXTURE_OVER_NOISE * min(self.texture)
         return grey, masks
+
+    def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
+        if not self.o["mask_weights"]:
+            return None
+        return [np.ascontiguousarray(m, dtype=np.float32) for m in masks]
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;
@@ -265,16 +281,22 @@ class _Tracker:
             self.uv_last[:m] = before["uv"]
             self.x_before[:m] = before["positions"]
         self.point_flags = last["flags"].astype(np.uint8)
-        self.grey, _ = self._read(chosen[done - 1])
+        self.grey, masks = self._read(chosen[done - 1])
+        self.weights = self._weights(masks)
         if self.anchors is not None and "anchor_frame" in last:
             where_frames = last["anchor_frame"]
             for source in np.unique(where_frames[where_frames >= 0]):
-                grey = self.grey if source == chosen[done - 1] else self._read(int(source))[0]
-                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source))
+                if source == chosen[done - 1]:
+                    grey, weights = self.grey, self.weights
+                else:
+                    grey, source_masks = self._read(int(source))
+                    weights = self._weights(source_masks)
+                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
         return done
 
     def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
         grey, masks = self._read(frame)
+        weights = self._weights(masks)
         n, c = self.uv.shape[:2]
         alive = np.isfinite(self.uv).all(axis=2).any(axis=1)
         if first or n == 0 or self.grey is None:
@@ -287,7 +309,8 @@ class _Tracker:
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
                 np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
                 min_correlation=min(self.min_correlation, _BOX_CORRELATION), forward_backward=self.o["forward_backward"],
-                min_texture=self.keep_texture, max_iterations=STEP_ITERATIONS)
+                min_texture=self.keep_texture, max_iterations=STEP_ITERATIONS,
+                weights=None if weights is None or self.weights is None else (self.weights, weights))
             uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
             # The box search only has to find the start (it does not model rotation or
             # scale); the least-squares match, which does, must reach the threshold.
@@ -297,7 +320,7 @@ class _Tracker:
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=_ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
-                self.anchors.cut(grey, uv, stale, frame)
+                self.anchors.cut(grey, uv, stale, frame, weights=weights)
                 if self.o["rescue"]:
                     # Views lost by the frame-to-frame match (not at the border) found again
                     # from their anchor at the linear prediction.
@@ -346,7 +369,8 @@ class _Tracker:
                                               size=self.size, min_correlation=self.min_correlation,
                                               tolerance=self.o["max_residual"] + 2.0 * single[rows],
                                               min_texture=float(min(self.texture)), cameras=self.cameras,
-                                              points=anchor[rows], normals=facing_normals(self.cameras, anchor[rows], np.isfinite(uv[rows, :, 0])))
+                                              points=anchor[rows], normals=facing_normals(self.cameras, anchor[rows], np.isfinite(uv[rows, :, 0])),
+                                              weights=weights)
                 uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
                 cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
                 # Points that were down to one view and got others back: intersect now.
@@ -390,13 +414,14 @@ class _Tracker:
             views_now = np.isfinite(uv[..., 0])
             self.anchors.grow(total)
             self.anchors.drop(~views_now)
-            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame)
+            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame, weights=weights)
         self.uv_last, self.uv = self.uv, uv
         if len(x_state) < len(x):
             x_state = np.concatenate([x_state, x[len(x_state):]])
         self.x_before, self.x_last = self.x_last, x_state
         self.point_flags = flags
         self.grey = grey
+        self.weights = weights
         return {
             "ids": np.arange(total, dtype=np.int64),
             "positions": x,

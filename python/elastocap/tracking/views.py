@@ -79,12 +79,14 @@ def spatial_match(
     min_correlation: float,
     tolerance: float | NDArray[np.float64],
     min_texture: float,
+    weights: Sequence[NDArray[np.float32]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Match each point's patch in its reference camera into the cameras where ``targets``
     (N, C, 2) is finite, started there (identity shape). A match counts when it converged,
     its correlation reaches ``min_correlation`` and it lies within ``tolerance`` pixels of
     its target. With ``cameras``, ``points`` and ``normals`` the start's shape is the
-    plane's (:func:`plane_affine`): wide baselines foreshorten and turn the patch. Returns the matched positions (N, C, 2; NaN elsewhere) and their per-view
+    plane's (:func:`plane_affine`): wide baselines foreshorten and turn the patch. With
+    ``weights`` (per camera, its mask) the reference patch is weighed by its camera's. Returns the matched positions (N, C, 2; NaN elsewhere) and their per-view
     covariance (N, C, 2, 2)."""
     n, c = targets.shape[:2]
     uv = np.full((n, c, 2), np.nan)
@@ -106,7 +108,8 @@ def spatial_match(
                     affine[:, :, 2] = targets[rows, k]
                 initial = affine[:, None]
             m = match_patches(images[r], template_uv[rows], [images[k]], initial=initial,
-                              size=size, min_texture=min_texture, max_iterations=20)
+                              size=size, min_texture=min_texture, max_iterations=20,
+                              weights=None if weights is None else weights[r])
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tol[rows]))
