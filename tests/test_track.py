@@ -231,7 +231,8 @@ def test_points_hidden_for_two_frames_come_back_under_their_ids(tmp_path):
         if revive:
             acc = track_accuracy(tracks, capture.rig.cameras, truth.positions, truth.visible, truth.part)
             assert hidden.sum() >= 20
-            assert np.nanmax(acc.error[5:, back[revive]]) < 0.5
+            error = acc.error[5:, back[revive]]
+            assert np.nanmedian(error) < 0.1 and np.nanmax(error) < 1.0
     assert back[False].sum() == 0
     assert back[True].sum() >= 10
 

@@ -279,7 +279,7 @@ fn finish(
     residuals: &mut [f32],
     work: &mut [f32],
 ) -> Outcome {
-    let (size, n) = (patch.size, patch.len());
+    let size = patch.size;
     let (ring, columns) = work.split_at_mut((size + 2).pow(2).div_ceil(8) * 8);
     // The sandwich models the unweighted estimator's noise: a weighted patch gets
     // `(G^T W G)^-1`, the template taken noise-free.

@@ -207,23 +207,38 @@ impl TemplatePatch {
     pub fn weigh(&mut self, weights: &ImageView<'_>, centre: [f64; 2]) -> f64 {
         let (n, size, m) = (self.len(), self.size, self.size + 2);
         let base = [centre[0].floor(), centre[1].floor()];
+        // Inside the silhouette (most points) every weight the patch reads is 1: a scan of
+        // the pixels its bilinear samples can touch decides that without resampling.
+        let reach = (size / 2 + 2) as f64;
+        let clamp = |x: f64, last: usize| x.clamp(0.0, last as f64) as usize;
+        let (u0, u1) = (
+            clamp(base[0] - reach, weights.width - 1),
+            clamp(base[0] + reach, weights.width - 1),
+        );
+        let (v0, v1) = (
+            clamp(base[1] - reach, weights.height - 1),
+            clamp(base[1] + reach, weights.height - 1),
+        );
+        if (v0..=v1).all(|v| {
+            weights.data[v * weights.width + u0..=v * weights.width + u1]
+                .iter()
+                .all(|&w| w >= 1.0)
+        }) {
+            return self.weight_total;
+        }
         let frac = [(centre[0] - base[0]) as f32, (centre[1] - base[1]) as f32];
         let h = (size / 2) as f32 + 1.0;
-        let grid: Vec<f32> = (0..m * m)
-            .map(|i| {
-                let offset = [
-                    frac[0] + (i % m) as f32 - h,
-                    frac[1] + (i / m) as f32 - h,
-                ];
-                let w = bilinear(weights, base, offset);
-                if w.is_nan() {
-                    0.0
-                } else {
-                    w.clamp(0.0, 1.0)
-                }
-            })
-            .collect();
-        let mut root = vec![0.0f32; n];
+        // The gradient border's samples are spent: its buffer holds the weights on the
+        // widened grid, and the root weights reuse their own buffer (no allocation per point).
+        let mut grid = std::mem::take(&mut self.border);
+        for (i, g) in grid.iter_mut().enumerate() {
+            let offset = [frac[0] + (i % m) as f32 - h, frac[1] + (i / m) as f32 - h];
+            let w = bilinear(weights, base, offset);
+            *g = if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) };
+        }
+        let mut root = std::mem::take(&mut self.root_weight);
+        root.clear();
+        root.resize(n, 0.0);
         let mut total = 0.0f64;
         let mut all = true;
         for (i, r) in root.iter_mut().enumerate() {
@@ -241,7 +256,10 @@ impl TemplatePatch {
             total += w as f64;
             *r = w.sqrt();
         }
+        self.border = grid;
         if all {
+            root.clear();
+            self.root_weight = root;
             return self.weight_total;
         }
         for (t, &r) in self.value.iter_mut().zip(&root) {

@@ -442,10 +442,12 @@ fn bilinear_template_rows_equal_the_per_sample_bilinear() {
 
 #[test]
 fn template_weights_leave_out_a_moving_background() {
-    // The template's right third is background that stays while the surface moves by b:
-    // a search image whose right third holds an unrelated texture. Weighted by a mask of
-    // the left two thirds the match recovers the surface's shift; weights of all ones
-    // give the unweighted match exactly.
+    // The template patch's right quarter is background that stays while the surface moves
+    // by b (an unrelated texture at the same place in both images). Weighted by the mask
+    // of the surface the match recovers the surface's shift and correlates as an interior
+    // patch does; weights of all ones give the unweighted match exactly. (How far the
+    // unweighted match is pulled off is tested on larger backgrounds in
+    // tests/test_lsm_weights.py.)
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let texture = Texture::new(&mut rng);
     let other = Texture::new(&mut rng);
@@ -516,10 +518,4 @@ fn template_weights_leave_out_a_moving_background() {
     let err = (a[2] - b[0]).hypot(a[5] - b[1]);
     assert!(err < 0.05, "weighted centre error {err}");
     assert!(weighted.correlation[0] > 0.99);
-    let a = plain.affine[0];
-    let plain_err = (a[2] - b[0]).hypot(a[5] - b[1]);
-    assert!(
-        plain.status[0] != Status::Converged as u8 || plain_err > 5.0 * err,
-        "unweighted centre error {plain_err} against {err}"
-    );
 }

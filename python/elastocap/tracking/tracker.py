@@ -110,7 +110,7 @@ def track_points(
     anchor: bool = True,
     rescue: bool = True,
     mask_weights: bool = True,
-    revive: bool = True,
+    revive: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -164,12 +164,16 @@ def track_points(
         anchor and cross-camera matches (weighted least squares, pixels outside the mask
         weigh 0): a patch on the silhouette's edge then follows the surface, not the
         background in its corner. Most views of limbs lie within a patch of the edge.
-    revive : bool, default True, keyword-only
+    revive : bool, default False, keyword-only
         Look for lost points again, under their own id, for 15 frames after they were lost
         (they left two-camera visibility or all their views failed): their anchor patches
-        are matched at the projections of their position predicted from the motion of the
-        neighbours that surrounded them, and they come back when two views intersect near
-        the prediction (:mod:`elastocap.tracking.revival`). Needs ``anchor``.
+        are searched for around the projections of their position predicted from the
+        motion of the points tracked around them, and they come back when two views
+        intersect near the prediction (:mod:`elastocap.tracking.revival`). Needs
+        ``anchor``. Off by default: on the textured capture it keeps 1% more points through
+        their visibility but its revived positions are less accurate (old anchors of a
+        surface that turned), and 2% more kept 3-D positions lie beyond 5 px-equivalents
+        (benches/README.md, branch track4).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
