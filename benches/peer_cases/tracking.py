@@ -21,7 +21,8 @@
   points in each of 8 cameras of 1024x768 (``ELASTOCAP_TRACK_SPEED``, a textured capture at that size), images decoded
   beforehand; ours the Rust step (prediction, NCC box search, temporal LSM,
   forward-backward), the peer calcOpticalFlowPyrLK forward and backward on the same points;
-  the decoding time of the 8 frames is reported apart (``decode_s``).
+  the decoding time of the 8 frames is reported apart (``decode_s``); ``ours_mask_weights_cpu_s``
+  is our step with the frames' masks as template weights (what ``track_points`` runs).
 """
 
 from __future__ import annotations
