@@ -60,7 +60,44 @@ pub fn match_patches(
     options: &MatchOptions,
     out: MatchOutput<'_>,
 ) -> Result<()> {
+    match_weighted_patches(template, None, points, searches, starts, lines, options, out)
+}
+
+/// [`match_patches`] by weighted least squares: `weights` (the template's size) gives each
+/// template pixel a weight in `[0, 1]` (read bilinearly at the patch's pixels; values
+/// outside are clamped), $\sum_x w(x) (T(x) - r_0 - r_1 S(A x + b))^2$. A silhouette mask
+/// as weights makes a patch on the edge of a moving body match the body alone, not the
+/// background in its corner. The normal equations, $\sigma_0$ (redundancy `sum w - 8`),
+/// the correlation (weighted means and spreads) and the texture measure are all weighted;
+/// a patch whose weights are all 1 is matched exactly as without weights, one whose total
+/// weight is below 16 reports [`Status::LowTexture`]. The covariance of a weighted patch is
+/// $\sigma_0^2 (G^\top W G)^{-1}$ (no sandwich: the template is taken noise-free).
+///
+/// # Errors
+/// As [`match_patches`], and [`Error::WrongLength`] for weights whose size differs from the
+/// template's.
+#[allow(clippy::too_many_arguments)]
+pub fn match_weighted_patches(
+    template: &ImageView<'_>,
+    weights: Option<&ImageView<'_>>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    options: &MatchOptions,
+    out: MatchOutput<'_>,
+) -> Result<()> {
     validate(template, points, searches, starts, lines, options, &out)?;
+    if let Some(w) = weights {
+        let expected = template.width * template.height;
+        if w.width != template.width || w.height != template.height || w.data.len() != expected {
+            return Err(Error::WrongLength {
+                argument: "weights",
+                expected,
+                got: w.data.len(),
+            });
+        }
+    }
     let s = searches.len();
     let block = PARAMETERS * PARAMETERS * s * s;
     out.status
@@ -81,6 +118,7 @@ pub fn match_patches(
             )| {
                 match_point(
                     template,
+                    weights,
                     points[p],
                     searches,
                     &starts[p * s..(p + 1) * s],

@@ -198,3 +198,58 @@ def test_tracked_views_keep_going_below_the_seeding_texture_floor(tmp_path, monk
     assert born.sum() >= 50
     assert kept[low] >= 0.8 * born.sum()
     assert kept[low] >= 1.4 * kept[high]
+
+
+def test_points_hidden_for_two_frames_come_back_under_their_ids(tmp_path):
+    # A band down the middle of every camera's image is blanked (flat grey under noise) on
+    # frames 3 and 4: the points seen only inside it lose every view. From frame 5 the
+    # revival finds them again from their anchors at the projections of their positions
+    # predicted from the points tracked around them, under their own ids and right; without
+    # it they stay lost (new seeds take their place under new ids).
+    import cv2
+
+    from elastocap._io import save_image
+
+    root = tmp_path / "hidden"
+    truth = write_scene(root, frames=8, cameras=6, seed=2, points=2500)
+    capture = elastocap.Capture.open(root)
+    rng = np.random.default_rng(0)
+    for name in capture.rig.names:
+        for f in (3, 4):
+            path = root / "images" / name / f"{f:06d}.png"
+            image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB).astype(float)
+            middle = image.shape[1] // 2
+            band = image[:, middle - 15:middle + 15]
+            image[:, middle - 15:middle + 15] = 110 + rng.normal(0, 2, band.shape)
+            save_image(path, np.clip(np.round(image), 0, 255).astype(np.uint8))
+    back = {}
+    for revive in (False, True):
+        tracks = track_points(capture, revive=revive)
+        ok = tracks.flags == TrackFlag.TRACKED
+        hidden = ok[2] & ~ok[3] & ~ok[4]
+        back[revive] = hidden & ok[5:].any(axis=0)
+        if revive:
+            acc = track_accuracy(tracks, capture.rig.cameras, truth.positions, truth.visible, truth.part)
+            assert hidden.sum() >= 20
+            error = acc.error[5:, back[revive]]
+            assert np.nanmedian(error) < 0.1 and np.nanmax(error) < 1.0
+    assert back[False].sum() == 0
+    assert back[True].sum() >= 10
+
+
+def test_surface_normals_are_the_neighbours_plane_facing_the_cameras():
+    from elastocap.tracking.views import surface_normals
+
+    rng = np.random.default_rng(3)
+    normal = np.array([0.3, -0.2, 0.93])
+    normal /= np.linalg.norm(normal)
+    basis = np.linalg.svd(normal[None])[2][1:]
+    cloud = rng.uniform(-0.2, 0.2, (300, 2)) @ basis + rng.normal(0, 1e-4, (300, 1)) * normal
+    cloud[::7] = np.nan  # untracked points are ignored
+    points = rng.uniform(-0.1, 0.1, (20, 2)) @ basis
+    towards = np.tile(-normal + 0.4 * basis[0], (20, 1))  # the cameras look at the other side
+    got = surface_normals(points, cloud, towards)
+    np.testing.assert_allclose(got, np.tile(-normal, (20, 1)), atol=0.01)
+    # Neighbours along a line span no plane: the given direction stays.
+    line = np.outer(np.linspace(-0.2, 0.2, 50), basis[0])
+    np.testing.assert_array_equal(surface_normals(points, line, towards), towards)

@@ -329,6 +329,7 @@ def lsm_match_patches(
     shift_only_iterations: int = 1,
     interpolation: str = "bicubic",
     threads: int | None = None,
+    weights: NDArray[np.float32] | None = None,
 ) -> tuple[
     NDArray[np.uint8],
     NDArray[np.float64],
@@ -372,6 +373,7 @@ def track_step(
     max_iterations: int = 15,
     min_texture: float = 0.0,
     shift_only_iterations: int = 1,
+    weights: tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]: ...
 def track_ncc_at(
     template: NDArray[np.float32],

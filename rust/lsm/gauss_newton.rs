@@ -195,7 +195,7 @@ pub(crate) fn match_image(
         ];
     }
     let start_b = state.b;
-    let n = patch.len() as f64;
+    let n = patch.weight_total;
     let hard = options.line_sigma == 0.0;
     let mut shift_only = options.shift_only_iterations > 0;
     let mut status = Status::MaxIterations;
@@ -214,6 +214,7 @@ pub(crate) fn match_image(
         ) {
             return Outcome::failed(Status::LeftImage, state, iterations);
         }
+        patch.weigh_samples(samples);
         let sums = Sums::new(patch, samples);
         let normal = sums.normal(patch);
         let gradient = sums.gradient(patch, &state);
@@ -278,9 +279,12 @@ fn finish(
     residuals: &mut [f32],
     work: &mut [f32],
 ) -> Outcome {
-    let (size, n) = (patch.size, patch.len());
+    let size = patch.size;
     let (ring, columns) = work.split_at_mut((size + 2).pow(2).div_ceil(8) * 8);
+    // The sandwich models the unweighted estimator's noise: a weighted patch gets
+    // `(G^T W G)^-1`, the template taken noise-free.
     let widened = options.sandwich
+        && !patch.weighted()
         && sample_search_ring(image, state.a, state.b, patch, options.interpolation, ring);
     if widened {
         for r in 0..size {
@@ -297,39 +301,24 @@ fn finish(
     ) {
         return Outcome::failed(Status::LeftImage, state, iterations);
     }
+    patch.weigh_samples(samples);
     let sums = Sums::new(patch, samples);
     // Residuals, and the correlation from centred values: small numbers, so single
     // precision sums lose nothing that matters.
     let (gain, offset) = (state.gain as f32, state.offset as f32);
-    for ((e, &s), &t) in residuals.iter_mut().zip(samples.iter()).zip(&patch.value) {
-        *e = t - offset - gain * s;
-    }
-    let square = dot(residuals, residuals);
+    let total = patch.weight_total;
     let (mean_t, mean_s) = (
-        (patch.value_sum / n as f64) as f32,
-        (sums.search / n as f64) as f32,
+        (patch.value_sum / total) as f32,
+        (sums.search / total) as f32,
     );
-    let mut lanes = [[0.0f32; 8]; 3];
-    let (cs, rs) = samples.as_chunks::<8>();
-    let (ct, rt) = patch.value.as_chunks::<8>();
-    for (s, t) in cs.iter().zip(ct) {
-        for l in 0..8 {
-            let (s, t) = (s[l] - mean_s, t[l] - mean_t);
-            lanes[0][l] += s * t;
-            lanes[1][l] += s * s;
-            lanes[2][l] += t * t;
-        }
-    }
-    let [mut st, mut ss, mut tt] = lanes.map(|lane| lane.iter().map(|&x| x as f64).sum::<f64>());
-    for (&s, &t) in rs.iter().zip(rt) {
-        let (s, t) = ((s - mean_s) as f64, (t - mean_t) as f64);
-        st += s * t;
-        ss += s * s;
-        tt += t * t;
-    }
-    let correlation = st / (ss * tt).sqrt();
+    let (square, correlation) = if patch.weighted() {
+        weighted_fit(patch, samples, residuals, [gain, offset], [mean_t, mean_s])
+    } else {
+        plain_fit(patch, samples, residuals, [gain, offset], [mean_t, mean_s])
+    };
     let mut normal = sums.normal(patch);
-    let mut redundancy = n as f64 - U as f64;
+    let n = total;
+    let mut redundancy = n - U as f64;
     let mut pseudo = 0.0;
     let mut hard_c = None;
     let mut soft = None;
@@ -339,7 +328,7 @@ fn finish(
         if options.line_sigma == 0.0 {
             hard_c = Some(c);
         } else {
-            let w = square / (n as f64 - U as f64) / (options.line_sigma * options.line_sigma);
+            let w = square / (n - U as f64) / (options.line_sigma * options.line_sigma);
             let d = line.signed_distance(state.b);
             pseudo = w * d * d;
             soft = Some((c, w));
@@ -394,4 +383,66 @@ fn finish(
         map,
         sums,
     }
+}
+
+/// Residuals `T - offset - gain S` into `residuals`; their sum of squares and the
+/// normalised cross-correlation of the patches (centred values: small numbers, so single
+/// precision sums lose nothing that matters).
+fn plain_fit(
+    patch: &TemplatePatch,
+    samples: &[f32],
+    residuals: &mut [f32],
+    [gain, offset]: [f32; 2],
+    [mean_t, mean_s]: [f32; 2],
+) -> (f64, f64) {
+    for ((e, &s), &t) in residuals.iter_mut().zip(samples.iter()).zip(&patch.value) {
+        *e = t - offset - gain * s;
+    }
+    let square = dot(residuals, residuals);
+    let mut lanes = [[0.0f32; 8]; 3];
+    let (cs, rs) = samples.as_chunks::<8>();
+    let (ct, rt) = patch.value.as_chunks::<8>();
+    for (s, t) in cs.iter().zip(ct) {
+        for l in 0..8 {
+            let (s, t) = (s[l] - mean_s, t[l] - mean_t);
+            lanes[0][l] += s * t;
+            lanes[1][l] += s * s;
+            lanes[2][l] += t * t;
+        }
+    }
+    let [mut st, mut ss, mut tt] = lanes.map(|lane| lane.iter().map(|&x| x as f64).sum::<f64>());
+    for (&s, &t) in rs.iter().zip(rt) {
+        let (s, t) = ((s - mean_s) as f64, (t - mean_t) as f64);
+        st += s * t;
+        ss += s * s;
+        tt += t * t;
+    }
+    (square, st / (ss * tt).sqrt())
+}
+
+/// [`plain_fit`] of a weighted patch: `samples` and the template's values are scaled by
+/// the root weights `r`, so the residual is `r (T - offset - gain S)` and the correlation
+/// the weighted one, `sum w (S - mean_S)(T - mean_T)` over the weighted spreads, with
+/// weighted means.
+fn weighted_fit(
+    patch: &TemplatePatch,
+    samples: &[f32],
+    residuals: &mut [f32],
+    [gain, offset]: [f32; 2],
+    [mean_t, mean_s]: [f32; 2],
+) -> (f64, f64) {
+    let (mut st, mut ss, mut tt) = (0.0f64, 0.0f64, 0.0f64);
+    for (((e, &s), &t), &r) in residuals
+        .iter_mut()
+        .zip(samples.iter())
+        .zip(&patch.value)
+        .zip(&patch.root_weight)
+    {
+        *e = t - offset * r - gain * s;
+        let (s, t) = ((s - r * mean_s) as f64, (t - r * mean_t) as f64);
+        st += s * t;
+        ss += s * s;
+        tt += t * t;
+    }
+    (dot(residuals, residuals), st / (ss * tt).sqrt())
 }

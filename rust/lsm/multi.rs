@@ -14,6 +14,8 @@ use super::sample::TemplatePatch;
 use super::types::{ImageView, MatchOptions, Status, PARAMETERS};
 
 const U: usize = MAX;
+/// Least total weight of a weighted template patch: twice the unknowns of a search image.
+const MIN_WEIGHT: f64 = 2.0 * U as f64;
 
 /// Per-worker scratch, reused from point to point.
 #[derive(Debug, Default)]
@@ -41,8 +43,10 @@ pub(crate) struct PointOutput<'a> {
 }
 
 /// Matches the template patch around `point` into every search image.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn match_point(
     template: &ImageView<'_>,
+    weights: Option<&ImageView<'_>>,
     point: [f64; 2],
     searches: &[ImageView<'_>],
     starts: &[[f64; 6]],
@@ -63,6 +67,9 @@ pub(crate) fn match_point(
         .sample(template, point, size, options.interpolation)
     {
         Some(Status::LeftImage)
+    } else if weights.is_some_and(|w| !(scratch.patch.weigh(w, point) > MIN_WEIGHT)) {
+        // Fewer weighted pixels than unknowns (and a margin): nothing to fit.
+        Some(Status::LowTexture)
     } else if !(scratch.patch.weakest_gradient() >= options.min_texture) {
         Some(Status::LowTexture)
     } else {
@@ -145,7 +152,7 @@ fn joint_covariance(scratch: &mut Scratch, n: usize, covariance: &mut [f64]) {
     }
     let scratch = &*scratch;
     let (outcomes, maps, estimated) = (&scratch.outcomes, &scratch.maps, &scratch.estimated);
-    let redundancy = n as f64 - U as f64;
+    let redundancy = scratch.patch.weight_total - U as f64;
     // The template's noise variance: residuals of two search images share only it.
     let mut template_variance = 0.0;
     let mut pairs = 0usize;
@@ -209,6 +216,6 @@ fn cross_normal(scratch: &Scratch, s: usize, t: usize, n: usize) -> [[f64; U]; U
     m[6][6] = ss.iter().zip(st).map(|(&a, &b)| a as f64 * b as f64).sum();
     m[6][7] = os.search;
     m[7][6] = ot.search;
-    m[7][7] = n as f64;
+    m[7][7] = patch.weight_total;
     m
 }

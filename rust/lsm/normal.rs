@@ -3,12 +3,13 @@
 
 use super::dense::MAX;
 use super::gauss_newton::State;
-use super::sample::{dot, sum, TemplatePatch};
+use super::sample::{dot, TemplatePatch};
 
 const U: usize = MAX;
 
 /// The per-iteration sums over the resampled search patch `S`: `sum g S` (6 geometric
-/// columns), `sum S`, `sum S^2`, `sum S T`.
+/// columns), `sum S`, `sum S^2`, `sum S T` (weighted sums when the patch is weighted: the
+/// samples are then already scaled by the root weights).
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Sums {
     pub geo_search: [f64; 6],
@@ -26,7 +27,7 @@ impl Sums {
         }
         Self {
             geo_search,
-            search: sum(samples),
+            search: patch.weighted_sum(samples),
             search_square: dot(samples, samples),
             search_value: dot(samples, &patch.value),
         }
@@ -45,7 +46,7 @@ impl Sums {
         m[6][6] = self.search_square;
         m[6][7] = self.search;
         m[7][6] = self.search;
-        m[7][7] = patch.len() as f64;
+        m[7][7] = patch.weight_total;
         m
     }
 
@@ -57,13 +58,13 @@ impl Sums {
             r[k] = patch.geo_value[k] - o * patch.geo_sum[k] - g * self.geo_search[k];
         }
         r[6] = self.search_value - o * self.search - g * self.search_square;
-        r[7] = patch.value_sum - o * patch.len() as f64 - g * self.search;
+        r[7] = patch.value_sum - o * patch.weight_total - g * self.search;
         r
     }
 
     /// `e^T e` from the sums (for weights only: it cancels digits).
     pub fn residual_square(&self, patch: &TemplatePatch, state: &State) -> f64 {
-        let (g, o, n) = (state.gain, state.offset, patch.len() as f64);
+        let (g, o, n) = (state.gain, state.offset, patch.weight_total);
         patch.value_square - 2.0 * o * patch.value_sum - 2.0 * g * self.search_value
             + n * o * o
             + 2.0 * o * g * self.search

@@ -38,6 +38,13 @@ pub(crate) struct TemplatePatch {
     pub value_sum: f64,
     /// `sum T^2`.
     pub value_square: f64,
+    /// Square roots of the per-pixel weights when the patch is weighted (`weigh`), empty
+    /// otherwise. A weighted patch stores `value` and `geo` multiplied by them, and every
+    /// search patch is multiplied by them after resampling: the rows of the least-squares
+    /// system are scaled by `sqrt(w)`, so every sum above is a weighted sum.
+    pub root_weight: Vec<f32>,
+    /// `sum w`: the number of pixels, or their total weight when weighted.
+    pub weight_total: f64,
     /// Grid of `(size + 2)^2` samples for the gradients (scratch).
     border: Vec<f32>,
 }
@@ -57,6 +64,8 @@ impl Default for TemplatePatch {
             geo_value: [0.0; 6],
             value_sum: 0.0,
             value_square: 0.0,
+            root_weight: Vec::new(),
+            weight_total: 0.0,
             border: Vec::new(),
         }
     }
@@ -154,12 +163,30 @@ impl TemplatePatch {
         }
         self.value_sum = sum_value;
         self.value_square = sum_square;
+        self.root_weight.clear();
+        self.weight_total = n as f64;
+        self.geo_sums();
+        true
+    }
+
+    /// The sums over `geo` (and, when weighted, the value sums again).
+    fn geo_sums(&mut self) {
+        let n = self.len();
         self.geo_normal = [0.0; 36];
         self.geo_sum = [0.0; 6];
         self.geo_value = [0.0; 6];
+        let weighted = !self.root_weight.is_empty();
+        if weighted {
+            self.value_sum = dot(&self.root_weight, &self.value);
+            self.value_square = dot(&self.value, &self.value);
+        }
         for k in 0..6 {
             let gk = &self.geo[k * n..(k + 1) * n];
-            self.geo_sum[k] = sum(gk);
+            self.geo_sum[k] = if weighted {
+                dot(&self.root_weight, gk)
+            } else {
+                sum(gk)
+            };
             self.geo_value[k] = dot(gk, &self.value);
             for l in k..6 {
                 let s = dot(gk, &self.geo[l * n..(l + 1) * n]);
@@ -167,13 +194,113 @@ impl TemplatePatch {
                 self.geo_normal[l * 6 + k] = s;
             }
         }
-        true
+    }
+
+    /// Weighs the sampled patch by `weights` (an image of the template's size, values
+    /// clamped to `[0, 1]`, read bilinearly at the patch's pixels around `centre`, the
+    /// point `sample` was given): weighted least squares, $\sum_x w(x) e(x)^2$. A
+    /// template pixel of weight 0 (a silhouette mask's background) then plays no part in
+    /// the match, its correlation or its texture measure; a pixel weighs at most what its
+    /// four neighbours do (its gradient reads them). A patch whose weights are all 1
+    /// stays unweighted (the same arithmetic as without weights). Returns the total
+    /// weight.
+    pub fn weigh(&mut self, weights: &ImageView<'_>, centre: [f64; 2]) -> f64 {
+        let (n, size, m) = (self.len(), self.size, self.size + 2);
+        let base = [centre[0].floor(), centre[1].floor()];
+        // Inside the silhouette (most points) every weight the patch reads is 1: a scan of
+        // the pixels its bilinear samples can touch decides that without resampling.
+        let reach = (size / 2 + 2) as f64;
+        let clamp = |x: f64, last: usize| x.clamp(0.0, last as f64) as usize;
+        let (u0, u1) = (
+            clamp(base[0] - reach, weights.width - 1),
+            clamp(base[0] + reach, weights.width - 1),
+        );
+        let (v0, v1) = (
+            clamp(base[1] - reach, weights.height - 1),
+            clamp(base[1] + reach, weights.height - 1),
+        );
+        if (v0..=v1).all(|v| {
+            weights.data[v * weights.width + u0..=v * weights.width + u1]
+                .iter()
+                .all(|&w| w >= 1.0)
+        }) {
+            return self.weight_total;
+        }
+        let frac = [(centre[0] - base[0]) as f32, (centre[1] - base[1]) as f32];
+        let h = (size / 2) as f32 + 1.0;
+        // The gradient border's samples are spent: its buffer holds the weights on the
+        // widened grid, and the root weights reuse their own buffer (no allocation per point).
+        let mut grid = std::mem::take(&mut self.border);
+        for (i, g) in grid.iter_mut().enumerate() {
+            let offset = [frac[0] + (i % m) as f32 - h, frac[1] + (i / m) as f32 - h];
+            let w = bilinear(weights, base, offset);
+            *g = if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) };
+        }
+        let mut root = std::mem::take(&mut self.root_weight);
+        root.clear();
+        root.resize(n, 0.0);
+        let mut total = 0.0f64;
+        let mut all = true;
+        for (i, r) in root.iter_mut().enumerate() {
+            // A pixel's central-difference gradient reads its four neighbours: next to a
+            // pixel of low weight (the background) it mixes the two, so it weighs no more
+            // than they do (a one-pixel erosion of the weights).
+            let at = |rr: usize, cc: usize| grid[rr * m + cc];
+            let (rr, cc) = (i / size + 1, i % size + 1);
+            let w = at(rr, cc)
+                .min(at(rr - 1, cc))
+                .min(at(rr + 1, cc))
+                .min(at(rr, cc - 1))
+                .min(at(rr, cc + 1));
+            all &= w >= 1.0;
+            total += w as f64;
+            *r = w.sqrt();
+        }
+        self.border = grid;
+        if all {
+            root.clear();
+            self.root_weight = root;
+            return self.weight_total;
+        }
+        for (t, &r) in self.value.iter_mut().zip(&root) {
+            *t *= r;
+        }
+        for k in 0..6 {
+            for (g, &r) in self.geo[k * n..(k + 1) * n].iter_mut().zip(&root) {
+                *g *= r;
+            }
+        }
+        self.root_weight = root;
+        self.weight_total = total;
+        self.geo_sums();
+        total
+    }
+
+    /// Whether the patch is weighted.
+    pub fn weighted(&self) -> bool {
+        !self.root_weight.is_empty()
+    }
+
+    /// Scales a resampled search patch by the root weights (nothing when unweighted).
+    pub fn weigh_samples(&self, samples: &mut [f32]) {
+        for (s, &r) in samples.iter_mut().zip(&self.root_weight) {
+            *s *= r;
+        }
+    }
+
+    /// `sum w S` of a search patch already scaled by `weigh_samples`.
+    pub fn weighted_sum(&self, samples: &[f32]) -> f64 {
+        if self.weighted() {
+            dot(&self.root_weight, samples)
+        } else {
+            sum(samples)
+        }
     }
 
     /// Root mean square gradient along the patch's weakest direction: the square root of
     /// the smaller eigenvalue of the mean structure tensor `mean(grad T grad T^T)`.
     pub fn weakest_gradient(&self) -> f64 {
-        let n = self.len() as f64;
+        let n = self.weight_total;
         let (a, b, c) = (
             self.geo_normal[0] / n,
             self.geo_normal[1] / n,

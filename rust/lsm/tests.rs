@@ -439,3 +439,83 @@ fn bilinear_template_rows_equal_the_per_sample_bilinear() {
         }
     }
 }
+
+#[test]
+fn template_weights_leave_out_a_moving_background() {
+    // The template patch's right quarter is background that stays while the surface moves
+    // by b (an unrelated texture at the same place in both images). Weighted by the mask
+    // of the surface the match recovers the surface's shift and correlates as an interior
+    // patch does; weights of all ones give the unweighted match exactly. (How far the
+    // unweighted match is pulled off is tested on larger backgrounds in
+    // tests/test_lsm_weights.py.)
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let texture = Texture::new(&mut rng);
+    let other = Texture::new(&mut rng);
+    let (p, b) = ([30.0, 31.0], [31.4, 30.3]);
+    let mut sc = scene(&texture, p, [1.0, 0.0, 0.0, 1.0], b, 1.0, 0.0, 0.5, &mut rng);
+    let edge = 34usize;
+    for r in 0..sc.height {
+        for c in edge..sc.width {
+            sc.template[r * sc.width + c] = other.at(c as f64, r as f64) as f32;
+            if c as f64 >= edge as f64 + (b[0] - p[0]) {
+                sc.search[r * sc.width + c] = other.at(c as f64, r as f64) as f32;
+            }
+        }
+    }
+    let mask: Vec<f32> = (0..sc.width * sc.height)
+        .map(|i| if i % sc.width < edge { 1.0 } else { 0.0 })
+        .collect();
+    let ones = vec![1.0f32; sc.width * sc.height];
+    let view = |data| ImageView {
+        data,
+        width: sc.width,
+        height: sc.height,
+    };
+    let options = MatchOptions {
+        size: 15,
+        sandwich: false,
+        ..Default::default()
+    };
+    let start = [1.0, 0.0, b[0] + 0.5, 0.0, 1.0, b[1] - 0.5];
+    let matched = |weights: Option<&ImageView<'_>>| {
+        let mut m = Matched {
+            status: vec![0; 1],
+            affine: vec![[0.0; 6]; 1],
+            radiometry: vec![[0.0; 2]; 1],
+            sigma0: vec![0.0; 1],
+            correlation: vec![0.0; 1],
+            iterations: vec![0; 1],
+            covariance: vec![0.0; 64],
+        };
+        match_weighted_patches(
+            &view(&sc.template),
+            weights,
+            &[p],
+            &[view(&sc.search)],
+            &[start],
+            None,
+            &options,
+            MatchOutput {
+                status: &mut m.status,
+                affine: &mut m.affine,
+                radiometry: &mut m.radiometry,
+                sigma0: &mut m.sigma0,
+                correlation: &mut m.correlation,
+                iterations: &mut m.iterations,
+                covariance: &mut m.covariance,
+            },
+        )
+        .unwrap();
+        m
+    };
+    let plain = matched(None);
+    let unit = matched(Some(&view(&ones)));
+    assert_eq!(plain.affine, unit.affine);
+    assert_eq!(plain.covariance, unit.covariance);
+    let weighted = matched(Some(&view(&mask)));
+    assert_eq!(weighted.status[0], Status::Converged as u8);
+    let a = weighted.affine[0];
+    let err = (a[2] - b[0]).hypot(a[5] - b[1]);
+    assert!(err < 0.05, "weighted centre error {err}");
+    assert!(weighted.correlation[0] > 0.99);
+}

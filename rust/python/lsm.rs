@@ -7,7 +7,7 @@ use numpy::{
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
-use crate::lsm::{match_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS};
+use crate::lsm::{match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS};
 
 type Matches<'py> = (
     Bound<'py, PyArray2<u8>>,
@@ -31,12 +31,13 @@ fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<Im
 /// `(status (N, S) uint8, affine (N, S, 2, 3), radiometry (N, S, 2) [gain, offset],
 /// sigma0 (N, S), correlation (N, S), iterations (N, S) uint32, covariance (N, 8S, 8S))`.
 /// Images are C-contiguous float32; `initial` is `(N, S, 6)` row-major 2x3 maps;
-/// `epipolar` `(N, S, 3)` lines. `threads` runs the batch on its own pool of that size.
+/// `epipolar` `(N, S, 3)` lines. `weights`, the template's shape (float32), weighs its
+/// pixels (weighted least squares). `threads` runs the batch on its own pool of that size.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (template, points, search_images, initial, epipolar=None, *, size=11,
     max_iterations=30, tolerance=0.01, max_shift=5.0, max_scale=3.0, min_texture=0.0,
-    line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None))]
+    line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None, weights=None))]
 fn lsm_match_patches<'py>(
     py: Python<'py>,
     template: PyReadonlyArray2<'py, f32>,
@@ -54,8 +55,21 @@ fn lsm_match_patches<'py>(
     shift_only_iterations: usize,
     interpolation: &str,
     threads: Option<usize>,
+    weights: Option<PyReadonlyArray2<'py, f32>>,
 ) -> PyResult<Matches<'py>> {
     let template_view = view(&template, "template")?;
+    let weights_view = weights
+        .as_ref()
+        .map(|w| view(w, "weights"))
+        .transpose()?;
+    if let Some(w) = &weights_view {
+        if w.width != template_view.width || w.height != template_view.height {
+            return Err(invalid_input(format!(
+                "weights must have the template's shape ({}, {}), got ({}, {})",
+                template_view.height, template_view.width, w.height, w.width
+            )));
+        }
+    }
     let points_rows = rows::<2>(&points, "points")?;
     let searches = search_images
         .iter()
@@ -131,8 +145,9 @@ fn lsm_match_patches<'py>(
             covariance: covariance_w.as_slice_mut()?,
         };
         let run = || {
-            match_patches(
+            match_weighted_patches(
                 &template_view,
+                weights_view.as_ref(),
                 points_rows,
                 &searches,
                 starts,

@@ -28,12 +28,14 @@ type Step<'py> = (
 
 /// `(positions (C, N, 2), flags (C, N) uint8, covariance (C, N, 2, 2), correlation (C, N))`
 /// for C cameras' previous and current images (C-contiguous float32) and the points'
-/// positions `last` and `before` (C, N, 2) in the previous two frames.
+/// positions `last` and `before` (C, N, 2) in the previous two frames. `weights`, when
+/// given, is `(previous_weights, current_weights)`: per camera a float32 image of the
+/// frame's size with the template pixels' weights (the silhouette masks, 0 to 1).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (previous, current, last, before, *, size=11, radius=4,
     min_correlation=0.8, forward_backward=0.3, max_iterations=15, min_texture=0.0,
-    shift_only_iterations=1))]
+    shift_only_iterations=1, weights=None))]
 fn track_step<'py>(
     py: Python<'py>,
     previous: Vec<PyReadonlyArray2<'py, f32>>,
@@ -47,6 +49,10 @@ fn track_step<'py>(
     max_iterations: usize,
     min_texture: f64,
     shift_only_iterations: usize,
+    weights: Option<(
+        Vec<PyReadonlyArray2<'py, f32>>,
+        Vec<PyReadonlyArray2<'py, f32>>,
+    )>,
 ) -> PyResult<Step<'py>> {
     let c = previous.len();
     if current.len() != c {
@@ -72,6 +78,32 @@ fn track_step<'py>(
         .iter()
         .map(|i| view(i, "current"))
         .collect::<PyResult<Vec<_>>>()?;
+    let weight_views = match &weights {
+        Some((before_w, now_w)) => {
+            if before_w.len() != c || now_w.len() != c {
+                return Err(invalid_input(format!(
+                    "weights must hold two lists of {c} images (one per camera), got {} and {}",
+                    before_w.len(),
+                    now_w.len()
+                )));
+            }
+            let mut pairs = Vec::with_capacity(c);
+            for k in 0..c {
+                let (a, b) = (view(&before_w[k], "weights")?, view(&now_w[k], "weights")?);
+                for (w, image) in [(&a, &prev[k]), (&b, &cur[k])] {
+                    if w.width != image.width || w.height != image.height {
+                        return Err(invalid_input(format!(
+                            "weights of camera {k} must have the shape of its images, ({}, {}), got ({}, {})",
+                            image.height, image.width, w.height, w.width
+                        )));
+                    }
+                }
+                pairs.push([a, b]);
+            }
+            Some(pairs)
+        }
+        None => None,
+    };
     let last_rows = c_slice(&last, "last")?.as_chunks::<2>().0;
     let before_rows = c_slice(&before, "before")?.as_chunks::<2>().0;
     let options = TrackOptions {
@@ -112,6 +144,7 @@ fn track_step<'py>(
                     &cur[k],
                     &last_rows[range.clone()],
                     &before_rows[range.clone()],
+                    weight_views.as_ref().map(|w| [&w[k][0], &w[k][1]]),
                     &options,
                     CameraStep {
                         positions: &mut positions_s[range.clone()],

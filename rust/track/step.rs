@@ -8,7 +8,7 @@ use super::flags::Flag;
 use super::ncc::{box_search, BoxScratch};
 use crate::error::{Error, Result};
 use crate::lsm::{
-    match_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS,
+    match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS,
 };
 
 /// Gauss-Newton iterations of the forward-backward check's match (started at the inverse
@@ -67,7 +67,11 @@ fn invalid(argument: &'static str, value: f64, expected: &'static str) -> Error 
 
 /// Tracks the points at `last` (their positions in `previous`; NaN rows are not
 /// tracked) into `current`, predicting linearly from `before` (the positions one frame
-/// earlier; NaN rows predict no motion).
+/// earlier; NaN rows predict no motion). `weights`, when given, are per-pixel weights of
+/// `previous` and `current` (their silhouette masks, 0 to 1): the forward match weighs the
+/// template patch by the previous frame's, the forward-backward check by the current
+/// frame's, so a patch on the silhouette's edge follows the surface and not the
+/// background in its corner (see [`crate::lsm::match_weighted_patches`]).
 ///
 /// # Errors
 /// [`Error::LengthMismatch`] when `before` or the outputs do not have one entry per point,
@@ -78,6 +82,7 @@ pub fn track_camera(
     current: &ImageView<'_>,
     last: &[[f64; 2]],
     before: &[[f64; 2]],
+    weights: Option<[&ImageView<'_>; 2]>,
     options: &TrackOptions,
     out: CameraStep<'_>,
 ) -> Result<()> {
@@ -176,7 +181,14 @@ pub fn track_camera(
             [1.0, 0.0, c[0], 0.0, 1.0, c[1]]
         })
         .collect();
-    let forward = run_matches(previous, &points, current, &starts, &options.matching)?;
+    let forward = run_matches(
+        previous,
+        weights.map(|w| w[0]),
+        &points,
+        current,
+        &starts,
+        &options.matching,
+    )?;
 
     // Forward-backward: the current patch matched back into the previous frame, started
     // at the inverse of the forward map, must land on the start.
@@ -221,7 +233,14 @@ pub fn track_camera(
         sandwich: false,
         ..options.matching
     };
-    let backward = run_matches(current, &back_points, previous, &back_starts, &check)?;
+    let backward = run_matches(
+        current,
+        weights.map(|w| w[1]),
+        &back_points,
+        previous,
+        &back_starts,
+        &check,
+    )?;
     let block = PARAMETERS * PARAMETERS;
     for (j, &k) in back_of.iter().enumerate() {
         let p = active[k];
@@ -253,6 +272,7 @@ struct Batch {
 
 fn run_matches(
     template: &ImageView<'_>,
+    weights: Option<&ImageView<'_>>,
     points: &[[f64; 2]],
     search: &ImageView<'_>,
     starts: &[[f64; 6]],
@@ -268,8 +288,9 @@ fn run_matches(
     let mut radiometry = vec![[0.0; 2]; m];
     let mut sigma0 = vec![0.0; m];
     let mut iterations = vec![0u32; m];
-    match_patches(
+    match_weighted_patches(
         template,
+        weights,
         points,
         std::slice::from_ref(search),
         starts,

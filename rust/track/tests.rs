@@ -51,6 +51,7 @@ fn step(
         &cur,
         last,
         before,
+        None,
         &TrackOptions::default(),
         CameraStep {
             positions: &mut positions,

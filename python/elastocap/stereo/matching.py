@@ -134,6 +134,7 @@ def match_patches(
     min_correlation: float | None = None,
     interpolation: str = "bicubic",
     threads: int | None = None,
+    weights: Any = None,
 ) -> Matches:
     """Find the patch around each point of the template image in the search images by
     least-squares matching.
@@ -202,6 +203,16 @@ def match_patches(
         one more pixel inside the image).
     threads : int, optional, keyword-only
         Worker threads (default: all cores, or ``RAYON_NUM_THREADS``).
+    weights : (H, W) array_like of float or bool, optional, keyword-only
+        Per-pixel weights of the template image (its shape; values clamped to [0, 1],
+        read bilinearly at the patch's pixels): weighted least squares,
+        ``sum_x w(x) (T(x) - r0 - r1 S(A x + b))^2``. A silhouette mask as weights makes a
+        patch on the edge of a moving body follow the body, not the background in its
+        corner. The correlation, ``sigma0`` (redundancy ``sum w - 8``) and the texture
+        measure are weighted too; a patch whose total weight is below 16 is
+        :attr:`MatchStatus.LOW_TEXTURE`, one whose weights are all 1 is matched exactly as
+        without weights. The covariance of a weighted patch is ``sigma0^2 (G^T W G)^-1``
+        (the template's noise is not propagated). Default: every pixel weighs 1.
 
     Returns
     -------
@@ -260,6 +271,16 @@ def match_patches(
         raise InvalidInputError(f"min_texture must be a finite number >= 0, got {min_texture!r}")
     if threads is not None:
         threads = as_count("threads", threads)
+    weight_image = None
+    if weights is not None:
+        given = np.asarray(weights)
+        given = given.astype(np.float32) if given.dtype == bool else as_float_array("weights", given)
+        weight_image = np.ascontiguousarray(given, dtype=np.float32)
+        if weight_image.shape != template_image.shape:
+            raise InvalidInputError(
+                f"weights must have the template's shape {template_image.shape}, got {weight_image.shape}")
+        if not np.isfinite(weight_image).all():
+            raise InvalidInputError("weights must be finite")
     if max_sigma0 is not None:
         max_sigma0 = as_positive("max_sigma0", max_sigma0)
     if min_correlation is not None:
@@ -282,6 +303,7 @@ def match_patches(
         line_sigma=sigma,
         interpolation=interpolation,
         threads=threads,
+        weights=weight_image,
     )
     status = _reject_poor(status, sigma0, correlation, max_sigma0, min_correlation)
     return Matches(

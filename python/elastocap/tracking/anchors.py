@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from elastocap import _core
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
 
@@ -30,6 +31,8 @@ class Anchors:
         self.size = size
         self.side = size + 6  # the patch, its gradient border and the bicubic margin
         self.patches = np.zeros((0, cameras, self.side, self.side), np.float32)
+        # The template weights around each patch (its frame's mask), 1 where none given.
+        self.weights = np.ones((0, cameras, self.side, self.side), np.float32)
         self.held = np.zeros((0, cameras), bool)
         # Where each patch was cut (frame number, position): a resumed run cuts it again.
         self.frame = np.full((0, cameras), -1, np.int64)
@@ -41,16 +44,21 @@ class Anchors:
         if extra > 0:
             c = self.held.shape[1]
             self.patches = np.concatenate([self.patches, np.zeros((extra, c, self.side, self.side), np.float32)])
+            self.weights = np.concatenate([self.weights, np.ones((extra, c, self.side, self.side), np.float32)])
             self.held = np.concatenate([self.held, np.zeros((extra, c), bool)])
             self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
             self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
 
-    def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int) -> None:
+    def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
+            weights: Sequence[NDArray[np.float32]] | None = None) -> None:
         """Take the patches around ``uv`` (N, C, 2) where ``where`` (N, C) from the images
-        of ``frame``."""
+        of ``frame``, and their template weights from ``weights`` (per camera, e.g. the
+        frame's masks; all 1 when not given)."""
         self.grow(len(uv))
         for p, k in zip(*np.nonzero(where)):
-            self.patches[p, k] = cv2.getRectSubPix(images[k], (self.side, self.side), (float(uv[p, k, 0]), float(uv[p, k, 1])))
+            centre = (float(uv[p, k, 0]), float(uv[p, k, 1]))
+            self.patches[p, k] = cv2.getRectSubPix(images[k], (self.side, self.side), centre)
+            self.weights[p, k] = 1.0 if weights is None else cv2.getRectSubPix(weights[k], (self.side, self.side), centre)
         self.held[: len(where)] |= where
         self.frame[: len(where)][where] = frame
         self.uv[: len(where)][where] = uv[where]
@@ -78,6 +86,54 @@ class Anchors:
                                      min_correlation=min_correlation, reach=reach, min_texture=min_texture)
         return np.where(good[..., None], out, np.nan), np.where(good[..., None, None], cov, np.nan)
 
+    def search(self, images: Sequence[NDArray[np.float32]], targets: NDArray[np.float64], where: NDArray[np.bool_], *,
+               radius: int, min_correlation: float, box_correlation: float, forward_backward: float,
+               min_texture: float, max_iterations: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The anchor patches of ``where`` (N, C) looked for around ``targets`` (N, C, 2):
+        the tracker's step from the anchor mosaic into the image (NCC box search of
+        ``radius`` pixels around the target, least-squares match, forward-backward check),
+        for a target that may be pixels off (a point predicted over several frames).
+        Returns positions (N, C, 2) and covariances (N, C, 2, 2), NaN where not found."""
+        n, c = targets.shape[:2]
+        self.grow(n)
+        out = np.full((n, c, 2), np.nan)
+        cov = np.full((n, c, 2, 2), np.nan)
+        where = where & self.held[:n] & np.isfinite(targets).all(axis=2)
+        for k in range(c):
+            rows = np.flatnonzero(where[:, k])
+            if rows.size == 0:
+                continue
+            mosaic, weighs, centres = self._mosaic(rows, k)
+            # The step predicts 2 last - before: a prediction at the target.
+            before = 2 * centres - targets[rows, k]
+            pos, flags, pcov, corr = _core.track_step(
+                [mosaic], [images[k]], centres[None], before[None], size=self.size, radius=radius,
+                min_correlation=box_correlation, forward_backward=forward_backward, min_texture=min_texture,
+                max_iterations=max_iterations, weights=([weighs], [np.ones_like(images[k])]))
+            good = (flags[0] == 0) & (corr[0] >= min_correlation)
+            out[rows[good], k] = pos[0, good]
+            cov[rows[good], k] = pcov[0, good]
+        return out, cov
+
+    def _mosaic(self, rows: NDArray[np.int64], k: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float64]]:
+        """Camera ``k``'s anchor patches of ``rows`` as tiles of one image, their weights
+        likewise, and the tiles' centres (M, 2)."""
+        half = self.side // 2
+        per_row = int(np.ceil(np.sqrt(rows.size)))
+        tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
+
+        def tiled() -> NDArray[np.float32]:
+            return np.ascontiguousarray(tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3)
+                                        .reshape(per_row * self.side, per_row * self.side))
+
+        tiles[: rows.size] = self.patches[rows, k]
+        mosaic = tiled()
+        tiles[: rows.size] = self.weights[rows, k]
+        weighs = tiled()
+        index = np.arange(rows.size)
+        centres = np.column_stack([(index % per_row) * self.side + half, (index // per_row) * self.side + half]).astype(float)
+        return mosaic, weighs, centres
+
     def _match(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], *,
                min_correlation: float, reach: float,
                min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
@@ -86,19 +142,14 @@ class Anchors:
         out = uv.copy()
         cov = np.full((n, c, 2, 2), np.nan)
         matched = np.zeros((n, c), bool)
-        half = self.side // 2
         for k in range(c):
             rows = np.flatnonzero(where[:, k])
             if rows.size == 0:
                 continue
-            per_row = int(np.ceil(np.sqrt(rows.size)))
-            tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
-            tiles[: rows.size] = self.patches[rows, k]
-            mosaic = tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3).reshape(per_row * self.side, per_row * self.side)
-            index = np.arange(rows.size)
-            centres = np.column_stack([(index % per_row) * self.side + half, (index // per_row) * self.side + half]).astype(float)
-            m = match_patches(np.ascontiguousarray(mosaic), centres, [images[k]], initial=uv[rows, k][:, None, :],
-                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach)
+            mosaic, weighs, centres = self._mosaic(rows, k)
+            m = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
+                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
+                              weights=weighs)
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))

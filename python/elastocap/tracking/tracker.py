@@ -26,9 +26,10 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.revival import Lost
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import Tracks, frame_file, load_tracks, read_frame, write_frame
-from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
+from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match, surface_normals
 
 __all__ = ["track_points"]
 
@@ -55,6 +56,20 @@ _ANCHOR_REACH = 1.5
 STEP_ITERATIONS = 8
 # Largest distance of a rescued view from its linear prediction, pixels.
 _RESCUE_REACH = 3.0
+# A lost point is looked for again for this many frames after it was lost...
+_REVIVE_FRAMES = 15
+# ... by its anchors, in a box of this half-side (pixels) around the projections of its
+# position predicted from its neighbours' motion; the intersection must land as near the
+# prediction (pixel equivalents).
+_REVIVE_RADIUS = 8
+# Largest distance of a re-acquired view from the projection of the point, pixels: a
+# point held by one stereo pair has a poor depth, whose error shows in a camera 45-90
+# degrees away as an offset of pixels along the epipolar line (the intersection with the
+# new view then checks it and fixes the depth).
+_REACQUIRE_TOLERANCE = 1.5
+# Start shapes of cross-camera matches from the plane of the neighbouring tracked points
+# (else from the direction of the cameras that see the point).
+_FITTED_NORMALS = True
 # The frame-to-frame failures a view's anchor may rescue.
 _RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
 
@@ -94,6 +109,8 @@ def track_points(
     neighbours: int = 8,
     anchor: bool = True,
     rescue: bool = True,
+    mask_weights: bool = True,
+    revive: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -140,6 +157,23 @@ def track_points(
         Refine each frame-to-frame match against the view's first-appearance patch
         (replaced when it stops matching), which stops the random-walk drift of chained
         matches (:mod:`elastocap.tracking.anchors`).
+    rescue : bool, default True, keyword-only
+        Views the frame-to-frame match lost are matched again from their anchor patch.
+    mask_weights : bool, default True, keyword-only
+        Weigh each template patch by its frame's silhouette mask in the frame-to-frame,
+        anchor and cross-camera matches (weighted least squares, pixels outside the mask
+        weigh 0): a patch on the silhouette's edge then follows the surface, not the
+        background in its corner. Most views of limbs lie within a patch of the edge.
+    revive : bool, default False, keyword-only
+        Look for lost points again, under their own id, for 15 frames after they were lost
+        (they left two-camera visibility or all their views failed): their anchor patches
+        are searched for around the projections of their position predicted from the
+        motion of the points tracked around them, and they come back when two views
+        intersect near the prediction (:mod:`elastocap.tracking.revival`). Needs
+        ``anchor``. Off by default: on the textured capture it keeps 1% more points through
+        their visibility but its revived positions are less accurate (old anchors of a
+        surface that turned), and 2% more kept 3-D positions lie beyond 5 px-equivalents
+        (benches/README.md, branch track4).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
@@ -176,6 +210,8 @@ def track_points(
         neighbours=as_count("neighbours", neighbours, minimum=3),
         anchor=bool(anchor),
         rescue=bool(rescue),
+        mask_weights=bool(mask_weights),
+        revive=bool(revive) and bool(anchor),
     )
     tracker = _Tracker(capture, spacing, size, radius, float(min_correlation), options)
     records: list[dict[str, NDArray[np.generic]]] = []
@@ -233,7 +269,10 @@ class _Tracker:
         self.x_before = np.zeros((0, 3))
         self.point_flags = np.zeros(0, np.uint8)
         self.grey: list[NDArray[np.float32]] | None = None
+        # The previous frame's template weights (its masks as 0/1 floats), when used.
+        self.weights: list[NDArray[np.float32]] | None = None
         self.anchors = Anchors(c, size) if options["anchor"] else None
+        self.lost = Lost(_REVIVE_FRAMES) if options["revive"] else None
         self.texture: list[float] = []
         self.keep_texture = 0.0
 
@@ -244,6 +283,11 @@ class _Tracker:
             self.texture = [_TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
             self.keep_texture = _KEEP_TEXTURE_OVER_NOISE / _TEXTURE_OVER_NOISE * min(self.texture)
         return grey, masks
+
+    def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
+        if not self.o["mask_weights"]:
+            return None
+        return [np.ascontiguousarray(m, dtype=np.float32) for m in masks]
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;
@@ -265,16 +309,26 @@ class _Tracker:
             self.uv_last[:m] = before["uv"]
             self.x_before[:m] = before["positions"]
         self.point_flags = last["flags"].astype(np.uint8)
-        self.grey, _ = self._read(chosen[done - 1])
+        if self.lost is not None:
+            first = max(0, done - 1 - _REVIVE_FRAMES - 1)
+            history = {chosen[j]: read_frame(frame_file(out, chosen[j]))["positions"] for j in range(first, done)}
+            self.lost.restore(last, history)
+        self.grey, masks = self._read(chosen[done - 1])
+        self.weights = self._weights(masks)
         if self.anchors is not None and "anchor_frame" in last:
             where_frames = last["anchor_frame"]
             for source in np.unique(where_frames[where_frames >= 0]):
-                grey = self.grey if source == chosen[done - 1] else self._read(int(source))[0]
-                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source))
+                if source == chosen[done - 1]:
+                    grey, weights = self.grey, self.weights
+                else:
+                    grey, source_masks = self._read(int(source))
+                    weights = self._weights(source_masks)
+                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
         return done
 
     def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
         grey, masks = self._read(frame)
+        weights = self._weights(masks)
         n, c = self.uv.shape[:2]
         alive = np.isfinite(self.uv).all(axis=2).any(axis=1)
         if first or n == 0 or self.grey is None:
@@ -287,7 +341,8 @@ class _Tracker:
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
                 np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
                 min_correlation=min(self.min_correlation, _BOX_CORRELATION), forward_backward=self.o["forward_backward"],
-                min_texture=self.keep_texture, max_iterations=STEP_ITERATIONS)
+                min_texture=self.keep_texture, max_iterations=STEP_ITERATIONS,
+                weights=None if weights is None or self.weights is None else (self.weights, weights))
             uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
             # The box search only has to find the start (it does not model rotation or
             # scale); the least-squares match, which does, must reach the threshold.
@@ -297,7 +352,7 @@ class _Tracker:
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=_ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
-                self.anchors.cut(grey, uv, stale, frame)
+                self.anchors.cut(grey, uv, stale, frame, weights=weights)
                 if self.o["rescue"]:
                     # Views lost by the frame-to-frame match (not at the border) found again
                     # from their anchor at the linear prediction.
@@ -344,9 +399,10 @@ class _Tracker:
             if rows.size:
                 matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
                                               size=self.size, min_correlation=self.min_correlation,
-                                              tolerance=self.o["max_residual"] + 2.0 * single[rows],
+                                              tolerance=_REACQUIRE_TOLERANCE + 2.0 * single[rows],
                                               min_texture=float(min(self.texture)), cameras=self.cameras,
-                                              points=anchor[rows], normals=facing_normals(self.cameras, anchor[rows], np.isfinite(uv[rows, :, 0])))
+                                              points=anchor[rows], normals=self._normals(anchor[rows], x, np.isfinite(uv[rows, :, 0])),
+                                              weights=weights)
                 uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
                 cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
                 # Points that were down to one view and got others back: intersect now.
@@ -363,6 +419,9 @@ class _Tracker:
         uv[single & ~np.isfinite(x).all(axis=1) & lone] = np.nan
         # Keep the prediction of a point that waits on one view (its next frame predicts on).
         x_state = np.where((single & ~np.isfinite(x).all(axis=1))[:, None], anchor, x)
+
+        if self.lost is not None and n:
+            x, x_state = self._revive(frame, grey, masks, alive, uv, cov2d, x, xcov, x_state, flags, flags2d)
 
         # New points where the textured masks have none.
         if reseed:
@@ -389,14 +448,22 @@ class _Tracker:
         if self.anchors is not None:
             views_now = np.isfinite(uv[..., 0])
             self.anchors.grow(total)
-            self.anchors.drop(~views_now)
-            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame)
+            # A lost point keeps the anchors it had while it may be revived.
+            waiting = np.zeros(total, bool)
+            if self.lost is not None:
+                self.lost.grow(total)
+                waiting = self.lost.since[:total] >= 0
+            self.anchors.drop(~views_now & ~waiting[:, None])
+            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame, weights=weights)
         self.uv_last, self.uv = self.uv, uv
         if len(x_state) < len(x):
             x_state = np.concatenate([x_state, x[len(x_state):]])
         self.x_before, self.x_last = self.x_last, x_state
         self.point_flags = flags
+        if self.lost is not None:
+            self.lost.remember(frame, x)
         self.grey = grey
+        self.weights = weights
         return {
             "ids": np.arange(total, dtype=np.int64),
             "positions": x,
@@ -404,11 +471,78 @@ class _Tracker:
             "flags": flags,
             "uv": uv,
             "flags2d": flags2d,
+            **({} if self.lost is None else self.lost.state(total)),
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
                 "anchor_uv": self.anchors.uv[:total],
             }),
         }
+
+    def _normals(self, points: NDArray[np.float64], cloud: NDArray[np.float64],
+                 seen: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """Surface normals at ``points`` for the start shape of wide-baseline matches."""
+        towards = facing_normals(self.cameras, points, seen)
+        return surface_normals(points, cloud, towards) if _FITTED_NORMALS else towards
+
+    def _revive(self, frame: int, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
+                alive: NDArray[np.bool_], uv: NDArray[np.float64], cov2d: NDArray[np.float64], x: NDArray[np.float64],
+                xcov: NDArray[np.float64], x_state: NDArray[np.float64], flags: NDArray[np.uint8],
+                flags2d: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Records the points lost on this frame and brings back lost ones whose anchors
+        match again (``uv``, ``cov2d``, ``xcov``, ``flags`` and ``flags2d`` are updated in
+        place); returns ``x`` and ``x_state``."""
+        assert self.lost is not None and self.anchors is not None
+        n, c = uv.shape[:2]
+        self.lost.grow(n)
+        left = np.isfinite(uv[..., 0]).any(axis=1)
+        self.lost.record(alive & ~left, self.x_last, frame)
+        self.lost.forget((self.lost.since[:n] >= 0) & (frame - self.lost.since[:n] > _REVIVE_FRAMES))
+        rows = self.lost.candidates(frame)
+        rows = rows[(rows < n) & ~left[rows]]
+        if rows.size == 0:
+            return x, x_state
+        tracked = np.isfinite(x).all(axis=1)
+        predicted = self.lost.predict(rows, np.where(tracked[:, None], x, np.nan))
+        targets = project_all(self.cameras, predicted, margin=self.size)
+        where = np.zeros((n, c), bool)
+        starts = np.full((n, c, 2), np.nan)
+        for k in range(c):
+            t = targets[:, k]
+            seen = np.isfinite(t).all(axis=1)
+            iu = np.clip(np.round(np.nan_to_num(t[:, 0])).astype(int), 0, masks[k].shape[1] - 1)
+            iv = np.clip(np.round(np.nan_to_num(t[:, 1])).astype(int), 0, masks[k].shape[0] - 1)
+            ok = seen & masks[k][iv, iu] & self.anchors.held[rows, k]
+            where[rows[ok], k] = True
+            starts[rows[ok], k] = t[ok]
+        pairs = where[rows].sum(axis=1) >= 2
+        rows, predicted = rows[pairs], predicted[pairs]
+        if rows.size == 0:
+            return x, x_state
+        found, fcov = self.anchors.search(grey, starts, where, radius=_REVIVE_RADIUS, min_correlation=self.min_correlation,
+                                          box_correlation=min(self.min_correlation, _BOX_CORRELATION),
+                                          forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                                          max_iterations=STEP_ITERATIONS)
+        two = np.isfinite(found[rows, :, 0]).sum(axis=1) >= 2
+        rows, predicted = rows[two], predicted[two]
+        if rows.size == 0:
+            return x, x_state
+        bx, bcov, bused, _ = intersect_views(self.cameras, found[rows], fcov[rows], max_residual=self.o["max_residual"],
+                                             floor=_FLOOR)
+        ok = np.isfinite(bx).all(axis=1)
+        with np.errstate(invalid="ignore"):
+            near = np.linalg.norm(bx - predicted, axis=1) <= _REVIVE_RADIUS * pixel_size(self.cameras, bx, bused)
+        ok &= near
+        back = rows[ok]
+        uv[back] = np.where(bused[ok][..., None], found[back], np.nan)
+        cov2d[back] = np.where(bused[ok][..., None, None], fcov[back], np.nan)
+        flags2d[back] = np.where(bused[ok], TrackFlag.TRACKED, flags2d[back])
+        x, x_state = x.copy(), x_state.copy()
+        x[back], xcov[back], x_state[back] = bx[ok], bcov[ok], bx[ok]
+        flags[back] = TrackFlag.TRACKED
+        revived = np.zeros(n, bool)
+        revived[back] = True
+        self.lost.forget(revived)
+        return x, x_state
 
 
 def _point_flags(flags2d: NDArray[np.uint8], previous: NDArray[np.float64], traj: NDArray[np.uint8],

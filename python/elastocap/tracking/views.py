@@ -66,6 +66,30 @@ def facing_normals(cameras: Sequence[Camera], points: NDArray[np.float64], used:
     return total / np.where(norm > 0, norm, 1.0)
 
 
+def surface_normals(points: NDArray[np.float64], cloud: NDArray[np.float64], towards: NDArray[np.float64], *,
+                    neighbours: int = 10) -> NDArray[np.float64]:
+    """(N, 3) unit normals at ``points`` from the plane of their ``neighbours`` nearest
+    points of ``cloud`` (M, 3; the tracked points, NaN rows ignored), turned to face
+    ``towards`` (N, 3; e.g. :func:`facing_normals`); ``towards`` itself where the cloud
+    is too small or the neighbours do not span a plane (a line of points)."""
+    from scipy.spatial import cKDTree
+
+    good = cloud[np.isfinite(cloud).all(axis=1)]
+    out = towards.copy()
+    ok = np.isfinite(points).all(axis=1)
+    if len(good) < neighbours or not ok.any():
+        return out
+    _, near = cKDTree(good).query(points[ok], k=neighbours)
+    local = good[near] - good[near].mean(axis=1, keepdims=True)
+    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    normal = vectors[:, :, 0]
+    # A plane: two directions of spread, the third well below them.
+    flat = (values[:, 0] < 0.25 * values[:, 1]) & (values[:, 1] > 0.05 * values[:, 2])
+    normal *= np.where(np.einsum("ni,ni->n", normal, towards[ok]) < 0, -1.0, 1.0)[:, None]
+    out[np.flatnonzero(ok)[flat]] = normal[flat]
+    return out
+
+
 def spatial_match(
     images: Sequence[NDArray[np.float32]],
     reference: NDArray[np.int64],
@@ -79,12 +103,14 @@ def spatial_match(
     min_correlation: float,
     tolerance: float | NDArray[np.float64],
     min_texture: float,
+    weights: Sequence[NDArray[np.float32]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Match each point's patch in its reference camera into the cameras where ``targets``
     (N, C, 2) is finite, started there (identity shape). A match counts when it converged,
     its correlation reaches ``min_correlation`` and it lies within ``tolerance`` pixels of
     its target. With ``cameras``, ``points`` and ``normals`` the start's shape is the
-    plane's (:func:`plane_affine`): wide baselines foreshorten and turn the patch. Returns the matched positions (N, C, 2; NaN elsewhere) and their per-view
+    plane's (:func:`plane_affine`): wide baselines foreshorten and turn the patch. With
+    ``weights`` (per camera, its mask) the reference patch is weighed by its camera's. Returns the matched positions (N, C, 2; NaN elsewhere) and their per-view
     covariance (N, C, 2, 2)."""
     n, c = targets.shape[:2]
     uv = np.full((n, c, 2), np.nan)
@@ -106,7 +132,8 @@ def spatial_match(
                     affine[:, :, 2] = targets[rows, k]
                 initial = affine[:, None]
             m = match_patches(images[r], template_uv[rows], [images[k]], initial=initial,
-                              size=size, min_texture=min_texture, max_iterations=20)
+                              size=size, min_texture=min_texture, max_iterations=20,
+                              weights=None if weights is None else weights[r])
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tol[rows]))
