@@ -188,7 +188,7 @@ def consistent_silhouettes(
     views (the support), the body model fitted to all views (``model_masks``), and this
     view's stereo (``disparity_masks``, shrunk by ``fattening``, since stereo fattens the
     foreground, with its small holes filled). The support alone is too fat to restore from
-    (a hull of five views covers ~1.5x the subject's silhouette in the sixth: measured on
+    (a hull of five views covers ~1.6x the subject's silhouette in the sixth: measured on
     the clutter scene, ``benches/README.md``, branch sil4), the model alone does not fit
     the subject's shape, stereo alone holds near distractors.
 
