@@ -6,7 +6,10 @@ disparity-filtered gradient image; the body model is fitted to the stereo points
 these silhouettes; the fitted model's silhouette starts a second contour, whose result is
 the frame's silhouette. Each contour is then cut by colour inside the band stereo allows
 (:func:`~elastocap.silhouettes.band.refine_in_band`): edges alone cut the concave parts of
-a person and stop on their texture. The first frame starts from what the cameras agree on: the visual
+a person and stop on their texture. Last, the views check each other
+(:func:`~elastocap.silhouettes.consistency.consistent_silhouettes`): a part one view's
+cut lost (a head against a background of its colour) comes back where the other views,
+the fitted model and this view's stereo agree on it. The first frame starts from what the cameras agree on: the visual
 hull of the disparity masks (one camera may disagree) inside the space every camera sees,
 projected back into each camera. No background plate, no hand-drawn mask.
 """
@@ -32,6 +35,7 @@ from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.render.mesh import render_silhouette
 from elastocap.silhouettes.background import clean_mask
 from elastocap.silhouettes.band import refine_in_band
+from elastocap.silhouettes.consistency import consistent_silhouettes
 from elastocap.silhouettes.gradient import filtered_gradient
 from elastocap.silhouettes.snake import snake_silhouette
 
@@ -118,6 +122,9 @@ class SilhouetteTracker:
         Options of :func:`~elastocap.silhouettes.band.refine_in_band`, which refines each
         contour by colour inside the band stereo allows; False: contours only (the
         paper's method).
+    consistency : dict or bool, keyword-only
+        Options of :func:`~elastocap.silhouettes.consistency.consistent_silhouettes`, the
+        multi-view check of the final silhouettes; False: none.
     """
 
     def __init__(
@@ -130,6 +137,7 @@ class SilhouetteTracker:
         tracker: Mapping[str, Any] | None = None,
         model_margin: int = MODEL_MARGIN,
         band: Mapping[str, Any] | None | bool = True,
+        consistency: Mapping[str, Any] | None | bool = True,
     ) -> None:
         if not isinstance(rig, Rig):
             raise InvalidInputError(f"rig must be an elastocap.Rig, got {type(rig).__name__}")
@@ -139,21 +147,26 @@ class SilhouetteTracker:
         self.gradient_options = dict(gradient or {})
         self.model_margin = int(model_margin)
         self.band_options = None if band is False else {**BAND_DEFAULTS, **(band if isinstance(band, Mapping) else {})}
+        self.consistency_options = None if consistency is False or len(rig) < 3 else dict(consistency if isinstance(consistency, Mapping) else {})
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
         self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
         self.previous: dict[str, NDArray[np.bool_]] | None = None
         self.states: list[BodyState] = []
         self.first_pass: dict[str, NDArray[np.bool_]] = {}
         self.model_masks: dict[str, NDArray[np.bool_]] = {}
-        #: Seconds spent so far in the snakes, the body fit and the rest.
-        self.timings = {"snakes": 0.0, "band": 0.0, "body": 0.0, "other": 0.0}
+        #: Seconds spent so far in the snakes, the colour cuts, the body fit, the
+        #: multi-view check (wall) and in the snakes (CPU, ``snakes_cpu``).
+        self.timings = {"snakes": 0.0, "band": 0.0, "body": 0.0, "consistency": 0.0, "snakes_cpu": 0.0, "other": 0.0}
 
     def _snake(self, attraction: NDArray[np.float64], init: NDArray[np.bool_]) -> NDArray[np.bool_]:
         if not init.any() or not attraction.any():
             return init
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         mask, _ = snake_silhouette(attraction, init, **self.snake_options)
         self.timings["snakes"] += time.perf_counter() - started
+        # CPU seconds too (all threads of the process): wall time on a shared machine
+        # measures the neighbours.
+        self.timings["snakes_cpu"] += time.process_time() - cpu
         # A contour that collapsed is reported by the snake; the start is kept instead.
         return init if mask is None else mask
 
@@ -233,6 +246,10 @@ class SilhouetteTracker:
         mesh.vertices = mesh.vertices @ Z_UP_TO_WORLD.T
         projected = {c.name: render_silhouette(mesh, c) for c in self.rig.cameras}
         final = {n: self._refine(images[n], self._snake(attraction[n], self._second_start(first[n], projected[n])), disparity.get(n)) for n in names}
+        if self.consistency_options is not None:
+            started = time.perf_counter()
+            final = consistent_silhouettes(self.rig, final, model_masks=projected, disparity_masks=disparity, **self.consistency_options)
+            self.timings["consistency"] += time.perf_counter() - started
         self.first_pass, self.model_masks, self.previous = first, projected, final
         return final
 
