@@ -60,7 +60,9 @@ pub fn match_patches(
     options: &MatchOptions,
     out: MatchOutput<'_>,
 ) -> Result<()> {
-    match_weighted_patches(template, None, points, searches, starts, lines, options, out)
+    match_weighted_patches(
+        template, None, points, searches, starts, lines, options, out,
+    )
 }
 
 /// [`match_patches`] by weighted least squares: `weights` (the template's size) gives each

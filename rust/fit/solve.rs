@@ -7,7 +7,7 @@ use super::workspace::FitWorkspace;
 use super::FitOptions;
 use crate::efg::Block;
 use crate::elastic::{ElasticModel, Rotation};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::linalg::mat_vec;
 use crate::solve::{BlockJacobi, LinearOperator, PcgStatus};
 
@@ -128,43 +128,101 @@ pub(super) fn solve<const D: usize>(
             } else {
                 coarse.update_smoother(&workspace.system)?;
             }
-            let mut status =
-                workspace
-                    .pcg
-                    .solve(&workspace.system, coarse, rhs, &mut flat, tolerance, cap)?;
-            if let Some((b, y)) = also.as_mut() {
-                let more =
-                    workspace
-                        .pcg
-                        .solve(&workspace.system, coarse, b, y, also_tolerance, cap)?;
-                status = merge(status, more);
-            }
-            status
-        } else {
-            let mut preconditioner = BlockJacobi::new(&workspace.system)?;
-            let mut status = workspace.pcg.solve(
-                &workspace.system,
-                &mut preconditioner,
-                rhs,
-                &mut flat,
-                tolerance,
-                cap,
-            )?;
-            if let Some((b, y)) = also.as_mut() {
-                let more = workspace.pcg.solve(
+            let start = flat.clone();
+            let also_start = also.as_ref().map(|(_, y)| y.to_vec());
+            let solved = (|| {
+                let mut status = workspace.pcg.solve(
                     &workspace.system,
-                    &mut preconditioner,
-                    b,
-                    y,
-                    also_tolerance,
+                    coarse,
+                    rhs,
+                    &mut flat,
+                    tolerance,
                     cap,
                 )?;
-                status = merge(status, more);
+                if let Some((b, y)) = also.as_mut() {
+                    let more = workspace.pcg.solve(
+                        &workspace.system,
+                        coarse,
+                        b,
+                        y,
+                        also_tolerance,
+                        cap,
+                    )?;
+                    status = merge(status, more);
+                }
+                Ok(status)
+            })();
+            match solved {
+                // The two-level preconditioner can lose definiteness where the matrix has
+                // not (its coarse factor drops entries; aggregates whose surface nodes
+                // were all invalidated are nearly free): PCG then meets a zero or
+                // negative curvature. Measured on the textured fast capture, seed 2,
+                // frame 16 with the tracker's tracks: block Jacobi alone solved it.
+                // Block Jacobi is definite wherever the matrix is, so a second failure
+                // is the matrix's own and is reported.
+                Err(Error::NotPositiveDefinite { .. }) => {
+                    flat = start;
+                    if let (Some((_, y)), Some(y0)) = (also.as_mut(), also_start) {
+                        y.copy_from_slice(&y0);
+                    }
+                    jacobi_solve(
+                        workspace,
+                        rhs,
+                        &mut flat,
+                        also,
+                        tolerance,
+                        also_tolerance,
+                        cap,
+                    )?
+                }
+                other => other?,
             }
-            status
+        } else {
+            jacobi_solve(
+                workspace,
+                rhs,
+                &mut flat,
+                also,
+                tolerance,
+                also_tolerance,
+                cap,
+            )?
         }
     };
     *x = flat.as_chunks::<D>().0.to_vec();
+    Ok(status)
+}
+
+/// The assembled system solved with block Jacobi alone, and `also` with it.
+fn jacobi_solve<const D: usize>(
+    workspace: &mut FitWorkspace<D>,
+    rhs: &[f64],
+    flat: &mut [f64],
+    mut also: Option<(&[f64], &mut Vec<f64>)>,
+    tolerance: f64,
+    also_tolerance: f64,
+    cap: usize,
+) -> Result<PcgStatus> {
+    let mut preconditioner = BlockJacobi::new(&workspace.system)?;
+    let mut status = workspace.pcg.solve(
+        &workspace.system,
+        &mut preconditioner,
+        rhs,
+        flat,
+        tolerance,
+        cap,
+    )?;
+    if let Some((b, y)) = also.as_mut() {
+        let more = workspace.pcg.solve(
+            &workspace.system,
+            &mut preconditioner,
+            b,
+            y,
+            also_tolerance,
+            cap,
+        )?;
+        status = merge(status, more);
+    }
     Ok(status)
 }
 

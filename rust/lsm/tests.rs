@@ -452,7 +452,16 @@ fn template_weights_leave_out_a_moving_background() {
     let texture = Texture::new(&mut rng);
     let other = Texture::new(&mut rng);
     let (p, b) = ([30.0, 31.0], [31.4, 30.3]);
-    let mut sc = scene(&texture, p, [1.0, 0.0, 0.0, 1.0], b, 1.0, 0.0, 0.5, &mut rng);
+    let mut sc = scene(
+        &texture,
+        p,
+        [1.0, 0.0, 0.0, 1.0],
+        b,
+        1.0,
+        0.0,
+        0.5,
+        &mut rng,
+    );
     let edge = 34usize;
     for r in 0..sc.height {
         for c in edge..sc.width {

@@ -7,7 +7,9 @@ use numpy::{
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
-use crate::lsm::{match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS};
+use crate::lsm::{
+    match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS,
+};
 
 type Matches<'py> = (
     Bound<'py, PyArray2<u8>>,
@@ -58,10 +60,7 @@ fn lsm_match_patches<'py>(
     weights: Option<PyReadonlyArray2<'py, f32>>,
 ) -> PyResult<Matches<'py>> {
     let template_view = view(&template, "template")?;
-    let weights_view = weights
-        .as_ref()
-        .map(|w| view(w, "weights"))
-        .transpose()?;
+    let weights_view = weights.as_ref().map(|w| view(w, "weights")).transpose()?;
     if let Some(w) = &weights_view {
         if w.width != template_view.width || w.height != template_view.height {
             return Err(invalid_input(format!(
