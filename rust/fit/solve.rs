@@ -9,7 +9,7 @@ use crate::efg::Block;
 use crate::elastic::{ElasticModel, Rotation};
 use crate::error::{Error, Result};
 use crate::linalg::mat_vec;
-use crate::solve::{BlockJacobi, LinearOperator, PcgStatus};
+use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
 
 /// Relative residual of the second right-hand side's solve (see [`solve`]).
 const ALSO_TOLERANCE: f64 = 1e-3;
@@ -128,58 +128,23 @@ pub(super) fn solve<const D: usize>(
             } else {
                 coarse.update_smoother(&workspace.system)?;
             }
-            let start = flat.clone();
-            let also_start = also.as_ref().map(|(_, y)| y.to_vec());
-            let solved = (|| {
-                let mut status = workspace.pcg.solve(
-                    &workspace.system,
-                    coarse,
-                    rhs,
-                    &mut flat,
-                    tolerance,
-                    cap,
-                )?;
-                if let Some((b, y)) = also.as_mut() {
-                    let more = workspace.pcg.solve(
-                        &workspace.system,
-                        coarse,
-                        b,
-                        y,
-                        also_tolerance,
-                        cap,
-                    )?;
-                    status = merge(status, more);
-                }
-                Ok(status)
-            })();
-            match solved {
-                // The two-level preconditioner can lose definiteness where the matrix has
-                // not (its coarse factor drops entries; aggregates whose surface nodes
-                // were all invalidated are nearly free): PCG then meets a zero or
-                // negative curvature. Measured on the textured fast capture, seed 2,
-                // frame 16 with the tracker's tracks: block Jacobi alone solved it.
-                // Block Jacobi is definite wherever the matrix is, so a second failure
-                // is the matrix's own and is reported.
-                Err(Error::NotPositiveDefinite { .. }) => {
-                    flat = start;
-                    if let (Some((_, y)), Some(y0)) = (also.as_mut(), also_start) {
-                        y.copy_from_slice(&y0);
-                    }
-                    jacobi_solve(
-                        workspace,
-                        rhs,
-                        &mut flat,
-                        also,
-                        tolerance,
-                        also_tolerance,
-                        cap,
-                    )?
-                }
-                other => other?,
-            }
+            solve_or_jacobi(
+                &mut workspace.pcg,
+                &workspace.system,
+                coarse,
+                rhs,
+                &mut flat,
+                also,
+                tolerance,
+                also_tolerance,
+                cap,
+            )?
         } else {
-            jacobi_solve(
-                workspace,
+            let mut jacobi = BlockJacobi::new(&workspace.system)?;
+            solve_with(
+                &mut workspace.pcg,
+                &workspace.system,
+                &mut jacobi,
                 rhs,
                 &mut flat,
                 also,
@@ -193,9 +158,13 @@ pub(super) fn solve<const D: usize>(
     Ok(status)
 }
 
-/// The assembled system solved with block Jacobi alone, and `also` with it.
-fn jacobi_solve<const D: usize>(
-    workspace: &mut FitWorkspace<D>,
+/// `system` solved from `flat` with `preconditioner`, and `also` (a right-hand side and
+/// its start) with the same preconditioner to `also_tolerance`.
+#[allow(clippy::too_many_arguments)]
+fn solve_with<const D: usize, P: Preconditioner<D>>(
+    pcg: &mut Pcg<D>,
+    system: &BlockCsr<D>,
+    preconditioner: &mut P,
     rhs: &[f64],
     flat: &mut [f64],
     mut also: Option<(&[f64], &mut Vec<f64>)>,
@@ -203,27 +172,67 @@ fn jacobi_solve<const D: usize>(
     also_tolerance: f64,
     cap: usize,
 ) -> Result<PcgStatus> {
-    let mut preconditioner = BlockJacobi::new(&workspace.system)?;
-    let mut status = workspace.pcg.solve(
-        &workspace.system,
-        &mut preconditioner,
-        rhs,
-        flat,
-        tolerance,
-        cap,
-    )?;
+    let mut status = pcg.solve(system, preconditioner, rhs, flat, tolerance, cap)?;
     if let Some((b, y)) = also.as_mut() {
-        let more = workspace.pcg.solve(
-            &workspace.system,
-            &mut preconditioner,
-            b,
-            y,
-            also_tolerance,
-            cap,
-        )?;
+        let more = pcg.solve(system, preconditioner, b, y, also_tolerance, cap)?;
         status = merge(status, more);
     }
     Ok(status)
+}
+
+/// [`solve_with`] `preconditioner`, and again from the same starts with block Jacobi alone
+/// if PCG met a non-positive curvature. The two-level preconditioner can lose definiteness
+/// where the matrix has not (its coarse factor drops entries; aggregates whose surface
+/// nodes were all invalidated are nearly free): measured on the textured fast capture,
+/// seed 2, frame 16 with the tracker's tracks, where block Jacobi alone solved it. Block
+/// Jacobi is definite wherever the matrix is, so a second failure is the matrix's own and
+/// is reported.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn solve_or_jacobi<const D: usize, P: Preconditioner<D>>(
+    pcg: &mut Pcg<D>,
+    system: &BlockCsr<D>,
+    preconditioner: &mut P,
+    rhs: &[f64],
+    flat: &mut [f64],
+    mut also: Option<(&[f64], &mut Vec<f64>)>,
+    tolerance: f64,
+    also_tolerance: f64,
+    cap: usize,
+) -> Result<PcgStatus> {
+    let start = flat.to_vec();
+    let also_start = also.as_ref().map(|(_, y)| y.to_vec());
+    let also_again = also.as_mut().map(|(b, y)| (*b, &mut **y));
+    match solve_with(
+        pcg,
+        system,
+        preconditioner,
+        rhs,
+        flat,
+        also_again,
+        tolerance,
+        also_tolerance,
+        cap,
+    ) {
+        Err(Error::NotPositiveDefinite { .. }) => {
+            flat.copy_from_slice(&start);
+            if let (Some((_, y)), Some(y0)) = (also.as_mut(), also_start) {
+                y.copy_from_slice(&y0);
+            }
+            let mut jacobi = BlockJacobi::new(system)?;
+            solve_with(
+                pcg,
+                system,
+                &mut jacobi,
+                rhs,
+                flat,
+                also,
+                tolerance,
+                also_tolerance,
+                cap,
+            )
+        }
+        other => other,
+    }
 }
 
 /// Two solves' status as one: iterations summed, converged if both did.

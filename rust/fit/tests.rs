@@ -286,3 +286,78 @@ fn planar_fit_matrix_free_agrees_with_the_assembled_system() {
         free.1
     );
 }
+
+/// A preconditioner that has lost definiteness: it returns nothing, so PCG's first
+/// direction has zero curvature.
+struct Broken;
+
+impl crate::solve::Preconditioner<3> for Broken {
+    fn apply(&mut self, _r: &[[f64; 3]], z: &mut [[f64; 3]]) {
+        z.iter_mut().for_each(|v| *v = [0.0; 3]);
+    }
+}
+
+#[test]
+fn a_solve_whose_preconditioner_breaks_is_redone_with_block_jacobi() {
+    use crate::efg::Csr;
+    use crate::solve::{BlockCsr, BlockJacobi, Pcg};
+    // A tridiagonal SPD matrix of 4 blocks (12 scalars), diagonally dominant.
+    let n: usize = 12;
+    let (mut indptr, mut indices, mut data) = (vec![0], Vec::new(), Vec::new());
+    for r in 0..n {
+        for c in r.saturating_sub(1)..(r + 2).min(n) {
+            indices.push(c);
+            data.push(if c == r { 4.0 } else { -1.0 });
+        }
+        indptr.push(indices.len());
+    }
+    let system = BlockCsr::<3>::from_csr(&Csr {
+        size: n,
+        indptr,
+        indices,
+        data,
+    })
+    .unwrap();
+    let rhs: Vec<f64> = (0..n).map(|i| (i as f64 * 0.7).sin()).collect();
+    let also_rhs: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
+
+    let mut pcg = Pcg::new();
+    let mut x = vec![0.5; n];
+    let mut y = vec![0.0; n];
+    let status = super::solve::solve_or_jacobi(
+        &mut pcg,
+        &system,
+        &mut Broken,
+        &rhs,
+        &mut x,
+        Some((&also_rhs[..], &mut y)),
+        1e-10,
+        1e-10,
+        100,
+    )
+    .unwrap();
+    assert!(status.converged, "{status:?}");
+
+    let mut jacobi = BlockJacobi::new(&system).unwrap();
+    let (mut expected, mut expected_also) = (vec![0.5; n], vec![0.0; n]);
+    pcg.solve(&system, &mut jacobi, &rhs, &mut expected, 1e-10, 100)
+        .unwrap();
+    pcg.solve(
+        &system,
+        &mut jacobi,
+        &also_rhs,
+        &mut expected_also,
+        1e-10,
+        100,
+    )
+    .unwrap();
+    assert_eq!(x, expected);
+    assert_eq!(y, expected_also);
+
+    // Without the fallback the broken preconditioner is an error.
+    let mut z = vec![0.5; n];
+    assert!(matches!(
+        pcg.solve(&system, &mut Broken, &rhs, &mut z, 1e-10, 100),
+        Err(crate::Error::NotPositiveDefinite { .. })
+    ));
+}
