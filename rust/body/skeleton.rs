@@ -1,16 +1,27 @@
 //! The skeleton: a tree of body parts joined by chains of single-DoF revolute joints, a
-//! 6-DoF root, per-part length and width coefficients, and forward kinematics with the
+//! 6-DoF root, per-part length, width and depth coefficients, and forward kinematics with the
 //! first derivatives of every part frame with respect to every state parameter.
 
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 use crate::{Error, Result};
 
+/// Shape coefficients per part, in this order: [`LENGTH`] scales the part frame's z
+/// (along the bone), [`WIDTH`] its x, [`DEPTH`] its y. Width and depth apart let an
+/// elliptic section become round (or flatter) without changing the part's other axis.
+pub const SHAPE_PER_PART: usize = 3;
+/// Offset of the length coefficient in a part's shape triple.
+pub const LENGTH: usize = 0;
+/// Offset of the width coefficient (part x).
+pub const WIDTH: usize = 1;
+/// Offset of the depth coefficient (part y).
+pub const DEPTH: usize = 2;
+
 /// One body part as the user describes it.
 ///
 /// The part's frame, at state `(shape, motion)`, is
 /// `F_b = F_parent · T(S_parent o) · Rest · Rot(a_1, θ_1) · Rot(a_2, θ_2) · …`
-/// where `S_parent = diag(w, w, l)` of the parent and each `Rot(a_k, θ) = R_k Rot_z(θ) R_k^T`
+/// where `S_parent = diag(w, d, l)` of the parent and each `Rot(a_k, θ) = R_k Rot_z(θ) R_k^T`
 /// (`R_k` maps `e_z` onto `a_k`): SPEC 6's chain of 1-DoF joints `D = Rot_z(θ) D_ini` with
 /// `D_ini` folded from `Rest`, the offset and the `R_k`. The root part's parent is the
 /// 6-DoF root frame `Trans(t) · Rot_z(α) · Rot_y(β) · Rot_x(γ)`.
@@ -32,9 +43,9 @@ pub struct PartSpec {
 pub struct Metaball {
     /// The part carrying the ball.
     pub part: usize,
-    /// Centre in the part frame at unit coefficients; scaled to `(w cx, w cy, l cz)`.
+    /// Centre in the part frame at unit coefficients; scaled to `(w cx, d cy, l cz)`.
     pub centre: [f64; 3],
-    /// Radii at unit coefficients; scaled to `(w lx, w ly, l lz)`.
+    /// Radii at unit coefficients; scaled to `(w lx, d ly, l lz)`.
     pub radii: [f64; 3],
 }
 
@@ -87,12 +98,12 @@ pub struct Pose {
     pub rotation: Vec<Matrix3<f64>>,
     /// World origin of each part frame (the joint position).
     pub origin: Vec<Vector3<f64>>,
-    /// Width and length coefficients of each part, `(w, l)`.
-    pub coefficients: Vec<(f64, f64)>,
+    /// Scale of each part frame's axes: `(w, d, l)` (width, depth, length coefficients).
+    pub coefficients: Vec<Vector3<f64>>,
     /// The twist of every motion parameter.
     pub twists: Vec<Twist>,
-    /// For each part b, the world translation of b's frame per unit change of the length
-    /// and width coefficients of its ancestors: `(shape index, vector)`.
+    /// For each part b, the world translation of b's frame per unit change of the length,
+    /// width and depth coefficients of its ancestors: `(shape index, vector)`.
     pub offset_derivatives: Vec<Vec<(usize, Vector3<f64>)>>,
 }
 
@@ -192,12 +203,12 @@ impl Skeleton {
         self.parts.len()
     }
 
-    /// Shape parameters: `(length, width)` per part.
+    /// Shape parameters: `(length, width, depth)` per part.
     pub fn n_shape(&self) -> usize {
-        2 * self.parts.len()
+        SHAPE_PER_PART * self.parts.len()
     }
 
-    /// Forward kinematics at `shape` (`2 P`: length, width per part) and `motion`
+    /// Forward kinematics at `shape` (`3 P`: length, width, depth per part) and `motion`
     /// (`n_motion`: root translation, root angles z-y-x, joint angles in part order).
     ///
     /// # Errors
@@ -206,17 +217,17 @@ impl Skeleton {
     pub fn pose(&self, shape: &[f64], motion: &[f64]) -> Result<Pose> {
         check_vector("shape", shape, self.n_shape())?;
         check_vector("motion", motion, self.n_motion)?;
-        if let Some(b) =
-            (0..self.n_parts()).find(|&b| shape[2 * b] <= 0.0 || shape[2 * b + 1] <= 0.0)
-        {
+        let k = SHAPE_PER_PART;
+        if let Some(b) = (0..self.n_parts()).find(|&b| shape[k * b..k * b + k].iter().any(|&v| v <= 0.0)) {
             return Err(bad(format!(
-                "shape coefficients of part {b} must be positive, got length {} and width {}",
-                shape[2 * b],
-                shape[2 * b + 1]
+                "shape coefficients of part {b} must be positive, got length {}, width {} and depth {}",
+                shape[k * b + LENGTH],
+                shape[k * b + WIDTH],
+                shape[k * b + DEPTH]
             )));
         }
-        let coefficients: Vec<(f64, f64)> = (0..self.n_parts())
-            .map(|b| (shape[2 * b + 1], shape[2 * b]))
+        let coefficients: Vec<Vector3<f64>> = (0..self.n_parts())
+            .map(|b| Vector3::new(shape[k * b + WIDTH], shape[k * b + DEPTH], shape[k * b + LENGTH]))
             .collect();
         let mut twists = vec![Twist::Translation(Vector3::zeros()); self.n_motion];
         let t = Vector3::new(motion[0], motion[1], motion[2]);
@@ -249,12 +260,12 @@ impl Skeleton {
             let (parent_rotation, joint, mut derivs) = match part.parent {
                 None => (root, t + root * o, vec![]),
                 Some(p) => {
-                    let (w, l) = coefficients[p];
                     let r = rotation[p];
-                    let scaled = Vector3::new(w * o.x, w * o.y, l * o.z);
+                    let scaled = coefficients[p].component_mul(&o);
                     let mut d: Vec<(usize, Vector3<f64>)> = offset_derivatives[p].clone();
-                    d.push((2 * p, r * Vector3::new(0.0, 0.0, o.z)));
-                    d.push((2 * p + 1, r * Vector3::new(o.x, o.y, 0.0)));
+                    d.push((k * p + LENGTH, r * Vector3::new(0.0, 0.0, o.z)));
+                    d.push((k * p + WIDTH, r * Vector3::new(o.x, 0.0, 0.0)));
+                    d.push((k * p + DEPTH, r * Vector3::new(0.0, o.y, 0.0)));
                     (r, origin[p] + r * scaled, d)
                 }
             };

@@ -9,13 +9,14 @@ The description is a readable dictionary (saved as JSON)::
                 "balls": [{"center": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
 
 Parents come before their children. A part's frame is its parent's frame moved to
-``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, w, l)``),
+``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, d, l)``),
 turned by ``rest``, then by each joint in turn about its axis (given in the frame after the
 previous joints): SPEC 6's chain of single-DoF joints ``D = Rot_z(theta) D_ini``. Balls are
 axis-aligned ellipsoids in their part's frame; a part's length coefficient ``l`` scales
-their z (centre and radius) and its width coefficient ``w`` their x and y.
+their z (centre and radius), its width coefficient ``w`` their x and its depth coefficient
+``d`` their y (SPEC 6 has one width for x and y; apart, an elliptic section can become round).
 
-The state layout is defined once, in ``rust/body.rs``: ``shape`` holds ``(l, w)`` per part,
+The state layout is defined once, in ``rust/body/skeleton.rs``: ``shape`` holds ``(l, w, d)`` per part,
 ``motion`` the root translation (3, metres), the root angles ``(alpha, beta, gamma)`` of
 ``Rot_z Rot_y Rot_x`` (radians) and the joint angles (radians) in part order.
 """
@@ -40,7 +41,11 @@ from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description
 from elastocap.cameras.camera import Camera
 
-__all__ = ["SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
+__all__ = ["SHAPE_NAMES", "SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
+
+#: The shape coefficients of each part, in state order: length scales the part's z (along
+#: the bone), width its x, depth its y.
+SHAPE_NAMES = ("length", "width", "depth")
 
 #: The skin is the level set ``F = SKIN_LEVEL`` of the field (SPEC 6: T = 0.5).
 SKIN_LEVEL = 0.5
@@ -61,8 +66,8 @@ class BodyState:
 
     Attributes
     ----------
-    shape : (2 P,) float64
-        ``(length, width)`` coefficient per part, 1 = as described.
+    shape : (3 P,) float64
+        ``(length, width, depth)`` coefficients per part, 1 = as described.
     motion : (6 + A,) float64
         Root translation (metres), root angles z-y-x (radians), joint angles (radians).
     """
@@ -105,7 +110,7 @@ class BodyModel:
     n_motion : int
         Motion parameters per frame (6 root + one per joint).
     n_shape : int
-        Shape parameters (2 per part).
+        Shape parameters (3 per part: :data:`SHAPE_NAMES`).
     lower, upper : (n_motion,) float64
         Motion limits (joint limits in radians; the root is effectively free).
 
@@ -234,14 +239,32 @@ class BodyModel:
             raise InvalidInputError(f"state.motion must have shape ({self.n_motion},), got {motion.shape}")
         return shape, motion
 
+    def as_shape(self, shape: Any) -> NDArray[np.float64]:
+        """A shape vector ``(3 P,)`` from ``shape``: already ``(3 P,)``, or the earlier layout
+        ``(length, width)`` per part ``(2 P,)``, whose one width scaled both cross axes
+        (read as depth = width: the same body)."""
+        array = as_float_array("shape", shape)
+        parts = len(self.part_names)
+        if array.shape == (2 * parts,):
+            pairs = array.reshape(parts, 2)
+            array = np.column_stack([pairs, pairs[:, 1]]).reshape(-1)
+        if array.shape != (self.n_shape,):
+            raise InvalidInputError(f"shape must have {self.n_shape} values (length, width, depth per part), got shape {array.shape}")
+        return np.ascontiguousarray(array)
+
+    def shape_table(self, shape: Any) -> dict[str, dict[str, float]]:
+        """``{part: {"length": l, "width": w, "depth": d}}`` of a shape vector."""
+        table = self.as_shape(shape).reshape(-1, len(SHAPE_NAMES))
+        return {name: dict(zip(SHAPE_NAMES, map(float, row))) for name, row in zip(self.part_names, table)}
+
     def mirrored_shape_groups(self) -> NDArray[np.int64]:
-        """Shape groups (``fit_body(shape_groups=...)``) that tie each left part's length and
-        width to its right twin's (parts named ``l_<x>`` and ``r_<x>``); other parts' stay
-        free. ``(n_shape,) int64``."""
+        """Shape groups (``fit_body(shape_groups=...)``) that tie each left part's length,
+        width and depth to its right twin's (parts named ``l_<x>`` and ``r_<x>``); other
+        parts' stay free. ``(n_shape,) int64``."""
         keys = []
         for name in self.part_names:
             twin = name[2:] if name[:2] in ("l_", "r_") and {"l_" + name[2:], "r_" + name[2:]} <= set(self.part_names) else None
-            keys += [(twin or name, "length"), (twin or name, "width")]
+            keys += [(twin or name, k) for k in SHAPE_NAMES]
         numbers: dict[tuple[str, str], int] = {}
         return np.array([numbers.setdefault(k, len(numbers)) for k in keys], dtype=np.int64)
 
@@ -286,7 +309,7 @@ class BodyModel:
         shape, _ = self.check_state(state)
         rotations, origins = self.pose(state)
         part, centre, radii = self._balls
-        scale = np.stack([shape[2 * part + 1], shape[2 * part + 1], shape[2 * part]], axis=1)
+        scale = shape.reshape(-1, 3)[part][:, [1, 2, 0]]
         world = origins[part] + np.einsum("mij,mj->mi", rotations[part], centre * scale)
         return world, (radii * scale).max(axis=1)
 
