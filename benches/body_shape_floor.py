@@ -5,12 +5,18 @@ For frames of :class:`elastocap.synth.clutter.ClutterScene`, the body model is f
 the pose pinned by the true elbows, wrists, knees and ankles (joint observations, sigma
 1 mm) to 3000 exact points of the true surface and the 8 true silhouettes, the shape free
 (left and right tied, as the tracker's ``symmetric=True``). Each fit is run with the shape
-family restricted three ways, in the same run:
+family restricted four ways, in the same run:
 
 - ``unit``: the shape held at 1 (the described human);
-- ``width``: length and width per part, the depth tied to the width (the family before the
-  depth coefficient: SPEC 6's one width for both cross axes);
-- ``depth``: length, width and depth per part, each free.
+- ``width``: length and width per part, the depth tied to the width, the taper held at 1
+  (the family before the depth and taper coefficients: SPEC 6's one width for both axes);
+- ``depth``: length, width and depth per part, the taper held at 1;
+- ``taper``: length, width, depth and taper per part, each free.
+
+The taper is held by bounds (lower = upper = 1), which the fit enforces by clamping after
+each step: that converges worse than a family without the coefficient (seed 0, ``width``:
+15.0 mm held by bounds against 12.2 mm at the commit before the taper existed;
+``benches/README.md``, branch body4).
 
 Prints one JSON line per frame and family: skin mean distance (both directions, mm, as
 ``eval_body_capsule.py``), joints RMS (mm), silhouette IoU (min over views), and the shape
@@ -45,12 +51,21 @@ START_PARTS = JOINT_PARTS | {"l_shoulder": "l_upperarm", "r_shoulder": "r_uppera
 def shape_groups(model: BodyModel, family: str) -> np.ndarray:
     """Left-right tied groups; for ``width`` also each part's depth tied to its width."""
     mirrored = model.mirrored_shape_groups()
-    if family == "depth":
+    if family != "width":
         return mirrored
     per_part = mirrored.reshape(-1, len(SHAPE_NAMES)).copy()
     per_part[:, 2] = per_part[:, 1]
     _, numbered = np.unique(per_part.reshape(-1), return_inverse=True)
     return numbered.astype(np.int64)
+
+
+def shape_bounds(model: BodyModel, family: str, upper: float) -> tuple[np.ndarray, np.ndarray]:
+    """0.5 to ``upper``; the taper held at 1 unless the family has it."""
+    lower, high = np.full(model.n_shape, 0.5), np.full(model.n_shape, upper)
+    if family != "taper":
+        taper = np.arange(model.n_shape) % len(SHAPE_NAMES) == SHAPE_NAMES.index("taper")
+        lower[taper] = high[taper] = 1.0
+    return lower, high
 
 
 def start_pose(model: BodyModel, joints: dict[str, np.ndarray]) -> BodyState:
@@ -72,7 +87,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--frames", type=int, nargs="+", default=[0])
-    parser.add_argument("--families", nargs="+", default=["unit", "width", "depth"])
+    parser.add_argument("--families", nargs="+", default=["unit", "width", "depth", "taper"])
     parser.add_argument("--upper", type=float, default=2.0, help="upper shape bound (lower: 0.5)")
     args = parser.parse_args()
     model = BodyModel.default_human()
@@ -89,7 +104,7 @@ def main() -> None:
             obs = BodyObservations(points=points, masks=masks, joints={p: truth[j] for j, p in JOINT_PARTS.items()})
             for family in args.families:
                 t0 = time.process_time()
-                bounds = (np.full(model.n_shape, 0.5), np.full(model.n_shape, args.upper))
+                bounds = shape_bounds(model, family, args.upper)
                 if family == "unit":
                     fit = fit_body(model, [obs], cameras=cameras, init=init, shape=np.ones(model.n_shape), sigma_joint=0.001, max_iterations=80)
                 else:
@@ -106,9 +121,9 @@ def main() -> None:
                 for c, m in zip(cameras, masks):
                     s = model.silhouette(state, c)
                     ious.append(float((s & m).sum() / max((s | m).sum(), 1)))
-                table = state.shape.reshape(-1, 3)
+                table = state.shape.reshape(-1, len(SHAPE_NAMES))
                 at_bound = {f"{model.part_names[b]}.{SHAPE_NAMES[k]}": round(float(table[b, k]), 2)
-                            for b, k in zip(*np.nonzero((table <= 0.51) | (table >= args.upper - 0.01)))}  # fmt: skip
+                            for b, k in zip(*np.nonzero(((table <= 0.51) | (table >= args.upper - 0.01)) & (bounds[0] < bounds[1]).reshape(table.shape)))}  # fmt: skip
                 print(json.dumps({
                     "seed": seed, "frame": f, "family": family, "skin_mean_mm": round(1000 * 0.5 * float(d_fit.mean() + d_true.mean()), 2),
                     "skin_fit_to_true_mm": round(1000 * float(d_fit.mean()), 2), "skin_true_to_fit_mm": round(1000 * float(d_true.mean()), 2),

@@ -74,9 +74,9 @@ def test_one_sided_stereo_inflates_limbs_and_silhouettes_correct_them() -> None:
     init = perturbed(MODEL, sc.truth, rng, degrees=5)
     alone = fit_body(MODEL, [BodyObservations(points=points)], init=init, sigma_point=0.2)
     both = fit_body(MODEL, [BodyObservations(points=points, masks=sc.masks)], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1)
-    true_widths = sc.truth.shape[1::3][LIMBS]
-    inflation_alone = float(np.mean(alone.shape[1::3][LIMBS] / true_widths - 1))
-    error_both = float(np.mean(np.abs(both.shape[1::3][LIMBS] / true_widths - 1)))
+    true_widths = sc.truth.shape[1::4][LIMBS]
+    inflation_alone = float(np.mean(alone.shape[1::4][LIMBS] / true_widths - 1))
+    error_both = float(np.mean(np.abs(both.shape[1::4][LIMBS] / true_widths - 1)))
     assert inflation_alone > BODY_STEREO_INFLATION_MIN
     assert error_both <= BODY_NOISY_SHAPE_RTOL
 
@@ -160,7 +160,7 @@ def test_missing_rays_and_unobserved_parts_are_reported_not_raised() -> None:
     assert not fit.ray_inlier.any()
     assert "head" in fit.unobserved_parts
     # only the far tails of the head's balls reach other parts' points
-    np.testing.assert_allclose(fit.shape[3 * head : 3 * head + 3], [1.0, 1.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(fit.shape[4 * head : 4 * head + 4], [1.0, 1.0, 1.0, 1.0], atol=1e-6)
     assert np.isfinite(fit.motion).all()
 
 
@@ -168,7 +168,7 @@ def test_tied_shape_groups_fit_one_coefficient_per_group() -> None:
     """Mirrored groups give a left part and its right twin one shape, within the bounds."""
     sc = scene(MODEL, 2, n_cameras=6)
     groups = MODEL.mirrored_shape_groups()
-    assert groups.max() + 1 == MODEL.n_shape - 18  # six limb parts per side, length, width and depth
+    assert groups.max() + 1 == MODEL.n_shape - 24  # six limb parts per side, four coefficients each
     lower, upper = np.full(MODEL.n_shape, 0.9), np.full(MODEL.n_shape, 1.2)
     init = perturbed(MODEL, sc.truth, np.random.default_rng(7))
     fit = fit_body(MODEL, [BodyObservations(points=sc.points)], init=init, shape_groups=groups, shape_bounds=(lower, upper), max_iterations=30)
@@ -177,10 +177,10 @@ def test_tied_shape_groups_fit_one_coefficient_per_group() -> None:
     assert ((fit.shape >= 0.9) & (fit.shape <= 1.2)).all()
     names = MODEL.part_names
     left, right = names.index("l_shin"), names.index("r_shin")
-    assert np.array_equal(fit.shape[3 * left : 3 * left + 3], fit.shape[3 * right : 3 * right + 3])
+    assert np.array_equal(fit.shape[4 * left : 4 * left + 4], fit.shape[4 * right : 4 * right + 4])
     # tied coefficients that sit in the data's reach: near the mean of the twins' truths
-    mean = 0.5 * (sc.truth.shape[3 * left] + sc.truth.shape[3 * right])
-    assert abs(fit.shape[3 * left] - mean) < 0.06
+    mean = 0.5 * (sc.truth.shape[4 * left] + sc.truth.shape[4 * right])
+    assert abs(fit.shape[4 * left] - mean) < 0.06
 
 
 @pytest.mark.parametrize(

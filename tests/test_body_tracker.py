@@ -161,4 +161,4 @@ def test_the_first_frame_search_finds_the_capsule_figure() -> None:
     names = MODEL.part_names
     for part in ("forearm", "hand", "shin", "foot"):
         i, j = names.index(f"l_{part}"), names.index(f"r_{part}")
-        assert np.array_equal(state.shape[3 * i : 3 * i + 3], state.shape[3 * j : 3 * j + 3])
+        assert np.array_equal(state.shape[4 * i : 4 * i + 4], state.shape[4 * j : 4 * j + 4])

@@ -2,15 +2,16 @@
 //! Hessian in x, and the derivative with respect to every state parameter (SPEC 6).
 //!
 //! Ball i of part b: `y = R_b^T (x - o_b)` in the part frame, `q = (y - c ∘ s) / (r ∘ s)`
-//! with `s = (w, d, l)` (the part's width, depth and length coefficients), `d = |q|^2`.
+//! with `s = (w t_i, d t_i, l)` (the part's width, depth and length coefficients, and the
+//! ball's section `t_i = 1 + (τ - 1) k_i` from the part's taper τ), `d = |q|^2`.
 
 use nalgebra::{Matrix3, Vector3};
 
 use super::fastexp::exp_neg;
-use super::skeleton::{Pose, Skeleton, DEPTH, LENGTH, SHAPE_PER_PART, WIDTH};
+use super::skeleton::{Pose, Skeleton, DEPTH, LENGTH, SHAPE_PER_PART, TAPER, WIDTH};
 
 /// Entries of a part's compact derivative ([`Field::part_derivatives_over`]): moment (3),
-/// force (3), then the derivatives by the part's own length, width and depth.
+/// force (3), then the derivatives by the part's own length, width, depth and taper.
 pub const PART_TERMS: usize = 6 + SHAPE_PER_PART;
 
 /// Beyond `|q| = BOUND` a ball contributes less than `exp(-2 BOUND^2)` (1.4e-10 at 3.4):
@@ -47,8 +48,11 @@ pub struct PlacedBall {
     pub centre: Vector3<f64>,
     /// Unscaled radii.
     pub radii: Vector3<f64>,
-    /// Scale `(w, d, l)` of the part.
+    /// Scale `(w t, d t, l)` of the ball.
     pub scale: Vector3<f64>,
+    /// `∂s/∂w = t`, `∂s/∂d = t`, `∂s/∂τ = (w k, d k, 0)`: the first entry is `t`, the
+    /// other two `w k` and `d k`.
+    pub shape_rates: Vector3<f64>,
     /// World centre of the scaled ellipsoid.
     pub world_centre: Vector3<f64>,
     /// Radius of the sphere outside which `|q| > BOUND`.
@@ -79,6 +83,18 @@ fn shape_slope(ball: &PlacedBall, q: &Vector3<f64>) -> Vector3<f64> {
     (ball.centre + q.component_mul(&ball.radii)).component_mul(&ball.inv_radii)
 }
 
+/// `∂f/∂(l, w, d, τ)` of one ball's term `f = exp(-2 d)` from `dd = ∂d/∂s` (per scaled axis).
+#[inline]
+fn shape_terms(ball: &PlacedBall, f: f64, dd: &Vector3<f64>) -> [f64; SHAPE_PER_PART] {
+    let r = &ball.shape_rates;
+    let mut out = [0.0; SHAPE_PER_PART];
+    out[LENGTH] = -2.0 * f * dd.z;
+    out[WIDTH] = -2.0 * f * dd.x * r.x;
+    out[DEPTH] = -2.0 * f * dd.y * r.x;
+    out[TAPER] = -2.0 * f * (dd.x * r.y + dd.y * r.z);
+    out
+}
+
 /// The field of one model at one state.
 #[derive(Debug, Clone)]
 pub struct Field<'a> {
@@ -96,8 +112,11 @@ impl<'a> Field<'a> {
         let balls = skeleton
             .balls
             .iter()
-            .map(|ball| {
-                let scale = pose.coefficients[ball.part];
+            .enumerate()
+            .map(|(i, ball)| {
+                let (part, k) = (pose.coefficients[ball.part], skeleton.taper_weight[i]);
+                let t = 1.0 + (pose.taper[ball.part] - 1.0) * k;
+                let scale = Vector3::new(part.x * t, part.y * t, part.z);
                 let centre = Vector3::from(ball.centre);
                 let radii = Vector3::from(ball.radii);
                 let rotation = pose.rotation[ball.part];
@@ -110,6 +129,7 @@ impl<'a> Field<'a> {
                     centre,
                     radii,
                     scale,
+                    shape_rates: Vector3::new(t, part.x * k, part.y * k),
                     world_centre: origin + rotation * centre.component_mul(&scale),
                     bound_radius: BOUND * radii.component_mul(&scale).max(),
                     inv_radii,
@@ -230,9 +250,10 @@ impl<'a> Field<'a> {
             let dq = -shape_slope(ball, &t.q);
             let dd = 2.0 * t.q.component_mul(&dq);
             let at = n_motion + SHAPE_PER_PART * b;
-            row[at + LENGTH] += -2.0 * t.value * dd.z;
-            row[at + WIDTH] += -2.0 * t.value * dd.x;
-            row[at + DEPTH] += -2.0 * t.value * dd.y;
+            let own = shape_terms(ball, t.value, &dd);
+            for (c, v) in own.iter().enumerate() {
+                row[at + c] += v;
+            }
         };
         match subset {
             None => {
@@ -284,9 +305,8 @@ impl<'a> Field<'a> {
             z[3] += grad.x;
             z[4] += grad.y;
             z[5] += grad.z;
-            z[6 + LENGTH] += -2.0 * t.value * dd.z;
-            z[6 + WIDTH] += -2.0 * t.value * dd.x;
-            z[6 + DEPTH] += -2.0 * t.value * dd.y;
+            let own = shape_terms(ball, t.value, &dd);
+            z[6..].iter_mut().zip(own).for_each(|(a, v)| *a += v);
         };
         match subset {
             None => self.balls.iter().for_each(&mut visit),

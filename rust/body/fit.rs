@@ -41,7 +41,7 @@ pub struct FitOptions {
 pub struct FitResult {
     /// Motion per frame, `frames * n_motion`.
     pub motion: Vec<f64>,
-    /// Shape, `3 P`.
+    /// Shape, `4 P`.
     pub shape: Vec<f64>,
     /// Solver outcome.
     pub report: LmReport,
@@ -104,7 +104,7 @@ impl<'a> BodyProblem<'a> {
         }
     }
 
-    /// Shape coefficients the field is built from (`3 P`).
+    /// Shape coefficients the field is built from (`4 P`).
     fn s_full(&self) -> usize {
         if self.fixed_shape.is_some() {
             0

@@ -1,5 +1,5 @@
 //! The skeleton: a tree of body parts joined by chains of single-DoF revolute joints, a
-//! 6-DoF root, per-part length, width and depth coefficients, and forward kinematics with the
+//! 6-DoF root, per-part length, width, depth and taper coefficients, and forward kinematics with the
 //! first derivatives of every part frame with respect to every state parameter.
 
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
@@ -7,15 +7,21 @@ use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 use crate::{Error, Result};
 
 /// Shape coefficients per part, in this order: [`LENGTH`] scales the part frame's z
-/// (along the bone), [`WIDTH`] its x, [`DEPTH`] its y. Width and depth apart let an
-/// elliptic section become round (or flatter) without changing the part's other axis.
-pub const SHAPE_PER_PART: usize = 3;
+/// (along the bone), [`WIDTH`] its x, [`DEPTH`] its y, [`TAPER`] the cross-section of
+/// each ball by `t_i = 1 + (τ - 1) k_i` with `k_i` the ball's place along the part
+/// ([`Skeleton::taper_weight`]). Width and depth apart let an elliptic section become
+/// round (or flatter); the taper lets a tapered limb become a cylinder (or taper more),
+/// and a part's small end (the neck ball under the head) shrink while its big end grows.
+/// All four are 1 for the part as described.
+pub const SHAPE_PER_PART: usize = 4;
 /// Offset of the length coefficient in a part's shape triple.
 pub const LENGTH: usize = 0;
 /// Offset of the width coefficient (part x).
 pub const WIDTH: usize = 1;
 /// Offset of the depth coefficient (part y).
 pub const DEPTH: usize = 2;
+/// Offset of the taper coefficient.
+pub const TAPER: usize = 3;
 
 /// One body part as the user describes it.
 ///
@@ -89,6 +95,10 @@ pub struct Skeleton {
     pub motion_of_part: Vec<Vec<usize>>,
     /// For each part, its ancestors and itself, root-most first.
     pub chain: Vec<Vec<usize>>,
+    /// Per ball (in `balls` order), `k_i = (c_z - mean) / (max - min)` over the centres'
+    /// z of its part's balls (0 for a part with one ball, or all at one height): where
+    /// the ball sits along the part, in [-1, 1], its part's balls spanning 1.
+    pub taper_weight: Vec<f64>,
 }
 
 /// Forward kinematics at one state: part frames and the twists of all motion parameters.
@@ -100,6 +110,8 @@ pub struct Pose {
     pub origin: Vec<Vector3<f64>>,
     /// Scale of each part frame's axes: `(w, d, l)` (width, depth, length coefficients).
     pub coefficients: Vec<Vector3<f64>>,
+    /// The taper coefficient `τ` of each part.
+    pub taper: Vec<f64>,
     /// The twist of every motion parameter.
     pub twists: Vec<Twist>,
     /// For each part b, the world translation of b's frame per unit change of the length,
@@ -188,6 +200,20 @@ impl Skeleton {
         let mut balls = balls;
         // The field sums each part's balls in one run (see `Field::state_derivative`).
         balls.sort_by_key(|b| b.part);
+        let taper_weight = balls
+            .iter()
+            .map(|ball| {
+                let heights = balls.iter().filter(|b| b.part == ball.part).map(|b| b.centre[2]);
+                let (lo, hi, sum, n) = heights.fold((f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0), |(lo, hi, s, n), z| {
+                    (lo.min(z), hi.max(z), s + z, n + 1.0)
+                });
+                if hi - lo > 1e-9 {
+                    (ball.centre[2] - sum / n) / (hi - lo)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         Ok(Self {
             parts,
             balls,
@@ -195,6 +221,7 @@ impl Skeleton {
             n_motion,
             motion_of_part,
             chain,
+            taper_weight,
         })
     }
 
@@ -203,29 +230,44 @@ impl Skeleton {
         self.parts.len()
     }
 
-    /// Shape parameters: `(length, width, depth)` per part.
+    /// Shape parameters: `(length, width, depth, taper)` per part.
     pub fn n_shape(&self) -> usize {
         SHAPE_PER_PART * self.parts.len()
     }
 
-    /// Forward kinematics at `shape` (`3 P`: length, width, depth per part) and `motion`
+    /// Forward kinematics at `shape` (`4 P`: length, width, depth, taper per part) and `motion`
     /// (`n_motion`: root translation, root angles z-y-x, joint angles in part order).
     ///
     /// # Errors
     /// [`Error::LengthMismatch`] for vectors of the wrong length, [`Error::NonFinite`] for
-    /// NaN or infinity, [`Error::BadModel`] for non-positive coefficients.
+    /// NaN or infinity, [`Error::BadModel`] for non-positive coefficients or a taper that
+    /// gives a ball a non-positive section.
     pub fn pose(&self, shape: &[f64], motion: &[f64]) -> Result<Pose> {
         check_vector("shape", shape, self.n_shape())?;
         check_vector("motion", motion, self.n_motion)?;
         let k = SHAPE_PER_PART;
         if let Some(b) = (0..self.n_parts()).find(|&b| shape[k * b..k * b + k].iter().any(|&v| v <= 0.0)) {
             return Err(bad(format!(
-                "shape coefficients of part {b} must be positive, got length {}, width {} and depth {}",
+                "shape coefficients of part {b} must be positive, got length {}, width {}, depth {} and taper {}",
                 shape[k * b + LENGTH],
                 shape[k * b + WIDTH],
-                shape[k * b + DEPTH]
+                shape[k * b + DEPTH],
+                shape[k * b + TAPER]
             )));
         }
+        if let Some((ball, t)) = self
+            .balls
+            .iter()
+            .zip(&self.taper_weight)
+            .find(|(ball, &w)| 1.0 + (shape[k * ball.part + TAPER] - 1.0) * w <= 0.0)
+        {
+            return Err(bad(format!(
+                "the taper {} of part {} leaves a ball no section (its taper weight is {t})",
+                shape[k * ball.part + TAPER],
+                ball.part
+            )));
+        }
+        let taper: Vec<f64> = (0..self.n_parts()).map(|b| shape[k * b + TAPER]).collect();
         let coefficients: Vec<Vector3<f64>> = (0..self.n_parts())
             .map(|b| Vector3::new(shape[k * b + WIDTH], shape[k * b + DEPTH], shape[k * b + LENGTH]))
             .collect();
@@ -289,6 +331,7 @@ impl Skeleton {
             rotation,
             origin,
             coefficients,
+            taper,
             twists,
             offset_derivatives,
         })

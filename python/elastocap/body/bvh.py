@@ -70,7 +70,7 @@ def write_bvh(path: str | Path, model: BodyModel, shape: Any, states: Sequence[B
     path : str or Path
         The ``.bvh`` file (written atomically).
     model : BodyModel
-    shape : (3 P,) array_like
+    shape : (4 P,) array_like
         The take's one shape (BVH bones have fixed lengths); per-frame states' own shapes
         are ignored.
     states : sequence of BodyState, or (F, n_motion) array_like

@@ -64,7 +64,7 @@ class BodyTrack:
     ----------
     states : list of BodyState
         One per frame, all with ``shape``.
-    shape : (3 P,) float64
+    shape : (4 P,) float64
         The take's one shape.
     motion : (F, n_motion) float64
     quality : list of FrameQuality
