@@ -22,8 +22,8 @@ def random_state(model: BodyModel, rng: np.random.Generator, *, spread: float = 
     lower, upper = model.lower[6:], model.upper[6:]
     centre, half = (lower + upper) / 2, (upper - lower) / 2
     motion[6:] = centre + spread * half * rng.uniform(-1, 1, model.n_motion - 6)
-    # (length, width) drawn per part and depth = width, as before the depth coefficient:
-    # the seeded scenes stay the ones the tolerances were set on.
+    # (length, width) drawn per part, depth = width and taper 1, as before those
+    # coefficients: the seeded scenes stay the ones the tolerances were set on.
     return BodyState(model.as_shape(rng.uniform(0.9, 1.1, 2 * len(model.part_names))), motion)
 
 

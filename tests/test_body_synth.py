@@ -89,7 +89,7 @@ def test_body_stage_recovers_legs_root_and_shape(body_capture: tuple[Path, Path]
     assert np.abs(got[:, :3] - want[:, :3]).max() <= BODY_SYNTH_ROOT_M
     assert np.degrees(np.abs(got[:, 3] - want[:, 3])).max() <= BODY_SYNTH_HEADING_DEG
     parts = truth["parts"]
-    shape_truth = np.array(truth["shape"]).reshape(-1, 2)
+    shape_truth = np.array(truth["shape"]).reshape(len(truth["parts"]), -1)  # (length, width, ...) per part
     for b, name in enumerate(parts):
         if name in ("pelvis", "head") or name[2:] in ("thigh", "shin", "foot"):
             fitted = fit["shape"][name]

@@ -32,8 +32,8 @@ class SkeletonTake:
     Attributes
     ----------
     model : BodyModel
-    shape : (2 P,) float64
-        ``(length, width)`` coefficient per part, for every frame.
+    shape : (4 P,) float64
+        ``(length, width, depth, taper)`` coefficients per part, for every frame.
     frames : list of int
         Frame numbers.
     motion : (N, n_motion) float64
