@@ -203,10 +203,14 @@ impl Skeleton {
         let taper_weight = balls
             .iter()
             .map(|ball| {
-                let heights = balls.iter().filter(|b| b.part == ball.part).map(|b| b.centre[2]);
-                let (lo, hi, sum, n) = heights.fold((f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0), |(lo, hi, s, n), z| {
-                    (lo.min(z), hi.max(z), s + z, n + 1.0)
-                });
+                let heights = balls
+                    .iter()
+                    .filter(|b| b.part == ball.part)
+                    .map(|b| b.centre[2]);
+                let (lo, hi, sum, n) = heights.fold(
+                    (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0),
+                    |(lo, hi, s, n), z| (lo.min(z), hi.max(z), s + z, n + 1.0),
+                );
                 if hi - lo > 1e-9 {
                     (ball.centre[2] - sum / n) / (hi - lo)
                 } else {
@@ -246,7 +250,9 @@ impl Skeleton {
         check_vector("shape", shape, self.n_shape())?;
         check_vector("motion", motion, self.n_motion)?;
         let k = SHAPE_PER_PART;
-        if let Some(b) = (0..self.n_parts()).find(|&b| shape[k * b..k * b + k].iter().any(|&v| v <= 0.0)) {
+        if let Some(b) =
+            (0..self.n_parts()).find(|&b| shape[k * b..k * b + k].iter().any(|&v| v <= 0.0))
+        {
             return Err(bad(format!(
                 "shape coefficients of part {b} must be positive, got length {}, width {}, depth {} and taper {}",
                 shape[k * b + LENGTH],
@@ -269,7 +275,13 @@ impl Skeleton {
         }
         let taper: Vec<f64> = (0..self.n_parts()).map(|b| shape[k * b + TAPER]).collect();
         let coefficients: Vec<Vector3<f64>> = (0..self.n_parts())
-            .map(|b| Vector3::new(shape[k * b + WIDTH], shape[k * b + DEPTH], shape[k * b + LENGTH]))
+            .map(|b| {
+                Vector3::new(
+                    shape[k * b + WIDTH],
+                    shape[k * b + DEPTH],
+                    shape[k * b + LENGTH],
+                )
+            })
             .collect();
         let mut twists = vec![Twist::Translation(Vector3::zeros()); self.n_motion];
         let t = Vector3::new(motion[0], motion[1], motion[2]);

@@ -55,7 +55,9 @@ fn arm() -> Skeleton {
 #[test]
 fn joint_residual_rows_match_central_differences() {
     let skeleton = arm();
-    let shape = [1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1];
+    let shape = [
+        1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1,
+    ];
     let motion = [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1];
     let obs = Observations {
         frames: 1,
@@ -138,12 +140,18 @@ fn bad_models_and_states_are_errors_not_panics() {
     ));
     // A zero depth alone is refused too.
     assert!(matches!(
-        skeleton.pose(&[1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0], &[0.0; 10]),
+        skeleton.pose(
+            &[1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            &[0.0; 10]
+        ),
         Err(Error::BadModel { .. })
     ));
     // A taper that would turn a ball's section inside out (weight -0.5: t = 1 - (τ - 1) / 2).
     assert!(matches!(
-        skeleton.pose(&[1.0, 1.0, 1.0, 3.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], &[0.0; 10]),
+        skeleton.pose(
+            &[1.0, 1.0, 1.0, 3.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            &[0.0; 10]
+        ),
         Err(Error::BadModel { .. })
     ));
 }
@@ -155,7 +163,9 @@ fn length_width_and_depth_scale_one_axis_each() {
     let skeleton = arm();
     let motion = [0.0; 10];
     let unit = skeleton.pose(&[1.0; 12], &motion).unwrap();
-    let local = |pose: &super::skeleton::Pose| pose.rotation[1].transpose() * (pose.origin[2] - pose.origin[1]);
+    let local = |pose: &super::skeleton::Pose| {
+        pose.rotation[1].transpose() * (pose.origin[2] - pose.origin[1])
+    };
     for (c, axis) in [(0usize, 2usize), (1, 0), (2, 1)] {
         let mut shape = [1.0; 12];
         shape[4 + c] = 1.5;
@@ -183,7 +193,9 @@ fn normal_blocks_match_dense_rows() {
     use crate::lm::{ArrowNormal, ArrowProblem, LmOptions};
 
     let skeleton = arm();
-    let shape = [1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1];
+    let shape = [
+        1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1,
+    ];
     let motions = [
         [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1],
         [0.0, 0.1, 1.0, -0.2, 0.1, 0.2, -0.4, 0.6, 0.1, -0.5],
