@@ -10,9 +10,11 @@ import pytest
 from body_scenes import angle_rms_degrees, perturbed, scene, shape_error
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, fit_body
+from elastocap.body.track import narrow_shape_family
 from tolerances import (
     BODY_ANGLE_RMS_DEG,
     BODY_NOISY_ANGLE_RMS_DEG,
+    BODY_NOISY_SHAPE_4P_RTOL,
     BODY_NOISY_SHAPE_RTOL,
     BODY_ONE_SIDED_WIDTH_RTOL,
     BODY_SHAPE_RTOL,
@@ -36,8 +38,12 @@ def test_noise_free_recovery(seed: int) -> None:
     assert fit.unobserved_parts == []
 
 
+@pytest.mark.parametrize("family", ["narrow", "full"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
-def test_recovery_with_noise_and_outliers(seed: int) -> None:
+def test_recovery_with_noise_and_outliers(seed: int, family: str) -> None:
+    """"narrow": the generator's own family (depth tied to width, taper held at 1 by
+    bounds lower = upper), which the fit must hold exactly; "full": all four coefficients
+    per part free, which one noisy frame pins less well."""
     sc = scene(MODEL, seed, n_cameras=8)
     rng = np.random.default_rng(100 + seed)
     points = sc.points + rng.normal(0, 0.01, sc.points.shape)
@@ -45,9 +51,16 @@ def test_recovery_with_noise_and_outliers(seed: int) -> None:
     outliers = rng.uniform(lower - 0.2, upper + 0.2, (len(points) // 9, 3))  # 10% of all
     init = perturbed(MODEL, sc.truth, rng)
     frame = BodyObservations(points=np.concatenate([points, outliers]), masks=sc.masks)
-    fit = fit_body(MODEL, [frame], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1)
+    groups, bounds = narrow_shape_family(MODEL, np.arange(MODEL.n_shape)) if family == "narrow" else (None, None)
+    fit = fit_body(MODEL, [frame], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1, shape_groups=groups, shape_bounds=bounds)
     assert angle_rms_degrees(MODEL, fit.motion[0], sc.truth.motion) <= BODY_NOISY_ANGLE_RMS_DEG
-    assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_RTOL
+    if family == "narrow":
+        per_part = fit.shape.reshape(-1, 4)
+        assert np.array_equal(per_part[:, 3], np.ones(len(per_part)))  # held exactly, not clamped near
+        assert np.array_equal(per_part[:, 2], per_part[:, 1])
+        assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_RTOL
+    else:
+        assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_4P_RTOL
     # most outliers rejected, most inliers kept
     assert fit.point_inlier[len(points) :].mean() < 0.1
     assert fit.point_inlier[: len(points)].mean() > 0.95

@@ -95,6 +95,8 @@ def test_body_stage_recovers_legs_root_and_shape(body_capture: tuple[Path, Path]
             fitted = fit["shape"][name]
             assert abs(fitted["length"] - shape_truth[b, 0]) <= BODY_SYNTH_SHAPE_RTOL, name
             assert abs(fitted["width"] - shape_truth[b, 1]) <= BODY_SYNTH_SHAPE_RTOL, name
+    # Silhouettes alone: the tracker fits the narrow family, held exactly.
+    assert all(s["depth"] == s["width"] and s["taper"] == 1.0 for s in fit["shape"].values())
 
 
 def test_body_stage_resumes_per_frame(body_capture: tuple[Path, Path], tmp_path: Path,
