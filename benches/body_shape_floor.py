@@ -13,10 +13,11 @@ family restricted four ways, in the same run:
 - ``depth``: length, width and depth per part, the taper held at 1;
 - ``taper``: length, width, depth and taper per part, each free.
 
-The taper is held by bounds (lower = upper = 1), which the fit enforces by clamping after
-each step: that converges worse than a family without the coefficient (seed 0, ``width``:
-15.0 mm held by bounds against 12.2 mm at the commit before the taper existed;
-``benches/README.md``, branch body4).
+The taper is held by bounds (lower = upper = 1): the fit removes a shape unknown whose
+bounds meet from its normal equations, so it stays exactly at 1 and the family converges
+as one without the coefficient would (seed 0, ``width``: 12.16 mm, as 12.2 mm at the
+commit before the taper existed; clamping after each step instead gave 15.0 mm;
+``benches/README.md``, branches body4 and body5).
 
 Prints one JSON line per frame and family: skin mean distance (both directions, mm, as
 ``eval_body_capsule.py``), joints RMS (mm), silhouette IoU (min over views), and the shape
