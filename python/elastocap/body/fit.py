@@ -246,7 +246,9 @@ def fit_body(
         Default: each coefficient free.
     shape_bounds : ((4 P,), (4 P,)) array_like, optional, keyword-only
         Lower and upper bound of each shape coefficient (default 0.5 and 2 for all); a
-        tied group keeps within the tightest of its members' bounds.
+        tied group keeps within the tightest of its members' bounds. A group whose bounds
+        meet is held exactly at that value (left out of the solve, not clamped after each
+        step; :func:`elastocap.body.track.narrow_shape_family` holds the tapers so).
 
     Returns
     -------
