@@ -22,7 +22,9 @@ def random_state(model: BodyModel, rng: np.random.Generator, *, spread: float = 
     lower, upper = model.lower[6:], model.upper[6:]
     centre, half = (lower + upper) / 2, (upper - lower) / 2
     motion[6:] = centre + spread * half * rng.uniform(-1, 1, model.n_motion - 6)
-    return BodyState(rng.uniform(0.9, 1.1, model.n_shape), motion)
+    # (length, width) drawn per part, depth = width and taper 1, as before those
+    # coefficients: the seeded scenes stay the ones the tolerances were set on.
+    return BodyState(model.as_shape(rng.uniform(0.9, 1.1, 2 * len(model.part_names))), motion)
 
 
 def perturbed(model: BodyModel, state: BodyState, rng: np.random.Generator, *, degrees: float = 8.0, unit_shape: bool = True) -> BodyState:

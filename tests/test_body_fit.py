@@ -10,10 +10,13 @@ import pytest
 from body_scenes import angle_rms_degrees, perturbed, scene, shape_error
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, fit_body
+from elastocap.body.track import narrow_shape_family
 from tolerances import (
     BODY_ANGLE_RMS_DEG,
     BODY_NOISY_ANGLE_RMS_DEG,
+    BODY_NOISY_SHAPE_4P_RTOL,
     BODY_NOISY_SHAPE_RTOL,
+    BODY_ONE_SIDED_WIDTH_RTOL,
     BODY_SHAPE_RTOL,
     BODY_STEREO_INFLATION_MIN,
 )
@@ -35,8 +38,12 @@ def test_noise_free_recovery(seed: int) -> None:
     assert fit.unobserved_parts == []
 
 
+@pytest.mark.parametrize("family", ["narrow", "full"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
-def test_recovery_with_noise_and_outliers(seed: int) -> None:
+def test_recovery_with_noise_and_outliers(seed: int, family: str) -> None:
+    """"narrow": the generator's own family (depth tied to width, taper held at 1 by
+    bounds lower = upper), which the fit must hold exactly; "full": all four coefficients
+    per part free, which one noisy frame pins less well."""
     sc = scene(MODEL, seed, n_cameras=8)
     rng = np.random.default_rng(100 + seed)
     points = sc.points + rng.normal(0, 0.01, sc.points.shape)
@@ -44,9 +51,16 @@ def test_recovery_with_noise_and_outliers(seed: int) -> None:
     outliers = rng.uniform(lower - 0.2, upper + 0.2, (len(points) // 9, 3))  # 10% of all
     init = perturbed(MODEL, sc.truth, rng)
     frame = BodyObservations(points=np.concatenate([points, outliers]), masks=sc.masks)
-    fit = fit_body(MODEL, [frame], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1)
+    groups, bounds = narrow_shape_family(MODEL, np.arange(MODEL.n_shape)) if family == "narrow" else (None, None)
+    fit = fit_body(MODEL, [frame], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1, shape_groups=groups, shape_bounds=bounds)
     assert angle_rms_degrees(MODEL, fit.motion[0], sc.truth.motion) <= BODY_NOISY_ANGLE_RMS_DEG
-    assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_RTOL
+    if family == "narrow":
+        per_part = fit.shape.reshape(-1, 4)
+        assert np.array_equal(per_part[:, 3], np.ones(len(per_part)))  # held exactly, not clamped near
+        assert np.array_equal(per_part[:, 2], per_part[:, 1])
+        assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_RTOL
+    else:
+        assert shape_error(fit.shape, sc.truth.shape) <= BODY_NOISY_SHAPE_4P_RTOL
     # most outliers rejected, most inliers kept
     assert fit.point_inlier[len(points) :].mean() < 0.1
     assert fit.point_inlier[: len(points)].mean() > 0.95
@@ -74,18 +88,18 @@ def test_one_sided_stereo_inflates_limbs_and_silhouettes_correct_them() -> None:
     init = perturbed(MODEL, sc.truth, rng, degrees=5)
     alone = fit_body(MODEL, [BodyObservations(points=points)], init=init, sigma_point=0.2)
     both = fit_body(MODEL, [BodyObservations(points=points, masks=sc.masks)], cameras=sc.cameras, init=init, sigma_point=0.2, sigma_ray=0.1)
-    true_widths = sc.truth.shape[1::2][LIMBS]
-    inflation_alone = float(np.mean(alone.shape[1::2][LIMBS] / true_widths - 1))
-    error_both = float(np.mean(np.abs(both.shape[1::2][LIMBS] / true_widths - 1)))
+    true_widths = sc.truth.shape[1::4][LIMBS]
+    inflation_alone = float(np.mean(alone.shape[1::4][LIMBS] / true_widths - 1))
+    error_both = float(np.mean(np.abs(both.shape[1::4][LIMBS] / true_widths - 1)))
     assert inflation_alone > BODY_STEREO_INFLATION_MIN
-    assert error_both <= BODY_NOISY_SHAPE_RTOL
+    assert error_both <= BODY_ONE_SIDED_WIDTH_RTOL
 
 
 def test_shape_shared_over_ten_frames_beats_every_single_frame() -> None:
     """Sparse, noisy frames (300 points with 5 mm noise, 4 silhouettes of 300 rays): each
     frame alone pins the shape loosely; together they pin it better than any one."""
     rng = np.random.default_rng(7)
-    shape = rng.uniform(0.9, 1.1, MODEL.n_shape)
+    shape = MODEL.as_shape(rng.uniform(0.9, 1.1, 2 * len(MODEL.part_names)))
     frames, inits, truths = [], [], []
     options = {"sigma_point": 0.1, "sigma_ray": 0.1, "max_rays_per_mask": 300}
     for f in range(10):
@@ -160,7 +174,7 @@ def test_missing_rays_and_unobserved_parts_are_reported_not_raised() -> None:
     assert not fit.ray_inlier.any()
     assert "head" in fit.unobserved_parts
     # only the far tails of the head's balls reach other parts' points
-    np.testing.assert_allclose(fit.shape[2 * head : 2 * head + 2], [1.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(fit.shape[4 * head : 4 * head + 4], [1.0, 1.0, 1.0, 1.0], atol=1e-6)
     assert np.isfinite(fit.motion).all()
 
 
@@ -168,7 +182,7 @@ def test_tied_shape_groups_fit_one_coefficient_per_group() -> None:
     """Mirrored groups give a left part and its right twin one shape, within the bounds."""
     sc = scene(MODEL, 2, n_cameras=6)
     groups = MODEL.mirrored_shape_groups()
-    assert groups.max() + 1 == MODEL.n_shape - 12  # six limb parts per side, length and width
+    assert groups.max() + 1 == MODEL.n_shape - 24  # six limb parts per side, four coefficients each
     lower, upper = np.full(MODEL.n_shape, 0.9), np.full(MODEL.n_shape, 1.2)
     init = perturbed(MODEL, sc.truth, np.random.default_rng(7))
     fit = fit_body(MODEL, [BodyObservations(points=sc.points)], init=init, shape_groups=groups, shape_bounds=(lower, upper), max_iterations=30)
@@ -177,10 +191,10 @@ def test_tied_shape_groups_fit_one_coefficient_per_group() -> None:
     assert ((fit.shape >= 0.9) & (fit.shape <= 1.2)).all()
     names = MODEL.part_names
     left, right = names.index("l_shin"), names.index("r_shin")
-    assert fit.shape[2 * left] == fit.shape[2 * right] and fit.shape[2 * left + 1] == fit.shape[2 * right + 1]
+    assert np.array_equal(fit.shape[4 * left : 4 * left + 4], fit.shape[4 * right : 4 * right + 4])
     # tied coefficients that sit in the data's reach: near the mean of the twins' truths
-    mean = 0.5 * (sc.truth.shape[2 * left] + sc.truth.shape[2 * right])
-    assert abs(fit.shape[2 * left] - mean) < 0.06
+    mean = 0.5 * (sc.truth.shape[4 * left] + sc.truth.shape[4 * right])
+    assert abs(fit.shape[4 * left] - mean) < 0.06
 
 
 @pytest.mark.parametrize(
@@ -196,3 +210,22 @@ def test_bad_shape_groups_and_bounds_raise(groups, bounds, match: str) -> None:
     sc = scene(MODEL, 1, n_points=200)
     with pytest.raises(InvalidInputError, match=match):
         fit_body(MODEL, [BodyObservations(points=sc.points)], shape_groups=groups, shape_bounds=bounds, max_iterations=2)
+
+
+def test_elliptic_and_tapered_parts_recovered_with_width_depth_and_taper_apart() -> None:
+    """A body whose limbs' sections are wider than deep (or deeper than wide) and taper
+    more or less than described: length, width, depth and taper come back apart (a single
+    width for both cross axes, or no taper, cannot express it)."""
+    rng = np.random.default_rng(5)
+    base = scene(MODEL, 4, n_points=10, n_cameras=8)
+    shape = np.ones(MODEL.n_shape)
+    for name, (width, depth, taper) in {"l_shin": (1.12, 0.9, 0.75), "r_thigh": (0.9, 1.1, 1.3), "chest": (1.05, 0.92, 1.15)}.items():
+        b = MODEL.part_names.index(name)
+        shape[4 * b + 1 : 4 * b + 4] = width, depth, taper
+    truth = base.truth.replace(shape=shape)
+    points = MODEL.skin_points(truth, 2500, seed=5, spacing=0.015)
+    masks = [MODEL.silhouette(truth, c) for c in base.cameras]
+    init = perturbed(MODEL, truth, rng)
+    fit = fit_body(MODEL, [BodyObservations(points=points, masks=masks)], cameras=base.cameras, init=init, sigma_ray=0.3)
+    assert angle_rms_degrees(MODEL, fit.motion[0], truth.motion) <= BODY_ANGLE_RMS_DEG
+    assert shape_error(fit.shape, truth.shape) <= BODY_SHAPE_RTOL

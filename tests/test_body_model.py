@@ -41,7 +41,7 @@ def test_length_coefficient_scales_the_bone() -> None:
     thigh = MODEL.part_names.index("l_thigh")
     shin = MODEL.part_names.index("l_shin")
     shape = state.shape.copy()
-    shape[2 * thigh] = 1.2
+    shape[4 * thigh] = 1.2
     _, before = MODEL.pose(state)
     _, after = MODEL.pose(state.replace(shape=shape))
     bone = np.linalg.norm(before[shin] - before[thigh])

@@ -13,7 +13,7 @@ from body_scenes import z_up_cameras
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, BodyState
 from elastocap.body.bvh import write_bvh
-from elastocap.body.track import BodyTracker, track_body
+from elastocap.body.track import BodyTracker, narrow_shape_family, track_body
 from elastocap.render import render_silhouette
 from elastocap.synth.body import BodyFigure
 
@@ -56,6 +56,25 @@ def test_tracker_recovers_joint_angles_from_stereo_and_silhouettes() -> None:
         assert angles_rms(fit, truth) < 12.0
     assert np.abs(track.shape / figure.shape - 1).max() < 0.05
     assert all(np.array_equal(s.shape, track.shape) for s in track.states)
+    # with points the full family: tapers and depths fitted, not held or tied
+    per_part = track.shape.reshape(-1, 4)
+    assert (per_part[:, 3] != 1.0).any() and (per_part[:, 2] != per_part[:, 1]).any()
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_the_narrow_family_ties_depth_to_width_and_holds_the_taper(symmetric: bool) -> None:
+    base = MODEL.mirrored_shape_groups() if symmetric else np.arange(MODEL.n_shape)
+    groups, (lower, upper) = narrow_shape_family(MODEL, base)
+    per_part, base_part = groups.reshape(-1, 4), base.reshape(-1, 4)
+    assert np.array_equal(np.unique(groups), np.arange(groups.max() + 1))  # numbered 0..G-1
+    assert np.array_equal(per_part[:, 2], per_part[:, 1])
+    # nothing else merged: lengths, widths and tapers keep the base's partition
+    for k in (0, 1, 3):
+        same = base_part[:, k][:, None] == base_part[:, k][None, :]
+        assert np.array_equal(per_part[:, k][:, None] == per_part[:, k][None, :], same)
+    assert len(set(per_part[:, 0]) & set(per_part[:, 1])) == 0 and len(set(per_part[:, 1]) & set(per_part[:, 3])) == 0
+    assert np.array_equal(lower.reshape(-1, 4)[:, 3], np.ones(len(per_part))) and np.array_equal(upper.reshape(-1, 4)[:, 3], np.ones(len(per_part)))
+    assert (lower.reshape(-1, 4)[:, :3] == 0.5).all() and (upper.reshape(-1, 4)[:, :3] == 2.0).all()
 
 
 @pytest.mark.parametrize("seed", [6, 8])
@@ -161,4 +180,4 @@ def test_the_first_frame_search_finds_the_capsule_figure() -> None:
     names = MODEL.part_names
     for part in ("forearm", "hand", "shin", "foot"):
         i, j = names.index(f"l_{part}"), names.index(f"r_{part}")
-        assert np.array_equal(state.shape[2 * i : 2 * i + 2], state.shape[2 * j : 2 * j + 2])
+        assert np.array_equal(state.shape[4 * i : 4 * i + 4], state.shape[4 * j : 4 * j + 4])

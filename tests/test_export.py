@@ -194,12 +194,15 @@ def _body_fit(out: Path, frames: list[int], seed: int = 0) -> tuple[BodyModel, n
     motion = rng.uniform(model.lower, model.upper, (len(frames), model.n_motion)) * 0.7
     motion[:, :3] = rng.normal(size=(len(frames), 3))
     motion[:, 3:6] = rng.uniform(-3, 3, (len(frames), 3)) * [1, 0.4, 1]
-    shape = rng.uniform(0.9, 1.1, model.n_shape)
+    # A record as written before the depth and taper coefficients ((length, width) per
+    # part): read back as depth = width, taper 1.
+    pairs = rng.uniform(0.9, 1.1, 2 * len(model.part_names))
+    shape = model.as_shape(pairs)
     record = {
         "frames": frames,
         "parts": model.part_names,
         "motion_names": model.motion_names,
-        "shape": {p: {"length": shape[2 * i], "width": shape[2 * i + 1]} for i, p in enumerate(model.part_names)},
+        "shape": {p: {"length": pairs[2 * i], "width": pairs[2 * i + 1]} for i, p in enumerate(model.part_names)},
         "motion": motion.tolist(),
         "R_body_to_world": Z_UP_TO_WORLD.tolist(),
     }

@@ -197,9 +197,18 @@ BODY_RAY_STATIONARY_ATOL = 1e-7
 # Recovery of a random pose from skin points + silhouettes (the issue's figures).
 BODY_ANGLE_RMS_DEG = 1.0
 BODY_SHAPE_RTOL = 0.01
-# ... with 1 cm point noise and 10% outliers.
+# ... with 1 cm point noise and 10% outliers. The shape: max relative error over all
+# coefficients, fitted in the generator's own family (depth tied to width, taper held at
+# 1: measured 0.022 / 0.019 / 0.015, seeds 1-3, branch body5's exact holding).
 BODY_NOISY_ANGLE_RMS_DEG = 3.0
 BODY_NOISY_SHAPE_RTOL = 0.03
+# ... and with all four coefficients per part free: measured 0.057 / 0.038 / 0.101 (seeds
+# 1-3; mean per coefficient 0.7-2.2%): one noisy frame pins 64 coefficients less well than
+# the generator's 32 (benches/README.md, branch body4).
+BODY_NOISY_SHAPE_4P_RTOL = 0.12
+# One-sided stereo's width inflation and its correction by silhouettes: measured against
+# the 0.03 bound below before the depth and taper coefficients.
+BODY_ONE_SIDED_WIDTH_RTOL = 0.03
 # The papers' experiment: one-sided stereo alone inflates the widths by more than this;
 # with silhouettes the widths come back within BODY_NOISY_SHAPE_RTOL.
 BODY_STEREO_INFLATION_MIN = 0.03
@@ -229,6 +238,10 @@ FIT_2D_AREA_RTOL = 0.05
 # head and pelvis coefficients within 3%. The arms (shoulder twist 80 degrees off, widths
 # 15-30%) and the root tilt against the hips' side swing (6 degrees) are not determined
 # by these silhouettes and are not asserted (benches/README.md, "Body fit on synth").
+# The tracker fits silhouettes alone in the narrow family (depth tied to width, taper 1):
+# measured legs 0.82 degrees, heading 0.18 degrees, lengths and widths within 0.032 (the
+# pelvis's length). With all four coefficients free (branch body4): 3.25 degrees, 1.38
+# degrees, 0.077.
 BODY_SYNTH_LEG_ANGLE_DEG = 3.0
 BODY_SYNTH_ROOT_M = 0.015
 BODY_SYNTH_HEADING_DEG = 1.0

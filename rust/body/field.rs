@@ -2,12 +2,17 @@
 //! Hessian in x, and the derivative with respect to every state parameter (SPEC 6).
 //!
 //! Ball i of part b: `y = R_b^T (x - o_b)` in the part frame, `q = (y - c ∘ s) / (r ∘ s)`
-//! with `s = (w, w, l)`, `d = |q|^2`.
+//! with `s = (w t_i, d t_i, l)` (the part's width, depth and length coefficients, and the
+//! ball's section `t_i = 1 + (τ - 1) k_i` from the part's taper τ), `d = |q|^2`.
 
 use nalgebra::{Matrix3, Vector3};
 
 use super::fastexp::exp_neg;
-use super::skeleton::{Pose, Skeleton};
+use super::skeleton::{Pose, Skeleton, DEPTH, LENGTH, SHAPE_PER_PART, TAPER, WIDTH};
+
+/// Entries of a part's compact derivative ([`Field::part_derivatives_over`]): moment (3),
+/// force (3), then the derivatives by the part's own length, width, depth and taper.
+pub const PART_TERMS: usize = 6 + SHAPE_PER_PART;
 
 /// Beyond `|q| = BOUND` a ball contributes less than `exp(-2 BOUND^2)` (1.4e-10 at 3.4):
 /// used to cull balls off a ray and, with [`Cutoff`], to drop negligible Jacobian terms.
@@ -43,8 +48,11 @@ pub struct PlacedBall {
     pub centre: Vector3<f64>,
     /// Unscaled radii.
     pub radii: Vector3<f64>,
-    /// Scale `(w, w, l)` of the part.
+    /// Scale `(w t, d t, l)` of the ball.
     pub scale: Vector3<f64>,
+    /// `∂s/∂w = t`, `∂s/∂d = t`, `∂s/∂τ = (w k, d k, 0)`: the first entry is `t`, the
+    /// other two `w k` and `d k`.
+    pub shape_rates: Vector3<f64>,
     /// World centre of the scaled ellipsoid.
     pub world_centre: Vector3<f64>,
     /// Radius of the sphere outside which `|q| > BOUND`.
@@ -75,6 +83,18 @@ fn shape_slope(ball: &PlacedBall, q: &Vector3<f64>) -> Vector3<f64> {
     (ball.centre + q.component_mul(&ball.radii)).component_mul(&ball.inv_radii)
 }
 
+/// `∂f/∂(l, w, d, τ)` of one ball's term `f = exp(-2 d)` from `dd = ∂d/∂s` (per scaled axis).
+#[inline]
+fn shape_terms(ball: &PlacedBall, f: f64, dd: &Vector3<f64>) -> [f64; SHAPE_PER_PART] {
+    let r = &ball.shape_rates;
+    let mut out = [0.0; SHAPE_PER_PART];
+    out[LENGTH] = -2.0 * f * dd.z;
+    out[WIDTH] = -2.0 * f * dd.x * r.x;
+    out[DEPTH] = -2.0 * f * dd.y * r.x;
+    out[TAPER] = -2.0 * f * (dd.x * r.y + dd.y * r.z);
+    out
+}
+
 /// The field of one model at one state.
 #[derive(Debug, Clone)]
 pub struct Field<'a> {
@@ -92,9 +112,11 @@ impl<'a> Field<'a> {
         let balls = skeleton
             .balls
             .iter()
-            .map(|ball| {
-                let (w, l) = pose.coefficients[ball.part];
-                let scale = Vector3::new(w, w, l);
+            .enumerate()
+            .map(|(i, ball)| {
+                let (part, k) = (pose.coefficients[ball.part], skeleton.taper_weight[i]);
+                let t = 1.0 + (pose.taper[ball.part] - 1.0) * k;
+                let scale = Vector3::new(part.x * t, part.y * t, part.z);
                 let centre = Vector3::from(ball.centre);
                 let radii = Vector3::from(ball.radii);
                 let rotation = pose.rotation[ball.part];
@@ -107,6 +129,7 @@ impl<'a> Field<'a> {
                     centre,
                     radii,
                     scale,
+                    shape_rates: Vector3::new(t, part.x * k, part.y * k),
                     world_centre: origin + rotation * centre.component_mul(&scale),
                     bound_radius: BOUND * radii.component_mul(&scale).max(),
                     inv_radii,
@@ -184,7 +207,7 @@ impl<'a> Field<'a> {
     /// `n_motion + n_shape`, motion first), which is zeroed first.
     ///
     /// Moving a part by a twist with velocity `v(x)` changes its field at a fixed point by
-    /// `-∇F_b · v`; a length or width coefficient also moves every descendant's frame
+    /// `-∇F_b · v`; a length, width or depth coefficient also moves every descendant's frame
     /// (offsets scale) and reshapes the part's own balls.
     pub fn state_derivative(&self, x: &Vector3<f64>, cutoff: Cutoff, row: &mut [f64]) -> f64 {
         self.state_derivative_over(x, None, cutoff, row)
@@ -226,8 +249,11 @@ impl<'a> Field<'a> {
             // ∂q_a/∂s_a = -y_a / (r_a s_a²) with r_a unscaled; ∂f/∂s = -2 f Σ 2 q_a ∂q_a/∂s.
             let dq = -shape_slope(ball, &t.q);
             let dd = 2.0 * t.q.component_mul(&dq);
-            row[n_motion + 2 * b] += -2.0 * t.value * dd.z;
-            row[n_motion + 2 * b + 1] += -2.0 * t.value * (dd.x + dd.y);
+            let at = n_motion + SHAPE_PER_PART * b;
+            let own = shape_terms(ball, t.value, &dd);
+            for (c, v) in own.iter().enumerate() {
+                row[at + c] += v;
+            }
         };
         match subset {
             None => {
@@ -248,17 +274,17 @@ impl<'a> Field<'a> {
     }
 
     /// `F(x)` and, for each part with a ball in the sum (ascending parts), its compact
-    /// derivative `z_b = ((x - reference) × ∇F_b, ∇F_b, ∂F/∂l_b, ∂F/∂w_b)` (balls cut
+    /// derivative `z_b = ((x - reference) × ∇F_b, ∇F_b, ∂F/∂l_b, ∂F/∂w_b, ∂F/∂d_b)` (balls cut
     /// as in [`Field::state_derivative_over`]). The Jacobian row is `Σ_b E_b^T z_b` with
     /// [`super::normal::PartMap`]'s `E_b`, which depends on the pose only: the normal
-    /// matrix can then be accumulated from 8-vectors per part instead of full rows.
+    /// matrix can then be accumulated from 9-vectors per part instead of full rows.
     pub fn part_derivatives_over(
         &self,
         x: &Vector3<f64>,
         subset: Option<&[u16]>,
         cutoff: Cutoff,
         reference: &Vector3<f64>,
-        out: &mut Vec<(usize, [f64; 8])>,
+        out: &mut Vec<(usize, [f64; PART_TERMS])>,
     ) -> f64 {
         out.clear();
         let mut f = 0.0;
@@ -270,7 +296,7 @@ impl<'a> Field<'a> {
             }
             // Balls are sorted by part, so one part's balls form one run.
             if out.last().map(|e| e.0) != Some(ball.part) {
-                out.push((ball.part, [0.0; 8]));
+                out.push((ball.part, [0.0; PART_TERMS]));
             }
             let z = &mut out.last_mut().expect("pushed above").1;
             let grad = ball.rotation * (-4.0 * t.value * t.q.component_mul(&ball.inv_radii));
@@ -279,8 +305,8 @@ impl<'a> Field<'a> {
             z[3] += grad.x;
             z[4] += grad.y;
             z[5] += grad.z;
-            z[6] += -2.0 * t.value * dd.z;
-            z[7] += -2.0 * t.value * (dd.x + dd.y);
+            let own = shape_terms(ball, t.value, &dd);
+            z[6..].iter_mut().zip(own).for_each(|(a, v)| *a += v);
         };
         match subset {
             None => self.balls.iter().for_each(&mut visit),

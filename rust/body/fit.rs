@@ -41,7 +41,7 @@ pub struct FitOptions {
 pub struct FitResult {
     /// Motion per frame, `frames * n_motion`.
     pub motion: Vec<f64>,
-    /// Shape, `2 P`.
+    /// Shape, `4 P`.
     pub shape: Vec<f64>,
     /// Solver outcome.
     pub report: LmReport,
@@ -104,7 +104,7 @@ impl<'a> BodyProblem<'a> {
         }
     }
 
-    /// Shape coefficients the field is built from (`2 P`).
+    /// Shape coefficients the field is built from (`4 P`).
     fn s_full(&self) -> usize {
         if self.fixed_shape.is_some() {
             0
@@ -146,6 +146,12 @@ impl<'a> BodyProblem<'a> {
             Residual::Ray(i) => self.ray_start.get(i),
             _ => None,
         }
+    }
+
+    /// Whether shape unknown `g` is held (its bounds meet).
+    fn held(&self, g: usize) -> bool {
+        let (lo, hi) = self.obs.shape_bounds(g);
+        lo >= hi
     }
 
     fn kept(&self, r: &Residual) -> bool {
@@ -239,6 +245,28 @@ impl ArrowProblem for BodyProblem<'_> {
                 normal.g[fm + group(k)] += blocks.g[m + k];
             }
             cost += blocks.cost;
+        }
+        // A shape unknown whose bounds meet is held exactly: its row and column leave the
+        // normal equations (unit diagonal, zero gradient), so its step is 0 and the others'
+        // steps are solved without it. Clamping it after a free step instead (what `project`
+        // alone did) moved every other coefficient by a step computed as if it had moved
+        // too, and the fit converged worse (family `width` held so: 15.0 mm against 12.2 mm
+        // tied, benches/README.md, branch body4).
+        if reduced > 0 {
+            let fm = self.obs.frames * m;
+            for g in (0..reduced).filter(|&g| self.held(g)) {
+                for f in 0..self.obs.frames {
+                    for i in 0..m {
+                        normal.b[f * m * reduced + i * reduced + g] = 0.0;
+                    }
+                }
+                for l in 0..reduced {
+                    normal.c[g * reduced + l] = 0.0;
+                    normal.c[l * reduced + g] = 0.0;
+                }
+                normal.c[g * reduced + g] = 1.0;
+                normal.g[fm + g] = 0.0;
+            }
         }
         Ok(cost)
     }

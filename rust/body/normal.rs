@@ -2,17 +2,25 @@
 //!
 //! A point's or ray's Jacobian row is `Σ_b E_b^T z_b` over the few parts b with a ball near
 //! it: `z_b` ([`Field::part_derivatives_over`]) holds the moment and force of the part's
-//! field gradient and its own two shape derivatives, and `E_b` (8 x columns, [`PartMap`])
+//! field gradient and its own three shape derivatives, and `E_b` (9 x columns, [`PartMap`])
 //! maps them onto the parameters that move or reshape part b (the screws of its joints,
 //! the offset derivatives of its ancestors' coefficients). `E_b` depends on the pose only,
-//! so `J^T J = Σ_{b,c} E_b^T (Σ_rows z_b z_c^T) E_c`: each row adds 8 x 8 outer products
+//! so `J^T J = Σ_{b,c} E_b^T (Σ_rows z_b z_c^T) E_c`: each row adds 9 x 9 outer products
 //! for its pairs of parts, and the 60-odd-column row is never formed. The joint residuals
 //! (a handful) take the dense path. `benches/README.md` has the measurement.
 
 use nalgebra::Vector3;
 
-use super::field::Field;
-use super::skeleton::Twist;
+use super::field::{Field, PART_TERMS as Z};
+use super::skeleton::{Twist, SHAPE_PER_PART};
+
+/// `E_b`'s entry for a motion: moment coefficients `m`, force coefficients `f`, no shape.
+fn screw(m: &Vector3<f64>, f: &Vector3<f64>) -> [f64; Z] {
+    let mut e = [0.0; Z];
+    e[..3].copy_from_slice(m.as_slice());
+    e[3..6].copy_from_slice(f.as_slice());
+    e
+}
 
 /// Parts whose compact derivative is smaller than this share of the largest one at the
 /// same observation enter the gradient but not `J^T J`. The gradient, hence the fixed point
@@ -22,15 +30,15 @@ use super::skeleton::Twist;
 pub const HESSIAN_SHARE: f64 = 1e-3;
 
 /// Compact per-part derivatives of one observation: `(part, z_b)`, parts ascending.
-pub type PartTerms = Vec<(usize, [f64; 8])>;
+pub type PartTerms = Vec<(usize, [f64; Z])>;
 
-/// The maps `E_b` of one frame's pose: per part, its columns and their 8-vectors.
+/// The maps `E_b` of one frame's pose: per part, its columns and their 9-vectors.
 #[derive(Debug, Clone)]
 pub struct PartMap {
     /// The point moments are taken about (the root part's origin: short lever arms).
     pub reference: Vector3<f64>,
     /// Per part, `(column, e)` with column `< m + s`, ascending.
-    columns: Vec<Vec<(usize, [f64; 8])>>,
+    columns: Vec<Vec<(usize, [f64; Z])>>,
 }
 
 impl PartMap {
@@ -43,32 +51,32 @@ impl PartMap {
         let reference = pose.origin[0];
         let columns = (0..skeleton.n_parts())
             .map(|b| {
-                let mut cols: Vec<(usize, [f64; 8])> = Vec::new();
+                let mut cols: Vec<(usize, [f64; Z])> = Vec::new();
                 // ∇F_b · (ω × (x - p)) = ω · ((x - c) × ∇F_b) + ∇F_b · ((p - c) × ω), and
                 // a twist moves the field at a fixed point by -∇F_b · v.
                 for &k in &skeleton.motion_of_part[b] {
                     let e = match pose.twists[k] {
-                        Twist::Translation(t) => [0.0, 0.0, 0.0, -t.x, -t.y, -t.z, 0.0, 0.0],
+                        Twist::Translation(t) => screw(&Vector3::zeros(), &-t),
                         Twist::Rotation { axis, pivot } => {
                             let v = (pivot - reference).cross(&axis);
-                            [-axis.x, -axis.y, -axis.z, -v.x, -v.y, -v.z, 0.0, 0.0]
+                            screw(&-axis, &-v)
                         }
                     };
                     cols.push((k, e));
                 }
                 for (j, u) in &pose.offset_derivatives[b] {
-                    cols.push((n_motion + j, [0.0, 0.0, 0.0, -u.x, -u.y, -u.z, 0.0, 0.0]));
+                    cols.push((n_motion + j, screw(&Vector3::zeros(), &-u)));
                 }
-                let mut length = [0.0; 8];
-                length[6] = 1.0;
-                let mut width = [0.0; 8];
-                width[7] = 1.0;
-                cols.push((n_motion + 2 * b, length));
-                cols.push((n_motion + 2 * b + 1, width));
+                // The part's own coefficients: the last entries of z_b, in shape order.
+                for c in 0..SHAPE_PER_PART {
+                    let mut own = [0.0; Z];
+                    own[6 + c] = 1.0;
+                    cols.push((n_motion + SHAPE_PER_PART * b + c, own));
+                }
                 cols.retain(|c| c.0 < keep);
                 cols.sort_by_key(|c| c.0);
                 // Merge repeated columns (none in a well-formed model, but cheap to allow).
-                let mut merged: Vec<(usize, [f64; 8])> = Vec::with_capacity(cols.len());
+                let mut merged: Vec<(usize, [f64; Z])> = Vec::with_capacity(cols.len());
                 for (k, e) in cols {
                     match merged.last_mut() {
                         Some(last) if last.0 == k => {
@@ -104,11 +112,11 @@ pub struct Blocks {
     nz: Vec<usize>,
     parts: usize,
     share: f64,
-    /// `Σ z_b z_c^T` for parts `b <= c`, 8 x 8 row-major at `(b P + c) 64`.
+    /// `Σ z_b z_c^T` for parts `b <= c`, Z x Z row-major at `(b P + c) Z²`.
     pair: Vec<f64>,
     /// Whether a pair block has been touched.
     pair_used: Vec<bool>,
-    /// `Σ z_b r`, 8 per part.
+    /// `Σ z_b r`, Z per part.
     part_g: Vec<f64>,
 }
 
@@ -129,9 +137,9 @@ impl Blocks {
             nz: Vec::with_capacity(width),
             parts,
             share,
-            pair: vec![0.0; 64 * parts * parts],
+            pair: vec![0.0; Z * Z * parts * parts],
             pair_used: vec![false; parts * parts],
-            part_g: vec![0.0; 8 * parts],
+            part_g: vec![0.0; Z * parts],
         }
     }
 
@@ -163,19 +171,19 @@ impl Blocks {
         let p = self.parts;
         let mut largest = 0.0f64;
         for (b, z) in &self.terms {
-            let g = &mut self.part_g[8 * b..8 * b + 8];
+            let g = &mut self.part_g[Z * b..Z * b + Z];
             g.iter_mut().zip(z).for_each(|(u, v)| *u += v * r);
-            largest = largest.max(dot8(z, z));
+            largest = largest.max(dot(z, z));
         }
         let floor = self.share * self.share * largest;
         self.strong.clear();
         self.strong
-            .extend(self.terms.iter().filter(|(_, z)| dot8(z, z) >= floor));
+            .extend(self.terms.iter().filter(|(_, z)| dot(z, z) >= floor));
         for (i, (b, z)) in self.strong.iter().enumerate() {
             for (c, y) in &self.strong[i..] {
                 self.pair_used[b * p + c] = true;
-                let block = &mut self.pair[64 * (b * p + c)..64 * (b * p + c + 1)];
-                for (out, zi) in block.chunks_exact_mut(8).zip(z) {
+                let block = &mut self.pair[Z * Z * (b * p + c)..Z * Z * (b * p + c + 1)];
+                for (out, zi) in block.chunks_exact_mut(Z).zip(z) {
                     out.iter_mut().zip(y).for_each(|(u, v)| *u += zi * v);
                 }
             }
@@ -223,20 +231,20 @@ impl Blocks {
         let mut h = vec![0.0; n * n];
         for b in 0..p {
             for (k, e) in &map.columns[b] {
-                self.g[*k] += dot8(e, &self.part_g[8 * b..8 * b + 8]);
+                self.g[*k] += dot(e, &self.part_g[Z * b..Z * b + Z]);
             }
             for c in b..p {
                 if !self.pair_used[b * p + c] {
                     continue;
                 }
-                let block = &self.pair[64 * (b * p + c)..64 * (b * p + c + 1)];
+                let block = &self.pair[Z * Z * (b * p + c)..Z * Z * (b * p + c + 1)];
                 for (kc, ec) in &map.columns[c] {
-                    let mut t = [0.0; 8];
-                    for (ti, row) in t.iter_mut().zip(block.chunks_exact(8)) {
-                        *ti = dot8(row, ec);
+                    let mut t = [0.0; Z];
+                    for (ti, row) in t.iter_mut().zip(block.chunks_exact(Z)) {
+                        *ti = dot(row, ec);
                     }
                     for (kb, eb) in &map.columns[b] {
-                        let v = dot8(eb, &t);
+                        let v = dot(eb, &t);
                         h[kb * n + kc] += v;
                         if b != c {
                             h[kc * n + kb] += v;
@@ -269,6 +277,6 @@ impl Blocks {
 }
 
 #[inline]
-fn dot8(a: &[f64], b: &[f64]) -> f64 {
+fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }

@@ -61,12 +61,12 @@ pub struct Observations {
     /// skin (only `F* > T` is penalised). Outline rays alone let a limb hide inside the
     /// silhouette of the torso; the one-sided rays say where the body is and is not.
     pub ray_side: Vec<i8>,
-    /// Shape unknown of each shape coefficient (`2 P`, groups numbered `0..G` with none
+    /// Shape unknown of each shape coefficient (`4 P`, groups numbered `0..G` with none
     /// empty); empty: each coefficient its own. Coefficients of one group are tied (e.g. a
     /// left and a right limb: a person's sides have the same proportions, and a fit free
     /// to stretch one shin and not the other explains a mis-posed leg by its shape).
     pub shape_group: Vec<usize>,
-    /// Lower and upper bound of each shape coefficient (`2 P`); empty: [`SHAPE_RANGE`].
+    /// Lower and upper bound of each shape coefficient (`4 P`); empty: [`SHAPE_RANGE`].
     pub shape_lower: Vec<f64>,
     /// See `shape_lower`.
     pub shape_upper: Vec<f64>,

@@ -1,16 +1,33 @@
 //! The skeleton: a tree of body parts joined by chains of single-DoF revolute joints, a
-//! 6-DoF root, per-part length and width coefficients, and forward kinematics with the
+//! 6-DoF root, per-part length, width, depth and taper coefficients, and forward kinematics with the
 //! first derivatives of every part frame with respect to every state parameter.
 
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 use crate::{Error, Result};
 
+/// Shape coefficients per part, in this order: [`LENGTH`] scales the part frame's z
+/// (along the bone), [`WIDTH`] its x, [`DEPTH`] its y, [`TAPER`] the cross-section of
+/// each ball by `t_i = 1 + (τ - 1) k_i` with `k_i` the ball's place along the part
+/// ([`Skeleton::taper_weight`]). Width and depth apart let an elliptic section become
+/// round (or flatter); the taper lets a tapered limb become a cylinder (or taper more),
+/// and a part's small end (the neck ball under the head) shrink while its big end grows.
+/// All four are 1 for the part as described.
+pub const SHAPE_PER_PART: usize = 4;
+/// Offset of the length coefficient in a part's shape triple.
+pub const LENGTH: usize = 0;
+/// Offset of the width coefficient (part x).
+pub const WIDTH: usize = 1;
+/// Offset of the depth coefficient (part y).
+pub const DEPTH: usize = 2;
+/// Offset of the taper coefficient.
+pub const TAPER: usize = 3;
+
 /// One body part as the user describes it.
 ///
 /// The part's frame, at state `(shape, motion)`, is
 /// `F_b = F_parent · T(S_parent o) · Rest · Rot(a_1, θ_1) · Rot(a_2, θ_2) · …`
-/// where `S_parent = diag(w, w, l)` of the parent and each `Rot(a_k, θ) = R_k Rot_z(θ) R_k^T`
+/// where `S_parent = diag(w, d, l)` of the parent and each `Rot(a_k, θ) = R_k Rot_z(θ) R_k^T`
 /// (`R_k` maps `e_z` onto `a_k`): SPEC 6's chain of 1-DoF joints `D = Rot_z(θ) D_ini` with
 /// `D_ini` folded from `Rest`, the offset and the `R_k`. The root part's parent is the
 /// 6-DoF root frame `Trans(t) · Rot_z(α) · Rot_y(β) · Rot_x(γ)`.
@@ -32,9 +49,9 @@ pub struct PartSpec {
 pub struct Metaball {
     /// The part carrying the ball.
     pub part: usize,
-    /// Centre in the part frame at unit coefficients; scaled to `(w cx, w cy, l cz)`.
+    /// Centre in the part frame at unit coefficients; scaled to `(w cx, d cy, l cz)`.
     pub centre: [f64; 3],
-    /// Radii at unit coefficients; scaled to `(w lx, w ly, l lz)`.
+    /// Radii at unit coefficients; scaled to `(w lx, d ly, l lz)`.
     pub radii: [f64; 3],
 }
 
@@ -78,6 +95,10 @@ pub struct Skeleton {
     pub motion_of_part: Vec<Vec<usize>>,
     /// For each part, its ancestors and itself, root-most first.
     pub chain: Vec<Vec<usize>>,
+    /// Per ball (in `balls` order), `k_i = (c_z - mean) / (max - min)` over the centres'
+    /// z of its part's balls (0 for a part with one ball, or all at one height): where
+    /// the ball sits along the part, in [-1, 1], its part's balls spanning 1.
+    pub taper_weight: Vec<f64>,
 }
 
 /// Forward kinematics at one state: part frames and the twists of all motion parameters.
@@ -87,12 +108,14 @@ pub struct Pose {
     pub rotation: Vec<Matrix3<f64>>,
     /// World origin of each part frame (the joint position).
     pub origin: Vec<Vector3<f64>>,
-    /// Width and length coefficients of each part, `(w, l)`.
-    pub coefficients: Vec<(f64, f64)>,
+    /// Scale of each part frame's axes: `(w, d, l)` (width, depth, length coefficients).
+    pub coefficients: Vec<Vector3<f64>>,
+    /// The taper coefficient `τ` of each part.
+    pub taper: Vec<f64>,
     /// The twist of every motion parameter.
     pub twists: Vec<Twist>,
-    /// For each part b, the world translation of b's frame per unit change of the length
-    /// and width coefficients of its ancestors: `(shape index, vector)`.
+    /// For each part b, the world translation of b's frame per unit change of the length,
+    /// width and depth coefficients of its ancestors: `(shape index, vector)`.
     pub offset_derivatives: Vec<Vec<(usize, Vector3<f64>)>>,
 }
 
@@ -177,6 +200,24 @@ impl Skeleton {
         let mut balls = balls;
         // The field sums each part's balls in one run (see `Field::state_derivative`).
         balls.sort_by_key(|b| b.part);
+        let taper_weight = balls
+            .iter()
+            .map(|ball| {
+                let heights = balls
+                    .iter()
+                    .filter(|b| b.part == ball.part)
+                    .map(|b| b.centre[2]);
+                let (lo, hi, sum, n) = heights.fold(
+                    (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0.0),
+                    |(lo, hi, s, n), z| (lo.min(z), hi.max(z), s + z, n + 1.0),
+                );
+                if hi - lo > 1e-9 {
+                    (ball.centre[2] - sum / n) / (hi - lo)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         Ok(Self {
             parts,
             balls,
@@ -184,6 +225,7 @@ impl Skeleton {
             n_motion,
             motion_of_part,
             chain,
+            taper_weight,
         })
     }
 
@@ -192,31 +234,54 @@ impl Skeleton {
         self.parts.len()
     }
 
-    /// Shape parameters: `(length, width)` per part.
+    /// Shape parameters: `(length, width, depth, taper)` per part.
     pub fn n_shape(&self) -> usize {
-        2 * self.parts.len()
+        SHAPE_PER_PART * self.parts.len()
     }
 
-    /// Forward kinematics at `shape` (`2 P`: length, width per part) and `motion`
+    /// Forward kinematics at `shape` (`4 P`: length, width, depth, taper per part) and `motion`
     /// (`n_motion`: root translation, root angles z-y-x, joint angles in part order).
     ///
     /// # Errors
     /// [`Error::LengthMismatch`] for vectors of the wrong length, [`Error::NonFinite`] for
-    /// NaN or infinity, [`Error::BadModel`] for non-positive coefficients.
+    /// NaN or infinity, [`Error::BadModel`] for non-positive coefficients or a taper that
+    /// gives a ball a non-positive section.
     pub fn pose(&self, shape: &[f64], motion: &[f64]) -> Result<Pose> {
         check_vector("shape", shape, self.n_shape())?;
         check_vector("motion", motion, self.n_motion)?;
+        let k = SHAPE_PER_PART;
         if let Some(b) =
-            (0..self.n_parts()).find(|&b| shape[2 * b] <= 0.0 || shape[2 * b + 1] <= 0.0)
+            (0..self.n_parts()).find(|&b| shape[k * b..k * b + k].iter().any(|&v| v <= 0.0))
         {
             return Err(bad(format!(
-                "shape coefficients of part {b} must be positive, got length {} and width {}",
-                shape[2 * b],
-                shape[2 * b + 1]
+                "shape coefficients of part {b} must be positive, got length {}, width {}, depth {} and taper {}",
+                shape[k * b + LENGTH],
+                shape[k * b + WIDTH],
+                shape[k * b + DEPTH],
+                shape[k * b + TAPER]
             )));
         }
-        let coefficients: Vec<(f64, f64)> = (0..self.n_parts())
-            .map(|b| (shape[2 * b + 1], shape[2 * b]))
+        if let Some((ball, t)) = self
+            .balls
+            .iter()
+            .zip(&self.taper_weight)
+            .find(|(ball, &w)| 1.0 + (shape[k * ball.part + TAPER] - 1.0) * w <= 0.0)
+        {
+            return Err(bad(format!(
+                "the taper {} of part {} leaves a ball no section (its taper weight is {t})",
+                shape[k * ball.part + TAPER],
+                ball.part
+            )));
+        }
+        let taper: Vec<f64> = (0..self.n_parts()).map(|b| shape[k * b + TAPER]).collect();
+        let coefficients: Vec<Vector3<f64>> = (0..self.n_parts())
+            .map(|b| {
+                Vector3::new(
+                    shape[k * b + WIDTH],
+                    shape[k * b + DEPTH],
+                    shape[k * b + LENGTH],
+                )
+            })
             .collect();
         let mut twists = vec![Twist::Translation(Vector3::zeros()); self.n_motion];
         let t = Vector3::new(motion[0], motion[1], motion[2]);
@@ -249,12 +314,12 @@ impl Skeleton {
             let (parent_rotation, joint, mut derivs) = match part.parent {
                 None => (root, t + root * o, vec![]),
                 Some(p) => {
-                    let (w, l) = coefficients[p];
                     let r = rotation[p];
-                    let scaled = Vector3::new(w * o.x, w * o.y, l * o.z);
+                    let scaled = coefficients[p].component_mul(&o);
                     let mut d: Vec<(usize, Vector3<f64>)> = offset_derivatives[p].clone();
-                    d.push((2 * p, r * Vector3::new(0.0, 0.0, o.z)));
-                    d.push((2 * p + 1, r * Vector3::new(o.x, o.y, 0.0)));
+                    d.push((k * p + LENGTH, r * Vector3::new(0.0, 0.0, o.z)));
+                    d.push((k * p + WIDTH, r * Vector3::new(o.x, 0.0, 0.0)));
+                    d.push((k * p + DEPTH, r * Vector3::new(0.0, o.y, 0.0)));
                     (r, origin[p] + r * scaled, d)
                 }
             };
@@ -278,6 +343,7 @@ impl Skeleton {
             rotation,
             origin,
             coefficients,
+            taper,
             twists,
             offset_derivatives,
         })

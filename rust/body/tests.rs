@@ -32,11 +32,21 @@ fn arm() -> Skeleton {
             axes: vec![[1.0, 0.0, 0.0]],
         },
     ];
+    // Two balls per part, the second thinner: the taper has something to scale.
     let balls = (0..3)
-        .map(|part| Metaball {
-            part,
-            centre: [0.0, 0.0, 0.1],
-            radii: [0.08, 0.07, 0.15],
+        .flat_map(|part| {
+            [
+                Metaball {
+                    part,
+                    centre: [0.01, -0.015, 0.1],
+                    radii: [0.08, 0.07, 0.15],
+                },
+                Metaball {
+                    part,
+                    centre: [0.0, 0.01, 0.22],
+                    radii: [0.06, 0.05, 0.1],
+                },
+            ]
         })
         .collect();
     Skeleton::new(parts, balls).unwrap()
@@ -45,7 +55,9 @@ fn arm() -> Skeleton {
 #[test]
 fn joint_residual_rows_match_central_differences() {
     let skeleton = arm();
-    let shape = [1.1, 0.9, 0.95, 1.05, 1.2, 0.8];
+    let shape = [
+        1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1,
+    ];
     let motion = [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1];
     let obs = Observations {
         frames: 1,
@@ -86,7 +98,7 @@ fn joint_residual_rows_match_central_differences() {
 #[test]
 fn zero_angles_give_the_rest_frames() {
     let skeleton = arm();
-    let pose = skeleton.pose(&[1.0; 6], &[0.0; 10]).unwrap();
+    let pose = skeleton.pose(&[1.0; 12], &[0.0; 10]).unwrap();
     let expected = Vector3::new(0.2, 0.05, 0.4) + pose.rotation[1] * Vector3::new(0.01, -0.02, 0.3);
     assert!((pose.origin[2] - expected).norm() < 1e-15);
     assert!((pose.rotation[1][(0, 2)] - 1.0).abs() < 1e-15);
@@ -115,17 +127,61 @@ fn bad_models_and_states_are_errors_not_panics() {
     ));
     let skeleton = arm();
     assert!(matches!(
-        skeleton.pose(&[1.0; 5], &[0.0; 10]),
+        skeleton.pose(&[1.0; 11], &[0.0; 10]),
         Err(Error::WrongLength { .. })
     ));
     assert!(matches!(
-        skeleton.pose(&[1.0; 6], &[f64::NAN; 10]),
+        skeleton.pose(&[1.0; 12], &[f64::NAN; 10]),
         Err(Error::NonFinite { .. })
     ));
     assert!(matches!(
-        skeleton.pose(&[0.0; 6], &[0.0; 10]),
+        skeleton.pose(&[0.0; 12], &[0.0; 10]),
         Err(Error::BadModel { .. })
     ));
+    // A zero depth alone is refused too.
+    assert!(matches!(
+        skeleton.pose(
+            &[1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            &[0.0; 10]
+        ),
+        Err(Error::BadModel { .. })
+    ));
+    // A taper that would turn a ball's section inside out (weight -0.5: t = 1 - (τ - 1) / 2).
+    assert!(matches!(
+        skeleton.pose(
+            &[1.0, 1.0, 1.0, 3.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0],
+            &[0.0; 10]
+        ),
+        Err(Error::BadModel { .. })
+    ));
+}
+
+/// Length, width and depth scale the part frame's z, x and y apart: the child's joint
+/// (the parent's offset) and the balls' centres and radii move on that axis only.
+#[test]
+fn length_width_and_depth_scale_one_axis_each() {
+    let skeleton = arm();
+    let motion = [0.0; 10];
+    let unit = skeleton.pose(&[1.0; 12], &motion).unwrap();
+    let local = |pose: &super::skeleton::Pose| {
+        pose.rotation[1].transpose() * (pose.origin[2] - pose.origin[1])
+    };
+    for (c, axis) in [(0usize, 2usize), (1, 0), (2, 1)] {
+        let mut shape = [1.0; 12];
+        shape[4 + c] = 1.5;
+        let pose = skeleton.pose(&shape, &motion).unwrap();
+        let (a, b) = (local(&unit), local(&pose));
+        for k in 0..3 {
+            let expected = if k == axis { 1.5 * a[k] } else { a[k] };
+            assert!((b[k] - expected).abs() < 1e-14, "coefficient {c}, axis {k}");
+        }
+        let field = Field::new(&skeleton, pose);
+        let ball = field.balls.iter().find(|b| b.part == 1).unwrap();
+        let scale = ball.scale;
+        for k in 0..3 {
+            assert_eq!(scale[k], if k == axis { 1.5 } else { 1.0 });
+        }
+    }
 }
 
 /// The normal blocks of the fit (accumulated per pair of parts through `E_b`) equal
@@ -137,7 +193,9 @@ fn normal_blocks_match_dense_rows() {
     use crate::lm::{ArrowNormal, ArrowProblem, LmOptions};
 
     let skeleton = arm();
-    let shape = [1.1, 0.9, 0.95, 1.05, 1.2, 0.8];
+    let shape = [
+        1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1,
+    ];
     let motions = [
         [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1],
         [0.0, 0.1, 1.0, -0.2, 0.1, 0.2, -0.4, 0.6, 0.1, -0.5],
@@ -255,7 +313,7 @@ fn normal_blocks_match_dense_rows() {
 #[test]
 fn one_sided_rays_add_only_when_violated() {
     let skeleton = arm();
-    let shape = [1.0; 6];
+    let shape = [1.0; 12];
     let motion = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, -0.2, 0.1, -0.4];
     let field = Field::new(&skeleton, skeleton.pose(&shape, &motion).unwrap());
     // One ray through the root ball off its centre (it meets the skin), one far beside it.

@@ -140,6 +140,12 @@ impl BodySkeleton {
         self.skeleton.n_shape()
     }
 
+    /// `(M,)`: each ball's place along its part, which the part's taper scales its section by.
+    #[getter]
+    fn taper_weight<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.skeleton.taper_weight.clone().into_pyarray(py)
+    }
+
     /// `(rotations (P, 3, 3), origins (P, 3))` of the part frames.
     fn pose<'py>(
         &self,

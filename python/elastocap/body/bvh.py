@@ -70,7 +70,7 @@ def write_bvh(path: str | Path, model: BodyModel, shape: Any, states: Sequence[B
     path : str or Path
         The ``.bvh`` file (written atomically).
     model : BodyModel
-    shape : (2 P,) array_like
+    shape : (4 P,) array_like
         The take's one shape (BVH bones have fixed lengths); per-frame states' own shapes
         are ignored.
     states : sequence of BodyState, or (F, n_motion) array_like
@@ -99,7 +99,7 @@ def write_bvh(path: str | Path, model: BodyModel, shape: Any, states: Sequence[B
         raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
     frame_time = 1.0 / as_positive("fps", fps)
     unit = as_positive("scale", scale)
-    shape_array = as_float_array("shape", shape)
+    shape_array = model.as_shape(shape)
     if isinstance(states, np.ndarray) or (isinstance(states, Sequence) and states and not isinstance(states[0], BodyState)):
         motion = as_float_array("states", states)
         if motion.ndim != 2:

@@ -75,7 +75,7 @@ class BodyFit:
     ----------
     states : list of BodyState
         One per frame, sharing ``shape``.
-    shape : (2 P,) float64
+    shape : (4 P,) float64
     motion : (F, n_motion) float64
     status : str
         "cost converged", "step converged", "gradient converged", "maximum iterations" or
@@ -195,7 +195,7 @@ def fit_body(
         One per frame.
     cameras : sequence of Camera, optional, keyword-only
         The cameras of the frames' ``masks``.
-    shape : (2 P,) array_like, optional, keyword-only
+    shape : (4 P,) array_like, optional, keyword-only
         A known shape, held fixed; default: estimate it, starting from ``init``'s shape.
     init : BodyState or sequence of BodyState, optional, keyword-only
         Starting state(s); default ``model.rest_state()``. The fit is local: start within
@@ -239,14 +239,16 @@ def fit_body(
     track_outlier : float, keyword-only
         A track farther than this (metres) from where the fit without tracks puts its
         point is left out of that frame.
-    shape_groups : (2 P,) array_like of int, optional, keyword-only
+    shape_groups : (4 P,) array_like of int, optional, keyword-only
         Ties shape coefficients: those with the same number (groups ``0 .. G - 1``, none
         empty) are fitted as one, from the mean of their starting values; e.g.
         :meth:`BodyModel.mirrored_shape_groups` gives a left and a right limb one shape.
         Default: each coefficient free.
-    shape_bounds : ((2 P,), (2 P,)) array_like, optional, keyword-only
+    shape_bounds : ((4 P,), (4 P,)) array_like, optional, keyword-only
         Lower and upper bound of each shape coefficient (default 0.5 and 2 for all); a
-        tied group keeps within the tightest of its members' bounds.
+        tied group keeps within the tightest of its members' bounds. A group whose bounds
+        meet is held exactly at that value (left out of the solve, not clamped after each
+        step; :func:`elastocap.body.track.narrow_shape_family` holds the tapers so).
 
     Returns
     -------

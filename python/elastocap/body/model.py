@@ -9,13 +9,17 @@ The description is a readable dictionary (saved as JSON)::
                 "balls": [{"center": [cx, cy, cz], "radii": [lx, ly, lz]}, ...]}, ...]}
 
 Parents come before their children. A part's frame is its parent's frame moved to
-``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, w, l)``),
+``offset`` (in the parent's frame, scaled by the parent's coefficients ``(w, d, l)``),
 turned by ``rest``, then by each joint in turn about its axis (given in the frame after the
 previous joints): SPEC 6's chain of single-DoF joints ``D = Rot_z(theta) D_ini``. Balls are
 axis-aligned ellipsoids in their part's frame; a part's length coefficient ``l`` scales
-their z (centre and radius) and its width coefficient ``w`` their x and y.
+their z (centre and radius), its width coefficient ``w`` their x and its depth coefficient
+``d`` their y (SPEC 6 has one width for x and y; apart, an elliptic section can become
+round), and its taper ``tau`` each ball's x and y by ``1 + (tau - 1) k`` with ``k`` the
+ball's place along the part (:attr:`BodyModel.taper_weight`: a cylinder from a tapered
+limb, a thinner neck under a bigger head).
 
-The state layout is defined once, in ``rust/body.rs``: ``shape`` holds ``(l, w)`` per part,
+The state layout is defined once, in ``rust/body/skeleton.rs``: ``shape`` holds ``(l, w, d, tau)`` per part,
 ``motion`` the root translation (3, metres), the root angles ``(alpha, beta, gamma)`` of
 ``Rot_z Rot_y Rot_x`` (radians) and the joint angles (radians) in part order.
 """
@@ -40,7 +44,12 @@ from elastocap._validate import as_count, as_float_array, as_points, as_positive
 from elastocap.body.human import default_human_description
 from elastocap.cameras.camera import Camera
 
-__all__ = ["SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
+__all__ = ["SHAPE_NAMES", "SKIN_LEVEL", "Z_UP_TO_WORLD", "BodyModel", "BodyState"]
+
+#: The shape coefficients of each part, in state order: length scales the part's z (along
+#: the bone), width its x, depth its y, taper the section of each ball by its place along
+#: the part. All 1 for the part as described.
+SHAPE_NAMES = ("length", "width", "depth", "taper")
 
 #: The skin is the level set ``F = SKIN_LEVEL`` of the field (SPEC 6: T = 0.5).
 SKIN_LEVEL = 0.5
@@ -61,8 +70,8 @@ class BodyState:
 
     Attributes
     ----------
-    shape : (2 P,) float64
-        ``(length, width)`` coefficient per part, 1 = as described.
+    shape : (4 P,) float64
+        ``(length, width, depth, taper)`` coefficients per part (:data:`SHAPE_NAMES`), 1 = as described.
     motion : (6 + A,) float64
         Root translation (metres), root angles z-y-x (radians), joint angles (radians).
     """
@@ -105,7 +114,7 @@ class BodyModel:
     n_motion : int
         Motion parameters per frame (6 root + one per joint).
     n_shape : int
-        Shape parameters (2 per part).
+        Shape parameters (4 per part: :data:`SHAPE_NAMES`).
     lower, upper : (n_motion,) float64
         Motion limits (joint limits in radians; the root is effectively free).
 
@@ -148,6 +157,11 @@ class BodyModel:
         self.ball_part.setflags(write=False)
         self.n_motion: int = self._core.n_motion
         self.n_shape: int = self._core.n_shape
+        #: Per metaball ``(M,)``: its centre's height along its part relative to the part's
+        #: balls (mean 0, spanning 1); the part's taper ``tau`` scales its x and y by
+        #: ``1 + (tau - 1) k``.
+        self.taper_weight = self._core.taper_weight
+        self.taper_weight.setflags(write=False)
         limits = _ROOT_LIMITS + [np.radians(j["limits"]).tolist() for p in parts for j in p["joints"]]
         self.lower = np.array([lo for lo, _ in limits], dtype=float)
         self.upper = np.array([hi for _, hi in limits], dtype=float)
@@ -234,14 +248,32 @@ class BodyModel:
             raise InvalidInputError(f"state.motion must have shape ({self.n_motion},), got {motion.shape}")
         return shape, motion
 
+    def as_shape(self, shape: Any) -> NDArray[np.float64]:
+        """A shape vector ``(4 P,)`` from ``shape``: already ``(4 P,)``, or the earlier layout
+        ``(length, width)`` per part ``(2 P,)``, whose one width scaled both cross axes and
+        which had no taper (read as depth = width, taper 1: the same body)."""
+        array = as_float_array("shape", shape)
+        parts = len(self.part_names)
+        if array.shape == (2 * parts,):
+            pairs = array.reshape(parts, 2)
+            array = np.column_stack([pairs, pairs[:, 1], np.ones(parts)]).reshape(-1)
+        if array.shape != (self.n_shape,):
+            raise InvalidInputError(f"shape must have {self.n_shape} values ({', '.join(SHAPE_NAMES)} per part), got shape {array.shape}")
+        return np.ascontiguousarray(array)
+
+    def shape_table(self, shape: Any) -> dict[str, dict[str, float]]:
+        """``{part: {"length": l, "width": w, "depth": d, "taper": tau}}`` of a shape vector."""
+        table = self.as_shape(shape).reshape(-1, len(SHAPE_NAMES))
+        return {name: dict(zip(SHAPE_NAMES, map(float, row))) for name, row in zip(self.part_names, table)}
+
     def mirrored_shape_groups(self) -> NDArray[np.int64]:
-        """Shape groups (``fit_body(shape_groups=...)``) that tie each left part's length and
-        width to its right twin's (parts named ``l_<x>`` and ``r_<x>``); other parts' stay
-        free. ``(n_shape,) int64``."""
+        """Shape groups (``fit_body(shape_groups=...)``) that tie each left part's shape
+        coefficients to its right twin's (parts named ``l_<x>`` and ``r_<x>``); other
+        parts' stay free. ``(n_shape,) int64``."""
         keys = []
         for name in self.part_names:
             twin = name[2:] if name[:2] in ("l_", "r_") and {"l_" + name[2:], "r_" + name[2:]} <= set(self.part_names) else None
-            keys += [(twin or name, "length"), (twin or name, "width")]
+            keys += [(twin or name, k) for k in SHAPE_NAMES]
         numbers: dict[tuple[str, str], int] = {}
         return np.array([numbers.setdefault(k, len(numbers)) for k in keys], dtype=np.int64)
 
@@ -286,7 +318,9 @@ class BodyModel:
         shape, _ = self.check_state(state)
         rotations, origins = self.pose(state)
         part, centre, radii = self._balls
-        scale = np.stack([shape[2 * part + 1], shape[2 * part + 1], shape[2 * part]], axis=1)
+        table = shape.reshape(-1, len(SHAPE_NAMES))[part]
+        section = 1.0 + (table[:, 3] - 1.0) * self.taper_weight
+        scale = np.stack([table[:, 1] * section, table[:, 2] * section, table[:, 0]], axis=1)
         world = origins[part] + np.einsum("mij,mj->mi", rotations[part], centre * scale)
         return world, (radii * scale).max(axis=1)
 

@@ -21,11 +21,11 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_samples
-from elastocap.body.model import SKIN_LEVEL, BodyModel, BodyState
+from elastocap.body.model import SHAPE_NAMES, SKIN_LEVEL, BodyModel, BodyState
 from elastocap.body.search import search_pose
 from elastocap.cameras.camera import Camera
 
-__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "observation_distances", "track_body"]
+__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "narrow_shape_family", "observation_distances", "track_body"]
 
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
@@ -35,6 +35,9 @@ EXPLAINED_DISTANCE = 0.02
 #: contours, 5% outlying points) at 0.73-0.77 (seeds 0, 1), a four-legged animal at 0.50
 #: (0.46 before the arms' restarts kept the raise: they now fit two of its legs).
 REFUSE_EXPLAINED = 0.6
+#: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
+#: default ``shape_bounds``).
+SHAPE_RANGE = (0.5, 2.0)
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ class BodyTrack:
     ----------
     states : list of BodyState
         One per frame, all with ``shape``.
-    shape : (2 P,) float64
+    shape : (4 P,) float64
         The take's one shape.
     motion : (F, n_motion) float64
     quality : list of FrameQuality
@@ -112,6 +115,24 @@ def _distance(f: NDArray[np.float64], g: NDArray[np.float64]) -> NDArray[np.floa
         d = np.abs(f - SKIN_LEVEL) / norm
     d[(f < 1e-8) | ~np.isfinite(d)] = np.inf
     return np.asarray(d)
+
+
+def narrow_shape_family(model: BodyModel, groups: Any) -> tuple[NDArray[np.int64], tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """The shape family for thin data: each part's depth tied to its width and its taper
+    held at 1 (SPEC 6's length and width), on top of ``groups`` (``fit_body``'s
+    ``shape_groups``). Returns ``(shape_groups, shape_bounds)`` for :func:`fit_body`; the
+    held tapers leave the normal equations (bounds lower = upper), so they stay exactly 1."""
+    groups = np.asarray(groups, dtype=np.int64).reshape(-1, len(SHAPE_NAMES)).copy()
+    width, depth, taper = (SHAPE_NAMES.index(k) for k in ("width", "depth", "taper"))
+    # depth joins width's group (the same merge for a mirrored twin's depth)
+    merged = {int(d): int(w) for d, w in zip(groups[:, depth], groups[:, width])}
+    groups[:, depth] = [merged[int(d)] for d in groups[:, depth]]
+    _, renumbered = np.unique(groups.reshape(-1), return_inverse=True)
+    lower = np.full(model.n_shape, SHAPE_RANGE[0])
+    upper = np.full(model.n_shape, SHAPE_RANGE[1])
+    lower.reshape(-1, len(SHAPE_NAMES))[:, taper] = 1.0
+    upper.reshape(-1, len(SHAPE_NAMES))[:, taper] = 1.0
+    return renumbered.astype(np.int64), (lower, upper)
 
 
 @dataclass(frozen=True)
@@ -192,6 +213,14 @@ class BodyTracker:
         limb's length or width explain its pose's error (the capsule figure,
         ``benches/README.md``). Off by default because the synthetic body figure draws
         each side's shape on its own (``elastocap.synth.body``, 4% apart).
+
+    The shape family follows the data. Where the fitted frames carry stereo points, each
+    part has all four coefficients (length, width, depth, taper); silhouettes alone fit
+    the narrow family (:func:`narrow_shape_family`: depth tied to width, taper held at 1),
+    since masks pin 64 coefficients less well than 32: on the synthetic body capture (2
+    frames of masks) the legs' angles came within 0.8 degrees with the narrow family and
+    3.25 with the full one, and on the capsule figure the full family's masks-only tracks
+    drifted further (``benches/README.md``, branches body4 and body5).
     """
 
     def __init__(
@@ -271,6 +300,13 @@ class BodyTracker:
     # -- fitting --------------------------------------------------------------------------
 
     def _fit(self, frames: list[_Frame], init: list[BodyState], *, shape: Any, iterations: int, rays: int | None = None) -> BodyFit:
+        groups, bounds = None, None
+        if shape is None:
+            groups = self.model.mirrored_shape_groups() if self.symmetric else np.arange(self.model.n_shape)
+            if all(len(f.points) == 0 for f in frames):
+                groups, bounds = narrow_shape_family(self.model, groups)
+            elif not self.symmetric:
+                groups = None
         return fit_body(
             self.model,
             [f.observations(rays) for f in frames],
@@ -280,7 +316,8 @@ class BodyTracker:
             sigma_point=self._sigmas["sigma_point"],
             sigma_ray=self._sigmas["sigma_ray"],
             sigma_joint=self._sigmas["sigma_joint"],
-            shape_groups=self.model.mirrored_shape_groups() if self.symmetric and shape is None else None,
+            shape_groups=groups,
+            shape_bounds=bounds,
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:

@@ -150,7 +150,7 @@ def run_body_stage(
     record = {
         "frames": wanted,
         "parts": model.part_names,
-        "shape": {name: {"length": float(track.shape[2 * b]), "width": float(track.shape[2 * b + 1])} for b, name in enumerate(model.part_names)},
+        "shape": model.shape_table(track.shape),
         "shape_vector": track.shape.tolist(),
         "motion_names": model.motion_names,
         "motion": track.motion.tolist(),

@@ -52,7 +52,9 @@ class BodyFigure:
         self.model = BodyModel.default_human()
         rng = np.random.default_rng([self.seed, 0xB0D7])
         model = self.model
-        self.shape = 1.0 + rng.uniform(-SHAPE_SPREAD, SHAPE_SPREAD, model.n_shape)
+        # (length, width) per part drawn as before the depth and taper coefficients (depth =
+        # width, taper 1): the generator's family (and every seeded scene) is unchanged.
+        self.shape = model.as_shape(1.0 + rng.uniform(-SHAPE_SPREAD, SHAPE_SPREAD, 2 * len(model.part_names)))
         joints = slice(6, model.n_motion)
         lower, upper = model.lower[joints], model.upper[joints]
         middle, half = 0.5 * (lower + upper), 0.5 * (upper - lower)

@@ -32,8 +32,8 @@ class SkeletonTake:
     Attributes
     ----------
     model : BodyModel
-    shape : (2 P,) float64
-        ``(length, width)`` coefficient per part, for every frame.
+    shape : (4 P,) float64
+        ``(length, width, depth, taper)`` coefficients per part, for every frame.
     frames : list of int
         Frame numbers.
     motion : (N, n_motion) float64
@@ -88,7 +88,9 @@ class SkeletonTake:
             if i in has_child or not part["balls"]:
                 continue
             centres = np.array([b["center"] for b in part["balls"]], dtype=np.float64)
-            scaled = centres * np.array([self.shape[2 * i + 1], self.shape[2 * i + 1], self.shape[2 * i]])
+            length, width, depth, taper = self.shape[4 * i : 4 * i + 4]
+            section = 1.0 + (taper - 1.0) * self.model.taper_weight[self.model.ball_part == i]
+            scaled = centres * np.stack([width * section, depth * section, np.full(len(centres), length)], axis=1)
             far = scaled[np.argmax(np.linalg.norm(scaled, axis=1))]
             ends[i] = space.scale * (rotations[i] @ far)
         return ends
@@ -115,7 +117,10 @@ def load_body_take(out: str | Path) -> SkeletonTake:
         model = BodyModel.from_dict(record["model"]) if "model" in record else BodyModel.default_human()
         if record["parts"] != model.part_names or record["motion_names"] != model.motion_names:
             raise InvalidInputError(f"{path}: its parts and joint angles are not those of the body model")
-        shape = np.array([[record["shape"][n]["length"], record["shape"][n]["width"]] for n in model.part_names], dtype=np.float64).reshape(-1)
+        # Records written before the depth and taper coefficients: the width scaled both
+        # axes, no taper.
+        shape = np.array([[(s := record["shape"][n])["length"], s["width"], s.get("depth", s["width"]), s.get("taper", 1.0)] for n in model.part_names],
+                         dtype=np.float64).reshape(-1)
         motion = np.array(record["motion"], dtype=np.float64).reshape(len(record["frames"]), model.n_motion)
         body_to_world = np.array(record.get("R_body_to_world", Z_UP_TO_WORLD), dtype=np.float64).reshape(3, 3)
         frames = [int(f) for f in record["frames"]]
