@@ -226,8 +226,6 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
     };
     let mut stop = StopRule::new(options.stop_fraction);
     let mut held: Vec<Contact<D>> = Vec::new();
-    // The volume term's $A^{-1} g$, warm-started across iterations.
-    let mut towards = vec![0.0; x.len() * D];
     for iteration in 0..options.max_iterations {
         let rotations = model.rotations(&x)?;
         let surface = associate_surface(workspace, target, &x, options.invalidate);
@@ -284,7 +282,6 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
         )?;
         tracked.add_to(&mut system);
         let clock = std::time::Instant::now();
-        let before: Vec<f64> = x.iter().flatten().copied().collect();
         let status = solve::solve(
             model,
             workspace,
@@ -294,13 +291,8 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             iteration == 0,
             options,
             &mut x,
-            volume.as_ref().map(|v| (&v.gradient[..], &mut towards)),
+            volume.as_ref(),
         )?;
-        if let Some(volume) = &volume {
-            let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
-            volume.correct(&before, &towards, &mut flat);
-            x = flat.as_chunks::<D>().0.to_vec();
-        }
         metrics.solver_iterations += status.iterations;
         metrics.solver_converged &= status.converged;
         metrics.solver_seconds += clock.elapsed().as_secs_f64();

@@ -54,7 +54,10 @@ pub use block::{Block, BlockCsr, CsrIndex};
 pub use cholesky::SparseCholesky;
 pub use coarse::{TwoLevel, STRENGTH};
 pub use csr_solve::{conjugate_gradient_csr, CsrParts, CsrPreconditioner};
-pub use pcg::{BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
+pub use pcg::{
+    BlockJacobi, LinearOperator, Pcg, PcgStatus, PlusRankOne, Preconditioner, RankOne,
+    ShermanMorrison,
+};
 
 #[cfg(test)]
 mod coarse_tests;

@@ -3,16 +3,16 @@
 //! alone) or on the model's matrix-free product.
 
 use super::assemble::FitSystem;
+use super::volume::VolumeTerm;
 use super::workspace::FitWorkspace;
 use super::FitOptions;
 use crate::efg::Block;
 use crate::elastic::{ElasticModel, Rotation};
 use crate::error::{Error, Result};
 use crate::linalg::mat_vec;
-use crate::solve::{BlockCsr, BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner};
-
-/// Relative residual of the second right-hand side's solve (see [`solve`]).
-const ALSO_TOLERANCE: f64 = 1e-3;
+use crate::solve::{
+    BlockCsr, BlockJacobi, LinearOperator, Pcg, PcgStatus, Preconditioner, RankOne,
+};
 
 /// $\alpha S u + E u$ with $E$ block-diagonal, matrix-free.
 struct FitOperator<'a, const D: usize> {
@@ -41,10 +41,9 @@ impl<const D: usize> LinearOperator<D> for FitOperator<'_, D> {
     }
 }
 
-/// Solves `system` with the elastic part `alpha` $S$ (for `rotations`) from `x` in place,
-/// and, given `also` (a right-hand side and a start), the same matrix for it with the same
-/// preconditioner (the volume term's $A^{-1} g$). `first_iteration` of a frame refreshes the
-/// coarse space's rigid modes.
+/// Solves `system` with the elastic part `alpha` $S$ (for `rotations`), plus the `volume`
+/// term linearised at `x` when given, from `x` in place. `first_iteration` of a
+/// frame refreshes the coarse space's rigid modes.
 ///
 /// # Errors
 /// [`crate::Error::NotPositiveDefinite`] if the system (or a diagonal block) loses
@@ -59,15 +58,29 @@ pub(super) fn solve<const D: usize>(
     first_iteration: bool,
     options: &FitOptions,
     x: &mut Vec<[f64; D]>,
-    mut also: Option<(&[f64], &mut Vec<f64>)>,
+    volume: Option<&VolumeTerm>,
 ) -> Result<PcgStatus> {
     let mut flat: Vec<f64> = x.iter().flatten().copied().collect();
-    let (tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
-    // The second right-hand side is a correction's direction: three digits fewer than the
-    // main solve's, at most ALSO_TOLERANCE, place the rank-one step well enough (at the
-    // main tolerance it cost as many PCG iterations as the main solve).
-    let also_tolerance = (tolerance * 1e3).min(ALSO_TOLERANCE);
-    let rhs = &system.rhs;
+    let (mut tolerance, cap) = (options.solver_tolerance, options.solver_max_iterations);
+    let mut rhs = &system.rhs;
+    let with_volume;
+    let rank_one = match volume {
+        Some(volume) => {
+            let mut b = system.rhs.clone();
+            volume.add_to_rhs(x, &mut b);
+            // The same absolute accuracy as the system without the term: its right-hand
+            // side can outweigh the rest, and a tolerance relative to the sum then loosened
+            // the solve (more fit iterations; measured in benches/README.md).
+            let (norm, with) = (norm(&system.rhs), norm(&b));
+            if norm > 0.0 && with > norm {
+                tolerance *= norm / with;
+            }
+            with_volume = b;
+            rhs = &with_volume;
+            Some(volume.rank_one())
+        }
+        None => None,
+    };
     let status = if options.matrix_free {
         let mut diagonal = model.diagonal_blocks(rotations)?;
         for (d, e) in diagonal.iter_mut().zip(&system.extra) {
@@ -86,26 +99,25 @@ pub(super) fn solve<const D: usize>(
             stresses: Vec::new(),
             slots: Vec::new(),
         };
-        let mut status = workspace.pcg.solve_operator(
-            &mut operator,
-            &mut preconditioner,
-            rhs,
-            &mut flat,
-            tolerance,
-            cap,
-        )?;
-        if let Some((b, y)) = also.as_mut() {
-            let more = workspace.pcg.solve_operator(
+        match rank_one {
+            Some(term) => workspace.pcg.solve_operator_plus_rank_one(
                 &mut operator,
                 &mut preconditioner,
-                b,
-                y,
-                also_tolerance,
+                term,
+                rhs,
+                &mut flat,
+                tolerance,
                 cap,
-            )?;
-            status = merge(status, more);
+            )?,
+            None => workspace.pcg.solve_operator(
+                &mut operator,
+                &mut preconditioner,
+                rhs,
+                &mut flat,
+                tolerance,
+                cap,
+            )?,
         }
-        status
     } else {
         // System: alpha S + E, assembled on the stiffness pattern.
         if model.rotation() == Rotation::Warped {
@@ -134,9 +146,8 @@ pub(super) fn solve<const D: usize>(
                 coarse,
                 rhs,
                 &mut flat,
-                also,
+                rank_one,
                 tolerance,
-                also_tolerance,
                 cap,
             )?
         } else {
@@ -147,9 +158,8 @@ pub(super) fn solve<const D: usize>(
                 &mut jacobi,
                 rhs,
                 &mut flat,
-                also,
+                rank_one,
                 tolerance,
-                also_tolerance,
                 cap,
             )?
         }
@@ -158,8 +168,11 @@ pub(super) fn solve<const D: usize>(
     Ok(status)
 }
 
-/// `system` solved from `flat` with `preconditioner`, and `also` (a right-hand side and
-/// its start) with the same preconditioner to `also_tolerance`.
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|a| a * a).sum::<f64>().sqrt()
+}
+
+/// `system` (plus `rank_one`) solved from `flat` with `preconditioner`.
 #[allow(clippy::too_many_arguments)]
 fn solve_with<const D: usize, P: Preconditioner<D>>(
     pcg: &mut Pcg<D>,
@@ -167,20 +180,19 @@ fn solve_with<const D: usize, P: Preconditioner<D>>(
     preconditioner: &mut P,
     rhs: &[f64],
     flat: &mut [f64],
-    mut also: Option<(&[f64], &mut Vec<f64>)>,
+    rank_one: Option<RankOne<'_>>,
     tolerance: f64,
-    also_tolerance: f64,
     cap: usize,
 ) -> Result<PcgStatus> {
-    let mut status = pcg.solve(system, preconditioner, rhs, flat, tolerance, cap)?;
-    if let Some((b, y)) = also.as_mut() {
-        let more = pcg.solve(system, preconditioner, b, y, also_tolerance, cap)?;
-        status = merge(status, more);
+    match rank_one {
+        Some(term) => {
+            pcg.solve_plus_rank_one(system, preconditioner, term, rhs, flat, tolerance, cap)
+        }
+        None => pcg.solve(system, preconditioner, rhs, flat, tolerance, cap),
     }
-    Ok(status)
 }
 
-/// [`solve_with`] `preconditioner`, and again from the same starts with block Jacobi alone
+/// [`solve_with`] `preconditioner`, and again from the same start with block Jacobi alone
 /// if PCG met a non-positive curvature. The two-level preconditioner can lose definiteness
 /// where the matrix has not (its coarse factor drops entries; aggregates whose surface
 /// nodes were all invalidated are nearly free): measured on the textured fast capture,
@@ -194,30 +206,23 @@ pub(super) fn solve_or_jacobi<const D: usize, P: Preconditioner<D>>(
     preconditioner: &mut P,
     rhs: &[f64],
     flat: &mut [f64],
-    mut also: Option<(&[f64], &mut Vec<f64>)>,
+    rank_one: Option<RankOne<'_>>,
     tolerance: f64,
-    also_tolerance: f64,
     cap: usize,
 ) -> Result<PcgStatus> {
     let start = flat.to_vec();
-    let also_start = also.as_ref().map(|(_, y)| y.to_vec());
-    let also_again = also.as_mut().map(|(b, y)| (*b, &mut **y));
     match solve_with(
         pcg,
         system,
         preconditioner,
         rhs,
         flat,
-        also_again,
+        rank_one,
         tolerance,
-        also_tolerance,
         cap,
     ) {
         Err(Error::NotPositiveDefinite { .. }) => {
             flat.copy_from_slice(&start);
-            if let (Some((_, y)), Some(y0)) = (also.as_mut(), also_start) {
-                y.copy_from_slice(&y0);
-            }
             let mut jacobi = BlockJacobi::new(system)?;
             solve_with(
                 pcg,
@@ -225,21 +230,11 @@ pub(super) fn solve_or_jacobi<const D: usize, P: Preconditioner<D>>(
                 &mut jacobi,
                 rhs,
                 flat,
-                also,
+                rank_one,
                 tolerance,
-                also_tolerance,
                 cap,
             )
         }
         other => other,
-    }
-}
-
-/// Two solves' status as one: iterations summed, converged if both did.
-fn merge(a: PcgStatus, b: PcgStatus) -> PcgStatus {
-    PcgStatus {
-        iterations: a.iterations + b.iterations,
-        converged: a.converged && b.converged,
-        ..a
     }
 }

@@ -8,15 +8,16 @@
 //! surface's measure): a volume error $\delta A_0$ costs as much as moving every surface
 //! node by $\delta$ under a data term of weight $w$. Gauss-Newton linearises $V$ at the
 //! iterate, $V(x) \approx V_k + g^\top (x - x_k)$ with $g = \partial V / \partial x$, so the
-//! system gains the rank-one $c\,g g^\top$ over all surface nodes. That does not fit the
-//! sparse pattern; the solve keeps the sparse system $A$ and adds the rank-one part by
-//! Sherman-Morrison: with $y = A^{-1} b$ and $v = A^{-1} g$ (one more solve on the same
-//! matrix and preconditioner, warm-started from the last iteration's $v$),
-//! $x = y + c\,v\,(s - g^\top y) / (1 + c\,g^\top v)$, $s = g^\top x_k - (V_k - V_0)$.
+//! system gains the rank-one $c\,g g^\top$ over all surface nodes and its right-hand side
+//! $c\,g\,s$, $s = g^\top x_k - (V_k - V_0)$. That does not fit the sparse pattern: the
+//! solve adds it to the product and to the preconditioner by Sherman-Morrison
+//! ([`crate::solve::RankOne`]), one solve where the solution's Sherman-Morrison took two
+//! ($A^{-1} b$ and $A^{-1} g$; the second was 40% of a frame's iterations, benches/README.md).
 
 use super::surface::{enclosed_measure, face_normal};
 use super::workspace::FitWorkspace;
 use crate::linalg::dot;
+use crate::solve::RankOne;
 
 /// The volume term at one iterate.
 #[derive(Debug, Clone, Default)]
@@ -35,15 +36,23 @@ impl VolumeTerm {
         self.weight * self.residual * self.residual
     }
 
-    /// Sherman-Morrison: `y` ($A^{-1} b$) becomes the solution of the system with the
-    /// rank-one term added, given `v` ($A^{-1} g$) and the iterate `x` ($x_k$, flat).
-    pub(super) fn correct(&self, x: &[f64], v: &[f64], y: &mut [f64]) {
-        let (c, g) = (self.weight, &self.gradient);
-        let s = flat_dot(g, x) - self.residual;
-        let scale = c * (s - flat_dot(g, y)) / (1.0 + c * flat_dot(g, v));
-        if scale.is_finite() {
-            y.iter_mut().zip(v).for_each(|(y, v)| *y += scale * v);
+    /// The system's rank-one part $c\,g g^\top$.
+    pub(super) fn rank_one(&self) -> RankOne<'_> {
+        RankOne {
+            vector: &self.gradient,
+            weight: self.weight,
         }
+    }
+
+    /// Adds the term's right-hand side $c\,g\,(g^\top x_k - (V_k - V_0))$ at the iterate
+    /// `x` to `rhs` (flat).
+    pub(super) fn add_to_rhs<const D: usize>(&self, x: &[[f64; D]], rhs: &mut [f64]) {
+        let flat = x.as_flattened();
+        let s = flat_dot(&self.gradient, flat) - self.residual;
+        let scale = self.weight * s;
+        rhs.iter_mut()
+            .zip(&self.gradient)
+            .for_each(|(b, g)| *b += scale * g);
     }
 }
 

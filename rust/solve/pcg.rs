@@ -12,8 +12,10 @@ use super::block::{BlockCsr, CsrIndex};
 use super::upper::Upper;
 
 mod jacobi;
+mod rank_one;
 use crate::error::{check_finite, Error, Result};
 pub use jacobi::BlockJacobi;
+pub use rank_one::{PlusRankOne, RankOne, ShermanMorrison};
 
 /// Below this many scalar entries, vector updates and dot products run on one thread:
 /// at the paper's size (7,395 unknowns) one pass takes ~5 us, less than waking the pool
