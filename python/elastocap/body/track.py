@@ -239,6 +239,7 @@ class BodyTracker:
         lost_distance: float = 0.015,
         refuse_distance: float = 0.03,
         symmetric: bool = False,
+        sigma_shape: float | None = None,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -252,6 +253,7 @@ class BodyTracker:
         self.lost_distance = as_positive("lost_distance", lost_distance)
         self.refuse_distance = as_positive("refuse_distance", refuse_distance)
         self.symmetric = bool(symmetric)
+        self.sigma_shape = None if sigma_shape is None else as_positive("sigma_shape", sigma_shape)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -318,6 +320,7 @@ class BodyTracker:
             sigma_joint=self._sigmas["sigma_joint"],
             shape_groups=groups,
             shape_bounds=bounds,
+            sigma_shape=self.sigma_shape,
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:
