@@ -37,10 +37,10 @@ EXPLAINED_DISTANCE = 0.02
 REFUSE_EXPLAINED = 0.6
 #: Default ``sigma_shape`` of :class:`BodyTracker`: the shape prior's standard deviation
 #: (``fit_body(sigma_shape=)``) when the fitted frames carry stereo points. Chosen on the
-#: capsule figure's tuning seeds 0-2 (3 frames, limb lengths tied): 0.05-0.2 changed
-#: nothing measurable, 0.01 brought the skin from 8.3-8.7 to 6.6-7.8 mm and the joints
-#: from 38-43 to 16-26 mm RMS; 0.005 was worse than 0.01 on seed 0 (``benches/README.md``,
-#: branch body6).
+#: capsule figure's tuning seeds 0-2 (3 frames): alone, 0.05-0.2 changed nothing
+#: measurable and 0.005 was worse than 0.01 (seed 0); with the limb lengths tied, 0.01
+#: took the skin from 8.6-11.4 mm (tie alone) to 5.9-7.8 mm and the joints from 21-29 to
+#: 16-27 mm RMS (neither: 38-43 mm, 8.3-8.7 mm; ``benches/README.md``, branch body6).
 SHAPE_PRIOR_SIGMA = 0.01
 #: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
 #: default ``shape_bounds``).
