@@ -29,6 +29,7 @@ mod sandwich;
 mod tests;
 mod types;
 
+pub(crate) use resample::wide;
 pub use types::{ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS};
 
 use rayon::prelude::*;
