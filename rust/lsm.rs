@@ -18,6 +18,8 @@
 //! (options, status, outputs).
 
 mod dense;
+#[cfg(target_arch = "x86_64")]
+mod gather;
 mod gauss_newton;
 mod line;
 mod multi;

@@ -194,7 +194,8 @@ pub(crate) fn wide() -> bool {
 
 /// [`resample`] compiled for AVX2 and FMA: the eight-lane position and weight arithmetic
 /// vectorises in one register, and `floor` and the clamps become single instructions
-/// (the portable build targets SSE2). About half the time of an iteration.
+/// (the portable build targets SSE2). About half the time of an iteration. Bilinear
+/// resampling gathers the cells' pixels in vector registers ([`super::gather`]).
 ///
 /// # Safety
 /// The CPU must have AVX2 and FMA ([`wide`]).
@@ -209,6 +210,13 @@ unsafe fn resample_wide(
     out: &mut [f32],
     interpolation: Interpolation,
 ) {
+    if matches!(interpolation, Interpolation::Bilinear) && image.data.len() <= i32::MAX as usize
+    {
+        // SAFETY: this function runs on CPUs with AVX2 and FMA; the caller checked that
+        // the patch lies inside the image, and the image's pixels are indexable by i32.
+        unsafe { super::gather::bilinear_wide(image, a, b, dx, dy, out) };
+        return;
+    }
     resample(image, a, b, dx, dy, out, interpolation);
 }
 
@@ -246,7 +254,7 @@ impl Kernel<4> for Cubic {
 /// Resamples eight pixels at a time: positions, floors and weights for all eight first
 /// (straight-line arithmetic the compiler vectorises), then the taps.
 #[inline(always)]
-fn resample(
+pub(super) fn resample(
     image: &ImageView<'_>,
     a: [f64; 4],
     b: [f64; 2],
