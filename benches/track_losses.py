@@ -24,16 +24,18 @@ from elastocap.tracking import load_tracks
 from elastocap.tracking.accuracy import track_accuracy
 from elastocap.tracking.flags import TrackFlag
 folder, out = sys.argv[1], sys.argv[2]
-cap = Capture.open(folder); truth = load_textured_truth(folder); tr = load_tracks(out)
+cap = Capture.open(folder)
+truth = load_textured_truth(folder)
+tr = load_tracks(out)
 f, n = tr.flags.shape
-vis = truth.visible[:f]; pos = truth.positions[:f]; mat = truth.material[:f]
+vis, pos, mat = truth.visible[:f], truth.positions[:f], truth.material[:f]
 acc = track_accuracy(tr, cap.rig.cameras, pos, vis, truth.part, material=mat)
 tracked = tr.flags == 0
 first = np.where(tracked.any(axis=0), np.argmax(tracked, axis=0), -1)
 # seen (F, C, N) as track_accuracy computes it (the 8 truth neighbours all visible).
 c = len(cap.rig.cameras)
 seen = np.zeros((f, c, n), bool)
-usable = mat.all(axis=0); part_ = truth.part
+usable, part_ = mat.all(axis=0), truth.part
 for s in np.unique(first[first >= 0]):
     rows = np.flatnonzero(first == s)
     x0 = tr.positions[s, rows]
@@ -61,8 +63,8 @@ def dist(t, k):
         edge[t, k] = cv2.distanceTransform(m, cv2.DIST_L2, 3)
     return edge[t, k]
 rows = np.flatnonzero(acc.measured & ~acc.through)
-table = collections.Counter(); pflag = collections.Counter(); vflag = collections.Counter(); circ = collections.Counter()
-near_edge = collections.Counter(); chance = collections.Counter(); gap = collections.Counter(); lost_while = collections.Counter(); lossframe = collections.Counter()
+table, pflag, vflag, circ = (collections.Counter() for _ in range(4))
+near_edge, chance, gap, lost_while, lossframe = (collections.Counter() for _ in range(5))
 for p in rows:
     bad = np.flatnonzero(acc.expected[:, p] & ~tracked[:, p] & (np.arange(f) > first[p]))
     t = int(bad[0])
@@ -98,7 +100,9 @@ for p in rows:
                 u, v = tr.views[t - 1, p, k]
                 dd = dist(t - 1, k)[int(round(v)), int(round(u))]
                 near_edge["<8 px" if dd < 8 else "8-12 px" if dd < 12 else ">=12 px"] += 1
-    table[what, flag] += 1; pflag[flag] += 1; circ[what] += 1
+    table[what, flag] += 1
+    pflag[flag] += 1
+    circ[what] += 1
     lossframe[t] += 1
 print(json.dumps(dict(measured=int(acc.measured.sum()), not_through=int(rows.size),
     by_circumstance=circ.most_common(), by_point_flag=pflag.most_common(),
