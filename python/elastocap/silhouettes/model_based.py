@@ -9,7 +9,10 @@ the frame's silhouette. Each contour is then cut by colour inside the band stere
 a person and stop on their texture. Last, the views check each other
 (:func:`~elastocap.silhouettes.consistency.consistent_silhouettes`): a part one view's
 cut lost (a head against a background of its colour) comes back where the other views,
-the fitted model and this view's stereo agree on it. The first frame starts from what the cameras agree on: the visual
+the fitted model and this view's stereo agree on it. Then each view's colour model,
+learned over the previous frames (:mod:`~elastocap.silhouettes.appearance`), drops what
+has the background's colours (a strip of a near distractor the cut kept) and restores
+what has the subject's inside the model and stereo. The first frame starts from what the cameras agree on: the visual
 hull of the disparity masks (one camera may disagree) inside the space every camera sees,
 projected back into each camera. No background plate, no hand-drawn mask.
 """
@@ -141,8 +144,7 @@ class SilhouetteTracker:
         Options of :func:`~elastocap.silhouettes.appearance.appearance_silhouette`: each
         view's final silhouette is corrected by that view's
         :class:`~elastocap.silhouettes.appearance.ColourModel`, learned from the previous
-        frames' final silhouettes; False: none. ``first_pass=True`` among them corrects
-        the first contours too (before the body fit).
+        frames' final silhouettes; False: none.
     """
 
     def __init__(
@@ -168,7 +170,6 @@ class SilhouetteTracker:
         self.band_options = None if band is False else {**BAND_DEFAULTS, **(band if isinstance(band, Mapping) else {})}
         self.consistency_options = None if consistency is False or len(rig) < 3 else dict(consistency if isinstance(consistency, Mapping) else {})
         options = None if appearance is False else {**APPEARANCE_DEFAULTS, **(appearance if isinstance(appearance, Mapping) else {})}
-        self.appearance_first_pass = bool(options.pop("first_pass", False)) if options is not None else False
         self.appearance_options = options
         self.colour_models = {n: ColourModel() for n in rig.names}
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
@@ -279,9 +280,6 @@ class SilhouetteTracker:
         else:
             start = self.previous
         first = {n: self._refine(images[n], self._snake(attraction[n], start[n]), disparity.get(n)) for n in names}
-        if self.appearance_first_pass:
-            # No model fitted yet this frame: colour only drops, nothing is restored.
-            first = {n: self._recolour(n, images[n], first[n], None, None) for n in names}
         world = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 3)
         observed = BodyObservations(
             masks=[first[n] if first[n].any() else None for n in names],
