@@ -48,10 +48,10 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / union) if union else 1.0
 
 
-def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int) -> dict[str, object]:
+def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int, tracker_options: dict[str, object]) -> dict[str, object]:
     model = BodyModel.default_human()
     cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in scene.rig.cameras]
-    tracker = BodyTracker(model, cameras=cameras, symmetric=True)
+    tracker = BodyTracker(model, cameras=cameras, symmetric=True, **tracker_options)  # type: ignore[arg-type]
     rng = np.random.default_rng([scene.seed, 0xE7A1])
     rows = []
     for f in range(start, start + stride * frames, stride):
@@ -116,13 +116,17 @@ def main() -> None:
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--cameras", type=int, default=8)
     parser.add_argument("--size", default="480x360")
+    parser.add_argument("--sigma-shape", default="default", help="BodyTracker(sigma_shape=...): a number, 'none', or 'default' (the tracker's)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     scene = ClutterScene(args.seed, cameras=args.cameras, size=(width, height))
     modes = ("stereo", "silhouettes") if args.mode == "both" else (args.mode,)
+    options: dict[str, object] = {}
+    if args.sigma_shape != "default":
+        options["sigma_shape"] = None if args.sigma_shape == "none" else float(args.sigma_shape)
     for mode in modes:
         frames = args.frames or (10 if mode == "stereo" else 30)
-        print(json.dumps(run(mode, scene, frames, args.start, args.stride)), flush=True)
+        print(json.dumps(run(mode, scene, frames, args.start, args.stride, options) | {"sigma_shape": args.sigma_shape}), flush=True)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@
 //! (options, status, outputs).
 
 mod dense;
+#[cfg(target_arch = "x86_64")]
+mod gather;
 mod gauss_newton;
 mod line;
 mod multi;
@@ -29,6 +31,7 @@ mod sandwich;
 mod tests;
 mod types;
 
+pub(crate) use resample::wide;
 pub use types::{ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS};
 
 use rayon::prelude::*;

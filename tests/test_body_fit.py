@@ -229,3 +229,31 @@ def test_elliptic_and_tapered_parts_recovered_with_width_depth_and_taper_apart()
     fit = fit_body(MODEL, [BodyObservations(points=points, masks=masks)], cameras=base.cameras, init=init, sigma_ray=0.3)
     assert angle_rms_degrees(MODEL, fit.motion[0], truth.motion) <= BODY_ANGLE_RMS_DEG
     assert shape_error(fit.shape, truth.shape) <= BODY_SHAPE_RTOL
+
+
+def test_shape_prior_shrinks_towards_the_described_part_and_vanishes_when_wide() -> None:
+    """``sigma_shape``: a Gaussian prior about 1 on each shape coefficient. Tiny, it holds
+    the shape at the described part; wide, the fit is the fit without it; in between,
+    every coefficient the data moved lies between 1 and where the data alone put it."""
+    base = scene(MODEL, 3, n_points=10, n_cameras=8)
+    shape = np.ones(MODEL.n_shape)
+    for name, length, width in (("l_shin", 1.12, 1.1), ("r_forearm", 0.9, 1.08), ("chest", 1.06, 0.94)):
+        b = MODEL.part_names.index(name)
+        shape[4 * b : 4 * b + 2] = length, width
+    truth = base.truth.replace(shape=shape)
+    points = MODEL.skin_points(truth, 2500, seed=3, spacing=0.015)
+    frames = [BodyObservations(points=points)]
+    init = truth.replace(shape=np.ones(MODEL.n_shape))
+    free = fit_body(MODEL, frames, init=init, max_iterations=60)
+    assert shape_error(free.shape, truth.shape) <= BODY_SHAPE_RTOL
+    wide = fit_body(MODEL, frames, init=init, max_iterations=60, sigma_shape=1e4)
+    np.testing.assert_allclose(wide.shape, free.shape, atol=1e-4)
+    held = fit_body(MODEL, frames, init=init, max_iterations=60, sigma_shape=1e-5)
+    np.testing.assert_allclose(held.shape, 1.0, atol=1e-3)
+    mid = fit_body(MODEL, frames, init=init, max_iterations=60, sigma_shape=0.03)
+    moved = np.abs(free.shape - 1.0) > 0.03
+    assert moved.sum() >= 6
+    assert (np.abs(mid.shape[moved] - 1.0) < np.abs(free.shape[moved] - 1.0)).all()
+    assert (np.sign(mid.shape[moved] - 1.0) == np.sign(free.shape[moved] - 1.0)).all()
+    with pytest.raises(InvalidInputError, match="sigma_shape"):
+        fit_body(MODEL, frames, sigma_shape=0.0)

@@ -13,7 +13,7 @@ from body_scenes import z_up_cameras
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, BodyState
 from elastocap.body.bvh import write_bvh
-from elastocap.body.track import BodyTracker, narrow_shape_family, track_body
+from elastocap.body.track import BodyTracker, limb_length_groups, narrow_shape_family, track_body
 from elastocap.render import render_silhouette
 from elastocap.synth.body import BodyFigure
 
@@ -59,6 +59,13 @@ def test_tracker_recovers_joint_angles_from_stereo_and_silhouettes() -> None:
     # with points the full family: tapers and depths fitted, not held or tied
     per_part = track.shape.reshape(-1, 4)
     assert (per_part[:, 3] != 1.0).any() and (per_part[:, 2] != per_part[:, 1]).any()
+    # ... and each limb's segments share one length (the foot its own)
+    names = MODEL.part_names
+    for side in "lr":
+        arm = {per_part[names.index(f"{side}_{p}"), 0] for p in ("upperarm", "forearm", "hand")}
+        leg = {per_part[names.index(f"{side}_{p}"), 0] for p in ("thigh", "shin")}
+        assert len(arm) == 1 and len(leg) == 1
+        assert per_part[names.index(f"{side}_foot"), 0] != per_part[names.index(f"{side}_shin"), 0]
 
 
 @pytest.mark.parametrize("symmetric", [False, True])
@@ -75,6 +82,28 @@ def test_the_narrow_family_ties_depth_to_width_and_holds_the_taper(symmetric: bo
     assert len(set(per_part[:, 0]) & set(per_part[:, 1])) == 0 and len(set(per_part[:, 1]) & set(per_part[:, 3])) == 0
     assert np.array_equal(lower.reshape(-1, 4)[:, 3], np.ones(len(per_part))) and np.array_equal(upper.reshape(-1, 4)[:, 3], np.ones(len(per_part)))
     assert (lower.reshape(-1, 4)[:, :3] == 0.5).all() and (upper.reshape(-1, 4)[:, :3] == 2.0).all()
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_limb_length_groups_tie_each_limbs_segments_and_nothing_else(symmetric: bool) -> None:
+    base = MODEL.mirrored_shape_groups() if symmetric else np.arange(MODEL.n_shape)
+    groups = limb_length_groups(MODEL, base)
+    assert np.array_equal(np.unique(groups), np.arange(groups.max() + 1))
+    per_part, base_part = groups.reshape(-1, 4), base.reshape(-1, 4)
+    names = MODEL.part_names
+    chains = [[f"{s}_{p}" for p in chain] for s in "lr" for chain in (("upperarm", "forearm", "hand"), ("thigh", "shin"))]
+    expected = base_part[:, 0].copy()
+    for chain in chains:
+        ids = [names.index(n) for n in chain]
+        assert len(set(per_part[ids, 0])) == 1
+        for i in ids[1:]:
+            expected[expected == expected[i]] = expected[ids[0]]
+    # lengths merge only along the chains (the mirror's ties kept), the rest as the base
+    assert np.array_equal(per_part[:, 0][:, None] == per_part[:, 0][None, :], expected[:, None] == expected[None, :])
+    for k in (1, 2, 3):
+        same = base_part[:, k][:, None] == base_part[:, k][None, :]
+        assert np.array_equal(per_part[:, k][:, None] == per_part[:, k][None, :], same)
+    assert groups.max() + 1 == base.max() + 1 - (3 if symmetric else 6)
 
 
 @pytest.mark.parametrize("seed", [6, 8])

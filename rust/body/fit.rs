@@ -148,6 +148,20 @@ impl<'a> BodyProblem<'a> {
         }
     }
 
+    /// `1/2 sum w_g (s_g - 1)^2` over the shape unknowns (0 without a prior, or with the
+    /// shape held).
+    fn prior_cost(&self, x: &[f64]) -> f64 {
+        if self.obs.shape_sigma.is_none() || self.s() == 0 {
+            return 0.0;
+        }
+        let fm = self.obs.frames * self.m();
+        x[fm..]
+            .iter()
+            .enumerate()
+            .map(|(g, v)| 0.5 * self.obs.shape_prior_weight(g) * (v - 1.0) * (v - 1.0))
+            .sum()
+    }
+
     /// Whether shape unknown `g` is held (its bounds meet).
     fn held(&self, g: usize) -> bool {
         let (lo, hi) = self.obs.shape_bounds(g);
@@ -169,7 +183,7 @@ impl ArrowProblem for BodyProblem<'_> {
     }
 
     fn cost(&self, x: &[f64]) -> Result<f64> {
-        let mut cost = 0.0;
+        let mut cost = self.prior_cost(x);
         for f in 0..self.obs.frames {
             let field = self.field(x, f)?;
             cost += self.by_frame[f]
@@ -245,6 +259,17 @@ impl ArrowProblem for BodyProblem<'_> {
                 normal.g[fm + group(k)] += blocks.g[m + k];
             }
             cost += blocks.cost;
+        }
+        // The shape prior: residual sqrt(w) (s - 1) per unknown, so J^T J gains w on the
+        // diagonal and J^T r gains w (s - 1).
+        if self.obs.shape_sigma.is_some() && reduced > 0 {
+            let fm = self.obs.frames * m;
+            for g in 0..reduced {
+                let w = self.obs.shape_prior_weight(g);
+                normal.c[g * reduced + g] += w;
+                normal.g[fm + g] += w * (x[fm + g] - 1.0);
+            }
+            cost += self.prior_cost(x);
         }
         // A shape unknown whose bounds meet is held exactly: its row and column leave the
         // normal equations (unit diagonal, zero gradient), so its step is 0 and the others'

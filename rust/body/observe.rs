@@ -70,6 +70,13 @@ pub struct Observations {
     pub shape_lower: Vec<f64>,
     /// See `shape_lower`.
     pub shape_upper: Vec<f64>,
+    /// `Some(sigma)`: each shape coefficient carries a Gaussian prior about 1 (the part as
+    /// described) with this standard deviation, a residual `(s - 1) / sigma`. Along a limb
+    /// that does not bend in the fitted frames the skin says nothing about where one part
+    /// ends and the next begins: free coefficients slide the joint along the bone (a
+    /// shorter forearm under a wider, longer hand) at no cost to the skin, and the prior
+    /// keeps such splits at the described proportions (`benches/README.md`, branch body6).
+    pub shape_sigma: Option<f64>,
 }
 
 /// Whether a one-sided ray of kind `side` with residual `r` (of `F* - T`'s sign) is
@@ -144,6 +151,20 @@ impl Observations {
                 let (a, b) = bound(k);
                 (lo.max(a), hi.min(b))
             })
+    }
+
+    /// Weight `n / sigma^2` of the prior of shape unknown `g` (`n` coefficients tied in
+    /// it; each carries its own prior), 0 without [`Observations::shape_sigma`].
+    pub fn shape_prior_weight(&self, g: usize) -> f64 {
+        let Some(sigma) = self.shape_sigma else {
+            return 0.0;
+        };
+        let members = if self.shape_group.is_empty() {
+            1
+        } else {
+            self.shape_group.iter().filter(|&&h| h == g).count()
+        };
+        members as f64 / (sigma * sigma)
     }
 
     /// The shape unknowns of the coefficients `shape`: each group's mean.
@@ -231,6 +252,13 @@ impl Observations {
                     "point, ray and joint sigma scales must be positive and finite, got {bad}"
                 ),
             });
+        }
+        if let Some(sigma) = self.shape_sigma {
+            if !(sigma.is_finite() && sigma > 0.0) {
+                return Err(Error::BadModel {
+                    reason: format!("shape_sigma must be positive and finite, got {sigma}"),
+                });
+            }
         }
         let n_shape = skeleton.n_shape();
         if !self.shape_group.is_empty() {

@@ -346,3 +346,88 @@ fn one_sided_rays_add_only_when_violated() {
     assert_eq!(residual(-1, 0).0, through);
     assert!(residual(-1, 0).1);
 }
+
+#[test]
+fn the_shape_prior_adds_its_weight_to_the_shape_block_and_cost() {
+    use super::fit::{problem, FitOptions};
+    use crate::lm::{ArrowNormal, ArrowProblem, LmOptions};
+    let skeleton = arm();
+    let shape = [
+        1.1, 0.9, 1.15, 1.2, 0.95, 1.05, 0.85, 0.7, 1.2, 0.8, 0.9, 1.1,
+    ];
+    let motion = [0.1, -0.2, 0.9, 0.3, -0.2, 0.4, 0.5, -0.3, 0.7, -1.1];
+    let pose = skeleton.pose(&shape, &motion).unwrap();
+    let mut obs = Observations {
+        frames: 1,
+        sigma: [0.05, 0.07, 0.01],
+        log_epsilon: Some(0.01),
+        // the lengths of parts 1 and 2 tied: that unknown carries two coefficients' priors
+        shape_group: vec![0, 1, 2, 3, 4, 5, 6, 7, 4, 8, 9, 10],
+        ..Default::default()
+    };
+    for i in 0..40 {
+        let b = i % 3;
+        let t = i as f64 * 0.41;
+        let local = Vector3::new(0.05 * t.cos(), 0.05 * t.sin(), 0.03 + 0.004 * i as f64);
+        obs.points
+            .push((pose.origin[b] + pose.rotation[b] * local).into());
+        obs.point_frame.push(0);
+    }
+    let (lower, upper) = (vec![-10.0; 10], vec![10.0; 10]);
+    let options = FitOptions {
+        lm: LmOptions::default(),
+        fit_shape: true,
+        outlier_distance: None,
+    };
+    let sigma = 0.05;
+    let with_prior = Observations {
+        shape_sigma: Some(sigma),
+        ..obs.clone()
+    };
+    let plain = problem(&skeleton, &obs, &shape, (&lower, &upper), &options).unwrap();
+    let prior = problem(&skeleton, &with_prior, &shape, (&lower, &upper), &options).unwrap();
+    let (frames, m, s) = plain.dims();
+    assert_eq!(s, 11);
+    let mut x: Vec<f64> = motion.to_vec();
+    x.extend_from_slice(&obs.group_shape(&shape));
+    let (mut a, mut b) = (
+        ArrowNormal::new(frames, m, s),
+        ArrowNormal::new(frames, m, s),
+    );
+    let cost_plain = plain.linearize(&x, &mut a).unwrap();
+    let cost_prior = prior.linearize(&x, &mut b).unwrap();
+    let members = |g: usize| obs.shape_group.iter().filter(|&&h| h == g).count() as f64;
+    let expected: f64 = (0..s)
+        .map(|g| 0.5 * members(g) / (sigma * sigma) * (x[m + g] - 1.0).powi(2))
+        .sum();
+    let close = |got: f64, want: f64, what: &str| {
+        assert!(
+            (got - want).abs() <= 1e-9 * (1.0 + want.abs()),
+            "{what}: {got} vs {want}"
+        );
+    };
+    close(cost_prior - cost_plain, expected, "linearize cost");
+    close(
+        prior.cost(&x).unwrap() - plain.cost(&x).unwrap(),
+        expected,
+        "cost",
+    );
+    for g in 0..s {
+        let w = members(g) / (sigma * sigma);
+        close(b.g[m + g] - a.g[m + g], w * (x[m + g] - 1.0), "gradient");
+        for l in 0..s {
+            let want = if g == l { w } else { 0.0 };
+            close(b.c[g * s + l] - a.c[g * s + l], want, "shape block");
+        }
+    }
+    assert_eq!(a.a, b.a);
+    assert_eq!(a.b, b.b);
+    // a prior on a non-positive or infinite sigma is refused, not a silent NaN
+    for bad in [0.0, -1.0, f64::INFINITY] {
+        let obs = Observations {
+            shape_sigma: Some(bad),
+            ..obs.clone()
+        };
+        assert!(problem(&skeleton, &obs, &shape, (&lower, &upper), &options).is_err());
+    }
+}

@@ -219,10 +219,12 @@ impl TemplatePatch {
             clamp(base[1] - reach, weights.height - 1),
             clamp(base[1] + reach, weights.height - 1),
         );
+        // A fold without early exit over each row: it vectorises (an `all` stops at the
+        // first miss and stays scalar); NaN weights fail the test either way.
         if (v0..=v1).all(|v| {
             weights.data[v * weights.width + u0..=v * weights.width + u1]
                 .iter()
-                .all(|&w| w >= 1.0)
+                .fold(true, |all, &w| all & (w >= 1.0))
         }) {
             return self.weight_total;
         }

@@ -528,3 +528,79 @@ fn template_weights_leave_out_a_moving_background() {
     assert!(err < 0.05, "weighted centre error {err}");
     assert!(weighted.correlation[0] > 0.99);
 }
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn gathered_bilinear_samples_equal_the_portable_loop_to_the_bit() {
+    // The AVX2 gather path must reproduce the portable bilinear resampling exactly (the
+    // tracker's results may not move with the CPU): random warps anywhere the 15x15 patch
+    // fits, many at the image border where the clamps act, and centres on whole pixels.
+    if !super::resample::wide() {
+        return;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (w, h) = (53usize, 41usize);
+    // Noise, not a smooth texture: any misplaced tap or weight changes the value.
+    let data: Vec<f32> = (0..w * h).map(|_| rng.random_range(-50.0..250.0)).collect();
+    let image = ImageView {
+        data: &data,
+        width: w,
+        height: h,
+    };
+    let (size, half) = (15usize, 7.0f32);
+    let n = size * size;
+    let padded = n.div_ceil(8) * 8;
+    let dx: Vec<f32> = (0..padded)
+        .map(|i| if i < n { (i % size) as f32 - half } else { 0.0 })
+        .collect();
+    let dy: Vec<f32> = (0..padded)
+        .map(|i| if i < n { (i / size) as f32 - half } else { 0.0 })
+        .collect();
+    let (mut want, mut got) = (vec![0.0f32; n], vec![0.0f32; n]);
+    let mut checked = 0;
+    for case in 0..4000 {
+        let a = if case % 4 == 0 {
+            [1.0, 0.0, 0.0, 1.0]
+        } else {
+            rotation_scale(
+                rng.random_range(-40.0..40.0),
+                rng.random_range(0.7..1.4),
+                rng.random_range(-0.2..0.2),
+            )
+        };
+        let mut b = [rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)];
+        if case % 3 == 0 {
+            b = [b[0].round(), b[1].round()];
+        }
+        let linear = [
+            [a[0] * half as f64, a[1] * half as f64],
+            [a[2] * half as f64, a[3] * half as f64],
+        ];
+        if !super::resample::inside(&image, b, linear, Interpolation::Bilinear) {
+            continue;
+        }
+        super::resample::resample(&image, a, b, &dx, &dy, &mut want, Interpolation::Bilinear);
+        // SAFETY: `wide` checked the CPU; the patch lies inside the image.
+        unsafe { super::gather::bilinear_wide(&image, a, b, &dx, &dy, &mut got) };
+        for i in 0..n {
+            assert_eq!(
+                got[i].to_bits(),
+                want[i].to_bits(),
+                "case {case}, a {a:?}, b {b:?}, pixel {i}: {} vs {}",
+                got[i],
+                want[i]
+            );
+        }
+        checked += 1;
+    }
+    // The patch fits at the very border too: the identity at the corners.
+    for b in [[7.0, 7.0], [(w - 8) as f64, (h - 8) as f64], [7.0, (h - 8) as f64]] {
+        let a = [1.0, 0.0, 0.0, 1.0];
+        super::resample::resample(&image, a, b, &dx, &dy, &mut want, Interpolation::Bilinear);
+        // SAFETY: as above.
+        unsafe { super::gather::bilinear_wide(&image, a, b, &dx, &dy, &mut got) };
+        assert!(got.iter().zip(&want).all(|(g, x)| g.to_bits() == x.to_bits()));
+        checked += 1;
+    }
+    assert!(checked > 1000, "only {checked} warps fit");
+}

@@ -408,6 +408,10 @@ fn observations_from(d: &Bound<'_, PyDict>, frames: usize) -> PyResult<Observati
         },
         shape_lower: optional(d, "shape_lower")?,
         shape_upper: optional(d, "shape_upper")?,
+        shape_sigma: match d.get_item("shape_sigma")? {
+            Some(v) if !v.is_none() => Some(v.extract()?),
+            _ => None,
+        },
     })
 }
 

@@ -184,6 +184,7 @@ def fit_body(
     track_outlier: float = 0.1,
     shape_groups: Any = None,
     shape_bounds: Any = None,
+    sigma_shape: float | None = None,
 ) -> BodyFit:
     """Fits shape (shared by all frames) and motion (per frame) of ``model`` to 3-D points,
     silhouette rays and joint positions by sparse Levenberg-Marquardt (SPEC 6).
@@ -249,6 +250,13 @@ def fit_body(
         tied group keeps within the tightest of its members' bounds. A group whose bounds
         meet is held exactly at that value (left out of the solve, not clamped after each
         step; :func:`elastocap.body.track.narrow_shape_family` holds the tapers so).
+    sigma_shape : float, optional, keyword-only
+        A Gaussian prior on each shape coefficient about 1 (the part as described) with
+        this standard deviation; default none. Where a limb does not bend in the fitted
+        frames, the skin alone does not say where one part ends and the next begins, and
+        free coefficients slide the joint along the bone (``benches/README.md``, branch
+        body6: the capsule figure's wrists 4-7 cm towards the elbow under a hand grown
+        1.6 times wider).
 
     Returns
     -------
@@ -287,7 +295,7 @@ def fit_body(
         options = dict(cameras=cameras, shape=shape, sigma_point=sigma_point, sigma_ray=sigma_ray, sigma_joint=sigma_joint,
                        max_iterations=max_iterations, refresh_every=refresh_every, outlier_distance=outlier_distance,
                        max_rays_per_mask=max_rays_per_mask, residual=residual, log_epsilon=log_epsilon,
-                       shape_groups=shape_groups, shape_bounds=shape_bounds)
+                       shape_groups=shape_groups, shape_bounds=shape_bounds, sigma_shape=sigma_shape)
         first = fit_body(model, frames, init=init, **options)  # type: ignore[arg-type]
         attached = attach_tracks(model, first.states, tracks, numbers,
                                  rest_frame=numbers[0] if rest_frame is None else int(rest_frame),
@@ -335,6 +343,8 @@ def fit_body(
         if lower.shape != (model.n_shape,) or upper.shape != (model.n_shape,) or not ((lower > 0) & (lower <= upper)).all():
             raise InvalidInputError(f"shape_bounds must be two arrays of {model.n_shape} values with 0 < lower <= upper")
         observations["shape_lower"], observations["shape_upper"] = np.ascontiguousarray(lower), np.ascontiguousarray(upper)
+    if sigma_shape is not None:
+        observations["shape_sigma"] = as_positive("sigma_shape", sigma_shape)
     if attached is not None:
         append_tracks(observations, attached)
     result = model._core.fit(

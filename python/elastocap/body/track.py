@@ -25,7 +25,7 @@ from elastocap.body.model import SHAPE_NAMES, SKIN_LEVEL, BodyModel, BodyState
 from elastocap.body.search import search_pose
 from elastocap.cameras.camera import Camera
 
-__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "narrow_shape_family", "observation_distances", "track_body"]
+__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "narrow_shape_family", "observation_distances", "track_body"]
 
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
@@ -35,6 +35,13 @@ EXPLAINED_DISTANCE = 0.02
 #: contours, 5% outlying points) at 0.73-0.77 (seeds 0, 1), a four-legged animal at 0.50
 #: (0.46 before the arms' restarts kept the raise: they now fit two of its legs).
 REFUSE_EXPLAINED = 0.6
+#: Default ``sigma_shape`` of :class:`BodyTracker`: the shape prior's standard deviation
+#: (``fit_body(sigma_shape=)``) when the fitted frames carry stereo points. Chosen on the
+#: capsule figure's tuning seeds 0-2 (3 frames): alone, 0.05-0.2 changed nothing
+#: measurable and 0.005 was worse than 0.01 (seed 0); with the limb lengths tied, 0.01
+#: took the skin from 8.6-11.4 mm (tie alone) to 5.9-7.8 mm and the joints from 21-29 to
+#: 16-27 mm RMS (neither: 38-43 mm, 8.3-8.7 mm; ``benches/README.md``, branch body6).
+SHAPE_PRIOR_SIGMA = 0.01
 #: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
 #: default ``shape_bounds``).
 SHAPE_RANGE = (0.5, 2.0)
@@ -135,6 +142,39 @@ def narrow_shape_family(model: BodyModel, groups: Any) -> tuple[NDArray[np.int64
     return renumbered.astype(np.int64), (lower, upper)
 
 
+def limb_length_groups(model: BodyModel, groups: Any) -> NDArray[np.int64]:
+    """``groups`` (``fit_body``'s ``shape_groups``) with the length coefficients of each
+    limb's segments tied: a left or right part (``l_`` / ``r_``, as
+    :meth:`BodyModel.mirrored_shape_groups`) that continues its parent's bone (a left or
+    right part too, the child's offset along the parent's z axis, no rest turn: the
+    forearm and hand under the upper arm, the shin under the thigh, not the foot) shares
+    its parent's length, so a limb keeps the described proportions of its segments and
+    only its overall length is fitted.
+
+    Why: along a limb that does not bend in the fitted frames (the capsule figure's wrist
+    never does; its knees are straight for most of a 5-frame window) the skin does not
+    say where one segment ends and the next begins, and free lengths slide the joint along
+    the bone to wherever the model's flesh best matches the subject's profile: the capsule
+    figure's wrists 4-7 cm towards the elbow under a 1.6 times wider hand, its knees 13 cm
+    down a 1.28 times longer thigh (``benches/README.md``, branch body6)."""
+    table = np.asarray(groups, dtype=np.int64).reshape(-1, len(SHAPE_NAMES)).copy()
+    description = model.to_dict()["parts"]
+    length = SHAPE_NAMES.index("length")
+    limb = [p["name"][:2] in ("l_", "r_") for p in description]
+    index = {p["name"]: i for i, p in enumerate(description)}
+    for i, part in enumerate(description):
+        parent = index.get(part["parent"]) if part["parent"] is not None else None
+        if parent is None or not (limb[i] and limb[parent]):
+            continue
+        along = part["offset"][0] == 0.0 and part["offset"][1] == 0.0 and part["offset"][2] > 0.0
+        if along and np.array_equal(np.asarray(part["rest"]), np.eye(3)):
+            # parents come first, so the parent's group already holds its own parent's
+            old = table[i, length]
+            table[table == old] = table[parent, length]
+    _, renumbered = np.unique(table.reshape(-1), return_inverse=True)
+    return renumbered.astype(np.int64)
+
+
 @dataclass(frozen=True)
 class _Frame:
     """One frame's observations with the silhouette rays drawn once."""
@@ -207,6 +247,22 @@ class BodyTracker:
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
         body model cannot explain the subject.
+    sigma_shape : float or None, default :data:`SHAPE_PRIOR_SIGMA`, keyword-only
+        A Gaussian prior about 1 on each shape coefficient (``fit_body(sigma_shape=)``)
+        in the fits of the full family (frames with stereo points); None: no prior.
+        Silhouettes alone fit the narrow family, without it. With thousands of points
+        the prior must be this tight to matter at all: the data pull the trunk's tapers
+        and widths to their bounds and the hands 1.6 times wider, into a fit both farther
+        from the skin and with the joints farther off than with the prior.
+    tie_limb_lengths : bool, optional, keyword-only
+        Fit one length coefficient per limb (:func:`limb_length_groups`: upper arm,
+        forearm and hand; thigh and shin) instead of one per segment. Default (None): tied
+        when the fitted frames carry stereo points (the full family), free with
+        silhouettes alone (the narrow family). On the capsule figure with points, free
+        segment lengths put the wrists 4-7 cm and the knees up to 13 cm off along the
+        bone while the skin fitted within 8 mm (``benches/README.md``, branch body6).
+        Pass False for subjects whose segments do not keep one proportion (the synthetic
+        body figure, :mod:`elastocap.synth.body`, draws each segment's length apart).
     symmetric : bool, default False, keyword-only
         Fit one shape for each left part and its right twin
         (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
@@ -239,6 +295,8 @@ class BodyTracker:
         lost_distance: float = 0.015,
         refuse_distance: float = 0.03,
         symmetric: bool = False,
+        sigma_shape: float | None = SHAPE_PRIOR_SIGMA,
+        tie_limb_lengths: bool | None = None,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -252,6 +310,8 @@ class BodyTracker:
         self.lost_distance = as_positive("lost_distance", lost_distance)
         self.refuse_distance = as_positive("refuse_distance", refuse_distance)
         self.symmetric = bool(symmetric)
+        self.sigma_shape = None if sigma_shape is None else as_positive("sigma_shape", sigma_shape)
+        self.tie_limb_lengths = None if tie_limb_lengths is None else bool(tie_limb_lengths)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -303,9 +363,12 @@ class BodyTracker:
         groups, bounds = None, None
         if shape is None:
             groups = self.model.mirrored_shape_groups() if self.symmetric else np.arange(self.model.n_shape)
-            if all(len(f.points) == 0 for f in frames):
+            thin = all(len(f.points) == 0 for f in frames)
+            if thin:
                 groups, bounds = narrow_shape_family(self.model, groups)
-            elif not self.symmetric:
+            if self.tie_limb_lengths or (self.tie_limb_lengths is None and not thin):
+                groups = limb_length_groups(self.model, groups)
+            if bounds is None and np.array_equal(groups, np.arange(self.model.n_shape)):
                 groups = None
         return fit_body(
             self.model,
@@ -318,6 +381,7 @@ class BodyTracker:
             sigma_joint=self._sigmas["sigma_joint"],
             shape_groups=groups,
             shape_bounds=bounds,
+            sigma_shape=self.sigma_shape if shape is None and not all(len(f.points) == 0 for f in frames) else None,
         )
 
     def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:

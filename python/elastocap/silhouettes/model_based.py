@@ -9,7 +9,10 @@ the frame's silhouette. Each contour is then cut by colour inside the band stere
 a person and stop on their texture. Last, the views check each other
 (:func:`~elastocap.silhouettes.consistency.consistent_silhouettes`): a part one view's
 cut lost (a head against a background of its colour) comes back where the other views,
-the fitted model and this view's stereo agree on it. The first frame starts from what the cameras agree on: the visual
+the fitted model and this view's stereo agree on it. Then each view's colour model,
+learned over the previous frames (:mod:`~elastocap.silhouettes.appearance`), drops what
+has the background's colours (a strip of a near distractor the cut kept) and restores
+what has the subject's inside the model and stereo. The first frame starts from what the cameras agree on: the visual
 hull of the disparity masks (one camera may disagree) inside the space every camera sees,
 projected back into each camera. No background plate, no hand-drawn mask.
 """
@@ -33,6 +36,7 @@ from elastocap.capture.folder import Capture
 from elastocap.hull.carve import Hull, visual_hull
 from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.render.mesh import render_silhouette
+from elastocap.silhouettes.appearance import ColourModel, appearance_silhouette
 from elastocap.silhouettes.background import clean_mask
 from elastocap.silhouettes.band import refine_in_band
 from elastocap.silhouettes.consistency import consistent_silhouettes
@@ -56,6 +60,17 @@ MODEL_MARGIN = 6
 #: Options of :func:`~elastocap.silhouettes.band.refine_in_band`, the colour cut after each
 #: contour (tuned on seeds 0-1).
 BAND_DEFAULTS: dict[str, Any] = {}
+
+#: Options of :func:`~elastocap.silhouettes.appearance.appearance_silhouette`, the
+#: correction of the final silhouettes by each view's colour model learned over frames
+#: (tuned on seeds 0-1: the defaults; ``benches/README.md``, branch sil5).
+APPEARANCE_DEFAULTS: dict[str, Any] = {}
+#: Pixels the colour model's log ratio is smoothed over (a pixel of the subject's texture
+#: alone looks like anything).
+APPEARANCE_SIGMA = 1.5
+#: Pixels: the subject's colours are learned inside the fitted model's silhouette grown by
+#: this, so that clutter a mask holds away from the model does not teach them.
+APPEARANCE_TRUST = 2
 
 #: Voxels along the longest side of the hull that locates the subject on the first frame.
 AGREEMENT_RESOLUTION = 64
@@ -125,6 +140,11 @@ class SilhouetteTracker:
     consistency : dict or bool, keyword-only
         Options of :func:`~elastocap.silhouettes.consistency.consistent_silhouettes`, the
         multi-view check of the final silhouettes; False: none.
+    appearance : dict or bool, keyword-only
+        Options of :func:`~elastocap.silhouettes.appearance.appearance_silhouette`: each
+        view's final silhouette is corrected by that view's
+        :class:`~elastocap.silhouettes.appearance.ColourModel`, learned from the previous
+        frames' final silhouettes; False: none.
     """
 
     def __init__(
@@ -138,6 +158,7 @@ class SilhouetteTracker:
         model_margin: int = MODEL_MARGIN,
         band: Mapping[str, Any] | None | bool = True,
         consistency: Mapping[str, Any] | None | bool = True,
+        appearance: Mapping[str, Any] | None | bool = True,
     ) -> None:
         if not isinstance(rig, Rig):
             raise InvalidInputError(f"rig must be an elastocap.Rig, got {type(rig).__name__}")
@@ -148,6 +169,9 @@ class SilhouetteTracker:
         self.model_margin = int(model_margin)
         self.band_options = None if band is False else {**BAND_DEFAULTS, **(band if isinstance(band, Mapping) else {})}
         self.consistency_options = None if consistency is False or len(rig) < 3 else dict(consistency if isinstance(consistency, Mapping) else {})
+        options = None if appearance is False else {**APPEARANCE_DEFAULTS, **(appearance if isinstance(appearance, Mapping) else {})}
+        self.appearance_options = options
+        self.colour_models = {n: ColourModel() for n in rig.names}
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
         self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
         self.previous: dict[str, NDArray[np.bool_]] | None = None
@@ -155,8 +179,8 @@ class SilhouetteTracker:
         self.first_pass: dict[str, NDArray[np.bool_]] = {}
         self.model_masks: dict[str, NDArray[np.bool_]] = {}
         #: Seconds spent so far in the snakes, the colour cuts, the body fit, the
-        #: multi-view check (wall) and in the snakes (CPU, ``snakes_cpu``).
-        self.timings = {"snakes": 0.0, "band": 0.0, "body": 0.0, "consistency": 0.0, "snakes_cpu": 0.0, "other": 0.0}
+        #: multi-view check, the colour models (wall) and in the snakes (CPU, ``snakes_cpu``).
+        self.timings = {"snakes": 0.0, "band": 0.0, "body": 0.0, "consistency": 0.0, "appearance": 0.0, "snakes_cpu": 0.0, "other": 0.0}
 
     def _snake(self, attraction: NDArray[np.float64], init: NDArray[np.bool_]) -> NDArray[np.bool_]:
         if not init.any() or not attraction.any():
@@ -177,6 +201,29 @@ class SilhouetteTracker:
         mask = refine_in_band(np.asarray(image), contour, disparity, **self.band_options)
         self.timings["band"] += time.perf_counter() - started
         return mask if mask.any() else contour
+
+    def _recolour(self, name: str, image: Any, mask: NDArray[np.bool_], model: NDArray[np.bool_] | None, disparity: Any) -> NDArray[np.bool_]:
+        colours = self.colour_models[name]
+        if self.appearance_options is None or not colours.trained or not mask.any():
+            return mask
+        started = time.perf_counter()
+        ratio = colours.log_ratio(image, sigma=APPEARANCE_SIGMA)
+        out = appearance_silhouette(mask, ratio, model_mask=model, disparity_mask=disparity, **self.appearance_options)
+        self.timings["appearance"] += time.perf_counter() - started
+        # A frame whose colours the model does not know (a sudden change of light) would
+        # lose the subject: the mask is kept instead.
+        return out if out.any() else mask
+
+    def _learn_colours(self, images: Mapping[str, Any], final: Mapping[str, NDArray[np.bool_]], projected: Mapping[str, NDArray[np.bool_]]) -> None:
+        import cv2
+
+        if self.appearance_options is None:
+            return
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * APPEARANCE_TRUST + 1, 2 * APPEARANCE_TRUST + 1))
+        for n, mask in final.items():
+            model = projected[n]
+            if mask.any():
+                self.colour_models[n].update(images[n], mask, trusted=cv2.dilate(model.astype(np.uint8), kernel) if model.any() else None)
 
     def _second_start(self, first: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
         import cv2
@@ -250,6 +297,8 @@ class SilhouetteTracker:
             started = time.perf_counter()
             final = consistent_silhouettes(self.rig, final, model_masks=projected, disparity_masks=disparity, **self.consistency_options)
             self.timings["consistency"] += time.perf_counter() - started
+        final = {n: self._recolour(n, images[n], final[n], projected[n], disparity.get(n)) for n in names}
+        self._learn_colours(images, final, projected)
         self.first_pass, self.model_masks, self.previous = first, projected, final
         return final
 
