@@ -48,11 +48,12 @@ def pitted_block(h: float = 0.01) -> trimesh.Trimesh:
     return mesh
 
 
-@pytest.fixture(scope="module")
-def moving_block() -> tuple[list, list, list, elastocap.Rig]:
+def _turning_block(steps: int) -> tuple[list, list, list, elastocap.Rig]:
+    """The pitted block turned by 8 degrees and moved a few centimetres per frame, its
+    masks in a ring of 8 cameras, and their visual hulls."""
     rest = pitted_block()
     truths = []
-    for step in range(3):
+    for step in range(steps):
         moved = rest.copy()
         transform = np.eye(4)
         transform[:3, :3] = Rotation.from_euler("y", 8 * step, degrees=True).as_matrix()
@@ -67,14 +68,24 @@ def moving_block() -> tuple[list, list, list, elastocap.Rig]:
     return truths, hulls, masks, rig
 
 
+@pytest.fixture(scope="module")
+def moving_block() -> tuple[list, list, list, elastocap.Rig]:
+    return _turning_block(3)
+
+
+@pytest.fixture(scope="module")
+def turning_block() -> tuple[list, list, list, elastocap.Rig]:
+    return _turning_block(7)
+
+
 def test_the_hull_has_phantom_volume(moving_block: tuple) -> None:
     truths, hulls, _, _ = moving_block
     for hull, truth in zip(hulls, truths):
         assert hull.mesh().volume > 1.5 * truth.volume
 
 
-def test_the_silhouette_term_brings_the_fit_closer_to_the_truth(moving_block: tuple) -> None:
-    truths, hulls, masks, rig = moving_block
+def test_the_silhouette_term_brings_the_fit_closer_to_the_truth(turning_block: tuple) -> None:
+    truths, hulls, masks, rig = turning_block
     model = ElasticModel.from_mesh(truths[0], n_nodes=900)
     errors = {}
     for name, options in {"off": {"silhouette": 0.0}, "refine": {"silhouette": 4.0, "silhouette_stage": "refine"},
@@ -82,14 +93,15 @@ def test_the_silhouette_term_brings_the_fit_closer_to_the_truth(moving_block: tu
         fit = fit_sequence(model, hulls, cameras=rig.cameras, masks=masks, **options)
         errors[name] = np.array([surface_error(fit.surface(f), truths[f]).mean for f in fit.frames])
     print("mean distance to the truth per frame, mm:", {k: np.round(1000 * v, 2) for k, v in errors.items()})
-    # Measured: 16.3 / 16.1 / 20.4 mm without, refined 14.8 / 15.5 / 18.2, chained (the
-    # default) 14.8 / 17.0 / 17.8 (the hull 56-59 mm). A moved frame's error moves by up to
-    # 0.5-1 mm with the solver's path alone (its tolerance, 1e-6 or 1e-7, or how the volume
-    # term is solved: benches/README.md, session 11), so the chained line asks for 3% over
-    # the two moved frames, not the 5% one path gave.
-    assert np.all(errors["refine"] < 0.98 * errors["off"])
+    # Over the frames the block moved, because one frame's figure depends on the solver's
+    # path: the block turned by 16 degrees (its pit's opening edge-on in the low cameras)
+    # ended anywhere in 17.2-20.4 mm by tolerance alone, with or without the term
+    # (benches/README.md, issue 17, session 11). Over the six moved frames, measured with
+    # two solvers of the volume term: refined / off median 0.811 and 0.819, chained / off
+    # mean 0.861 and 0.842 (the hull 56-59 mm).
     moved = slice(1, None)
-    assert errors["chain"][moved].mean() < 0.97 * errors["off"][moved].mean()
+    assert np.median(errors["refine"][moved] / errors["off"][moved]) < 0.9
+    assert errors["chain"][moved].mean() < 0.92 * errors["off"][moved].mean()
 
 
 def test_the_signed_mask_distance_is_the_exact_distance_to_the_outline() -> None:
