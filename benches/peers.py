@@ -22,6 +22,7 @@ from peer_cases.elastic import elastic_memory_cases, fit_cases, horse_cases, sol
 from peer_cases.geometry import mesh_distance_cases, polar_cases, sdf_cases
 from peer_cases.hull import carve_cases, memory_cases
 from peer_cases.neighbors import knn_cases, radius_cases
+from peer_cases.render import render_cases
 from peer_cases.silhouettes import snake_cases
 from peer_cases.stereo import dense_cases, disparity_cases, lsm_cases
 from peer_cases.tracking import track_cases
@@ -45,6 +46,7 @@ CASES: dict[str, Callable[[int], list[dict[str, Any]]]] = {
     "lsm": lsm_cases,
     "dense": dense_cases,
     "track": track_cases,
+    "render": render_cases,
 }
 
 

@@ -18,6 +18,7 @@ pub mod lsm;
 pub mod mesh;
 pub mod mls;
 pub mod polar;
+pub mod raster;
 pub mod sdf;
 pub mod snake;
 pub mod solve;

@@ -86,6 +86,10 @@ def carve(
     footprint: str = "conservative",
 ) -> NDArray[np.bool_]: ...
 
+def raster_fragments(
+    uv: NDArray[np.float64], faces: NDArray[np.int64], width: int, height: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]: ...
+
 def mls_shape_functions(
     points: NDArray[np.float64],
     neighbors: NDArray[np.int64],

@@ -13,6 +13,7 @@ mod mesh;
 mod mls;
 mod neighbors;
 mod polar;
+mod raster;
 mod sdf;
 mod snake;
 mod solve;
@@ -56,6 +57,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     fit::register(m)?;
     body::register(m)?;
     carve::register(m)?;
+    raster::register(m)?;
     efg::register(m)?;
     elastic::register(m)?;
     mls::register(m)?;

@@ -7,8 +7,10 @@ conventions), so a pixel is covered by a projected triangle when its centre lies
 Why not ``cv2.fillPoly``: given several polygons in one call it fills by the even-odd rule
 (a pixel covered by two overlapping triangles is left empty), so the union of a mesh's
 overlapping projected triangles cannot be drawn in one call; one call per triangle costs a
-Python loop over tens of thousands of faces. Here every candidate pixel of every
-triangle's bounding box is tested at once with numpy.
+Python loop over tens of thousands of faces. The fragments are found in Rust
+(``rust/raster.rs``), bit for bit what the earlier numpy version found (every candidate
+pixel of every triangle's bounding box tested at once), ~10x faster
+(benches/README.md, session 12).
 """
 
 from __future__ import annotations
@@ -18,11 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-# A pixel centre on a triangle's edge counts as inside when its barycentric coordinates are
-# above -EDGE_TOLERANCE: edges shared by two triangles are evaluated from each triangle's
-# own corner, and the two results may differ by rounding (~1e-13 at pixel coordinates of
-# ~1e3); including such centres in both triangles leaves no crack between them.
-EDGE_TOLERANCE = 1e-9
+import elastocap._core as _core
 
 
 @dataclass(frozen=True)
@@ -63,54 +61,10 @@ def fragments(
     Fragments
         Triangles of zero projected area cover nothing.
     """
-    # Per-corner coordinate columns: reductions over a length-3 axis are slow in numpy.
-    u0, u1, u2 = (uv[faces[:, i], 0] for i in range(3))
-    v0, v1, v2 = (uv[faces[:, i], 1] for i in range(3))
-    u_lo = np.maximum(np.ceil(np.minimum(np.minimum(u0, u1), u2) - EDGE_TOLERANCE), 0.0)
-    v_lo = np.maximum(np.ceil(np.minimum(np.minimum(v0, v1), v2) - EDGE_TOLERANCE), 0.0)
-    u_hi = np.minimum(np.floor(np.maximum(np.maximum(u0, u1), u2) + EDGE_TOLERANCE), width - 1.0)
-    v_hi = np.minimum(np.floor(np.maximum(np.maximum(v0, v1), v2) + EDGE_TOLERANCE), height - 1.0)
-    twice_area = (u1 - u0) * (v2 - v0) - (v1 - v0) * (u2 - u0)
-    with np.errstate(invalid="ignore"):
-        keep = np.flatnonzero((u_hi >= u_lo) & (v_hi >= v_lo) & (twice_area != 0) & np.isfinite(twice_area))
-    if keep.size == 0:
-        empty_i = np.zeros(0, np.int64)
-        return Fragments(empty_i, empty_i, np.zeros((0, 3)))
-    u_lo, v_lo = u_lo[keep], v_lo[keep]
-    nu = (u_hi[keep] - u_lo).astype(np.int64) + 1
-    nv = (v_hi[keep] - v_lo).astype(np.int64) + 1
-    inverse_area = 1.0 / twice_area[keep]
-    # Barycentric coordinate i is the edge function of the opposite edge over twice the
-    # area; an affine function of the offset (du, dv) from the bounding box's corner:
-    # slope_u * du + slope_v * dv + value at the corner.
-    coefficients = []
-    for (ua, va), (ub, vb) in (((u1, v1), (u2, v2)), ((u2, v2), (u0, v0))):
-        ua, va, ub, vb = ua[keep], va[keep], ub[keep], vb[keep]
-        eu, ev = ub - ua, vb - va
-        coefficients.append(
-            (-ev * inverse_area, eu * inverse_area, (eu * (v_lo - va) - ev * (u_lo - ua)) * inverse_area)
-        )
-
-    counts = nu * nv
-    owner = np.repeat(np.arange(keep.size), counts)
-    first = np.cumsum(counts) - counts
-    offset = np.arange(int(counts.sum()), dtype=np.int64) - first[owner]
-    row_length = nu[owner]
-    dv = offset // row_length
-    du = offset - dv * row_length
-    (a0, b0, c0), (a1, b1, c1) = coefficients
-    l0 = a0[owner] * du + b0[owner] * dv + c0[owner]
-    l1 = a1[owner] * du + b1[owner] * dv + c1[owner]
-    l2 = 1.0 - l0 - l1
-    inside = (l0 >= -EDGE_TOLERANCE) & (l1 >= -EDGE_TOLERANCE) & (l2 >= -EDGE_TOLERANCE)
-    owner = owner[inside]
-    u = u_lo[owner].astype(np.int64) + du[inside]
-    v = v_lo[owner].astype(np.int64) + dv[inside]
-    return Fragments(
-        pixel=v * width + u,
-        face=keep[owner],
-        barycentric=np.stack([l0[inside], l1[inside], l2[inside]], axis=1),
-    )
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    pixel, face, barycentric = _core.raster_fragments(uv, faces, int(width), int(height))
+    return Fragments(pixel=pixel, face=face, barycentric=barycentric)
 
 
 def coverage(
