@@ -253,3 +253,54 @@ def test_surface_normals_are_the_neighbours_plane_facing_the_cameras():
     # Neighbours along a line span no plane: the given direction stays.
     line = np.outer(np.linspace(-0.2, 0.2, 50), basis[0])
     np.testing.assert_array_equal(surface_normals(points, line, towards), towards)
+
+
+def test_cameras_that_cannot_see_a_point_are_not_asked():
+    # Points on a sphere, the cloud of tracked points its whole surface, a second small
+    # sphere in front of it for camera 0: a camera is predicted to see a point when the
+    # surface faces it and no tracked point is in front of it; the truth is the ray cast.
+    from elastocap.synth.capture import ring_rig
+    from elastocap.tracking.visibility import predicted_visible
+
+    rig = ring_rig(6, width=320, height=240, seed=0)
+    cams = rig.cameras
+    rng = np.random.default_rng(4)
+    centre = np.array([0.0, 0.9, 0.0])
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    body = centre + 0.25 * d
+    towards_cam0 = cams[0].center - centre
+    towards_cam0 /= np.linalg.norm(towards_cam0)
+    blocker_centre = centre + 0.55 * towards_cam0
+    blocker = blocker_centre + 0.1 * d[:800]
+    cloud = np.concatenate([body, blocker])
+    masks = [np.ones((cam.height, cam.width), bool) for cam in cams]
+    points, normals = body[:400], d[:400]
+    asked = np.ones((400, len(cams)), bool)
+    got = predicted_visible(cams, masks, points, normals, cloud, asked)
+    # The truth: the first hit of the ray from each camera (two spheres).
+    truth = np.zeros_like(got)
+    for k, cam in enumerate(cams):
+        for p in range(400):
+            o = cam.center
+            ray = points[p] - o
+            length = np.linalg.norm(ray)
+            ray /= length
+            hit = np.inf
+            for c, r in ((centre, 0.25), (blocker_centre, 0.1)):
+                b = ray @ (o - c)
+                disc = b * b - (np.sum((o - c) ** 2) - r * r)
+                if disc >= 0:
+                    hit = min(hit, -b - np.sqrt(disc))
+            truth[p, k] = hit > length - 1e-6
+    hidden_by_blocker = ~truth[:, 0] & (normals @ (cams[0].center - centre) > 0)
+    assert hidden_by_blocker.sum() >= 10
+    assert not got[hidden_by_blocker, 0].any()
+    agree = (got == truth).mean()
+    assert agree >= 0.95, agree
+    assert got[truth].mean() >= 0.9 and got[~truth].mean() <= 0.1
+    # Outside a camera's silhouette, or not asked: never visible.
+    masks[1][:] = False
+    assert not predicted_visible(cams, masks, points, normals, cloud, asked)[:, 1].any()
+    asked[:, 2] = False
+    assert not predicted_visible(cams, masks, points, normals, cloud, asked)[:, 2].any()

@@ -29,7 +29,9 @@ from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.revival import Lost
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import Tracks, frame_file, load_tracks, read_frame, write_frame
-from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match, surface_normals
+from elastocap.tracking.views import (facing_normals, intersect_views, project_all, spatial_match, spatial_search,
+                                      surface_normals)
+from elastocap.tracking.visibility import predicted_visible
 
 __all__ = ["track_points"]
 
@@ -67,9 +69,18 @@ _REVIVE_RADIUS = 8
 # degrees away as an offset of pixels along the epipolar line (the intersection with the
 # new view then checks it and fixes the depth).
 _REACQUIRE_TOLERANCE = 1.5
+# The re-acquisition searches (NCC box of this half-side, pixels, with the patch warped by
+# the neighbours' plane into the other camera) before its least-squares match; 0: the
+# match alone, started at the projection. A found view may lie this far from the
+# projection (the intersection with the view then checks it).
+_REACQUIRE_RADIUS = 0
+_REACQUIRE_SEARCH_TOLERANCE = 3.0
 # Start shapes of cross-camera matches from the plane of the neighbouring tracked points
 # (else from the direction of the cameras that see the point).
 _FITTED_NORMALS = True
+# Re-acquire and revive a point only in the cameras predicted to see it
+# (:mod:`elastocap.tracking.visibility`), not in every camera whose silhouette it falls in.
+_PREDICT_VISIBILITY = True
 # The frame-to-frame failures a view's anchor may rescue.
 _RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
 
@@ -393,16 +404,32 @@ class _Tracker:
                 iv = np.clip(np.round(np.nan_to_num(targets[:, k, 1])).astype(int), 0, masks[k].shape[0] - 1)
                 wanted = found & ~np.isfinite(uv[:, k, 0]) & masks[k][iv, iu]
                 targets[~wanted, k] = np.nan
+            normals = np.full((n, 3), np.nan)
+            normals[found] = self._normals(anchor[found], x, np.isfinite(uv[found, :, 0]))
+            if _PREDICT_VISIBILITY:
+                # Only the cameras that can see the point: its surface facing them and no
+                # tracked point in front of it.
+                asked = np.isfinite(targets).all(axis=2)
+                targets[asked & ~predicted_visible(self.cameras, masks, anchor, normals, x, asked)] = np.nan
             score = np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0)
             reference = np.argmax(score, axis=1)
             rows = np.flatnonzero(np.isfinite(targets).all(axis=2).any(axis=1))
             if rows.size:
-                matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
-                                              size=self.size, min_correlation=self.min_correlation,
-                                              tolerance=_REACQUIRE_TOLERANCE + 2.0 * single[rows],
-                                              min_texture=float(min(self.texture)), cameras=self.cameras,
-                                              points=anchor[rows], normals=self._normals(anchor[rows], x, np.isfinite(uv[rows, :, 0])),
-                                              weights=weights)
+                if _REACQUIRE_RADIUS:
+                    matched, mcov = spatial_search(
+                        grey, reference[rows], uv[rows, reference[rows]], targets[rows], cameras=self.cameras,
+                        points=anchor[rows], normals=normals[rows], size=self.size, radius=_REACQUIRE_RADIUS,
+                        min_correlation=self.min_correlation, box_correlation=min(self.min_correlation, _BOX_CORRELATION),
+                        forward_backward=self.o["forward_backward"],
+                        tolerance=_REACQUIRE_SEARCH_TOLERANCE + 2.0 * single[rows],
+                        min_texture=float(min(self.texture)), max_iterations=STEP_ITERATIONS, weights=weights)
+                else:
+                    matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
+                                                  size=self.size, min_correlation=self.min_correlation,
+                                                  tolerance=_REACQUIRE_TOLERANCE + 2.0 * single[rows],
+                                                  min_texture=float(min(self.texture)), cameras=self.cameras,
+                                                  points=anchor[rows], normals=normals[rows],
+                                                  weights=weights)
                 uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
                 cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
                 # Points that were down to one view and got others back: intersect now.
@@ -504,6 +531,11 @@ class _Tracker:
         tracked = np.isfinite(x).all(axis=1)
         predicted = self.lost.predict(rows, np.where(tracked[:, None], x, np.nan))
         targets = project_all(self.cameras, predicted, margin=self.size)
+        if _PREDICT_VISIBILITY:
+            # The cameras that held the point and are predicted to see it again.
+            asked = np.isfinite(targets).all(axis=2) & self.anchors.held[rows]
+            normals = self._normals(predicted, x, self.anchors.held[rows])
+            targets[asked & ~predicted_visible(self.cameras, masks, predicted, normals, x, asked)] = np.nan
         where = np.zeros((n, c), bool)
         starts = np.full((n, c, 2), np.nan)
         for k in range(c):
