@@ -17,7 +17,7 @@ from elastocap.cameras import Camera
 from elastocap.stereo import intersect, match_patches
 from elastocap.stereo.matching import MatchStatus
 
-__all__ = ["facing_normals", "intersect_views", "plane_affine", "plane_warped_tiles", "project_all", "spatial_match",
+__all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_warped_tiles", "project_all", "spatial_match",
            "spatial_search"]
 
 
@@ -269,3 +269,39 @@ def intersect_views(
         used[rows[keep]] = result.used[keep]
         rejected[rows] = (observed[rows] & ~result.used & result.valid[:, None]) | bad
     return points, covariance, used, rejected
+
+
+def confirm_views(
+    cameras: Sequence[Camera],
+    uv: NDArray[np.float64],
+    cov: NDArray[np.float64],
+    new_uv: NDArray[np.float64],
+    new_cov: NDArray[np.float64],
+    *,
+    max_residual: float,
+    floor: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """New views ``new_uv`` (N, C, 2; NaN where none, covariances ``new_cov``) of points
+    held in ``uv`` (N, C, 2, with ``cov``), checked by intersecting each point's held and new
+    views together (:func:`intersect_views`): a point's new views are kept when every one
+    of them is used and the intersection holds (one wrong view would otherwise fail the
+    point's intersection on the next frame and end its track), refused (NaN) otherwise.
+    Returns the kept new views and their covariances, and the points intersected with them
+    (N, 3) and their covariances (N, 3, 3), NaN for points without a kept new view."""
+    n = len(uv)
+    new = np.isfinite(new_uv[..., 0]) & ~np.isfinite(uv[..., 0])
+    out_uv = np.where(new[..., None], new_uv, np.nan)
+    out_cov = np.where(new[..., None, None], new_cov, np.nan)
+    points = np.full((n, 3), np.nan)
+    covariance = np.full((n, 3, 3), np.nan)
+    rows = np.flatnonzero(new.any(axis=1))
+    if rows.size == 0:
+        return out_uv, out_cov, points, covariance
+    both_uv = np.where(new[rows, :, None], new_uv[rows], uv[rows])
+    both_cov = np.where(new[rows, :, None, None], new_cov[rows], cov[rows])
+    x, xcov, used, _ = intersect_views(cameras, both_uv, both_cov, max_residual=max_residual, floor=floor)
+    ok = np.isfinite(x).all(axis=1) & (used | ~new[rows]).all(axis=1)
+    out_uv[rows[~ok]] = np.nan
+    out_cov[rows[~ok]] = np.nan
+    points[rows[ok]], covariance[rows[ok]] = x[ok], xcov[ok]
+    return out_uv, out_cov, points, covariance
