@@ -68,6 +68,9 @@ _REVIVE_RADIUS = 8
 # distance from the epipolar line: a wrong match found far from the prediction).
 _REVIVE_RESIDUAL = 1.5
 _REVIVE_RECUT = False
+# Least cosine between a lost point's predicted normal and the direction to a camera it is
+# looked for in (a surface coming back into view is first seen at grazing angles).
+_REVIVE_FACING = 0.0
 # Largest distance of a re-acquired view from the projection of the point, pixels: a
 # point held by one stereo pair has a poor depth, whose error shows in a camera 45-90
 # degrees away as an offset of pixels along the epipolar line (the intersection with the
@@ -555,7 +558,8 @@ class _Tracker:
             # The cameras that held the point and are predicted to see it again.
             asked = np.isfinite(targets).all(axis=2) & self.anchors.held[rows]
             normals = self._normals(predicted, x, self.anchors.held[rows])
-            targets[asked & ~predicted_visible(self.cameras, masks, predicted, normals, x, asked)] = np.nan
+            seen = predicted_visible(self.cameras, masks, predicted, normals, x, asked, facing=_REVIVE_FACING)
+            targets[asked & ~seen] = np.nan
         where = np.zeros((n, c), bool)
         starts = np.full((n, c, 2), np.nan)
         for k in range(c):
