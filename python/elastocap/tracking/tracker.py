@@ -29,7 +29,9 @@ from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.revival import Lost
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import Tracks, frame_file, load_tracks, read_frame, write_frame
-from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match, surface_normals
+from elastocap.tracking.views import (confirm_views, facing_normals, intersect_views, project_all, spatial_match, spatial_search,
+                                      surface_normals)
+from elastocap.tracking.visibility import predicted_visible
 
 __all__ = ["track_points"]
 
@@ -62,14 +64,33 @@ _REVIVE_FRAMES = 15
 # position predicted from its neighbours' motion; the intersection must land as near the
 # prediction (pixel equivalents).
 _REVIVE_RADIUS = 8
+# Largest reprojection residual of a revived point's views, pixels (with two views, the
+# distance from the epipolar line: a wrong match found far from the prediction).
+_REVIVE_RESIDUAL = 1.5
+_REVIVE_RECUT = False
+# Least cosine between a lost point's predicted normal and the direction to a camera it is
+# looked for in (a surface coming back into view is first seen at grazing angles).
+_REVIVE_FACING = 0.0
 # Largest distance of a re-acquired view from the projection of the point, pixels: a
 # point held by one stereo pair has a poor depth, whose error shows in a camera 45-90
 # degrees away as an offset of pixels along the epipolar line (the intersection with the
 # new view then checks it and fixes the depth).
 _REACQUIRE_TOLERANCE = 1.5
+# The re-acquisition searches (NCC box of this half-side, pixels, with the patch warped by
+# the neighbours' plane into the other camera) before its least-squares match; 0: the
+# match alone, started at the projection. A found view may lie this far from the
+# projection (the intersection with the view then checks it).
+_REACQUIRE_RADIUS = 0
+_REACQUIRE_SEARCH_TOLERANCE = 3.0
+_REACQUIRE_ITERATIONS = 20
+# Re-acquired views of a tracked point kept only when they intersect with its held ones.
+_CONFIRM_REACQUIRED = True
 # Start shapes of cross-camera matches from the plane of the neighbouring tracked points
 # (else from the direction of the cameras that see the point).
 _FITTED_NORMALS = True
+# Re-acquire and revive a point only in the cameras predicted to see it
+# (:mod:`elastocap.tracking.visibility`), not in every camera whose silhouette it falls in.
+_PREDICT_VISIBILITY = True
 # The frame-to-frame failures a view's anchor may rescue.
 _RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
 
@@ -393,6 +414,13 @@ class _Tracker:
                 iv = np.clip(np.round(np.nan_to_num(targets[:, k, 1])).astype(int), 0, masks[k].shape[0] - 1)
                 wanted = found & ~np.isfinite(uv[:, k, 0]) & masks[k][iv, iu]
                 targets[~wanted, k] = np.nan
+            normals = np.full((n, 3), np.nan)
+            normals[found] = self._normals(anchor[found], x, np.isfinite(uv[found, :, 0]))
+            if _PREDICT_VISIBILITY:
+                # Only the cameras that can see the point: its surface facing them and no
+                # tracked point in front of it.
+                asked = np.isfinite(targets).all(axis=2)
+                targets[asked & ~predicted_visible(self.cameras, masks, anchor, normals, x, asked)] = np.nan
             score = np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0)
             reference = np.argmax(score, axis=1)
             rows = np.flatnonzero(np.isfinite(targets).all(axis=2).any(axis=1))
@@ -401,8 +429,30 @@ class _Tracker:
                                               size=self.size, min_correlation=self.min_correlation,
                                               tolerance=_REACQUIRE_TOLERANCE + 2.0 * single[rows],
                                               min_texture=float(min(self.texture)), cameras=self.cameras,
-                                              points=anchor[rows], normals=self._normals(anchor[rows], x, np.isfinite(uv[rows, :, 0])),
+                                              points=anchor[rows], normals=normals[rows],
                                               weights=weights)
+                if _REACQUIRE_RADIUS:
+                    # The views the match started at the projection did not find: searched for.
+                    missed = np.where(np.isfinite(matched), np.nan, targets[rows])
+                    searched, scov = spatial_search(
+                        grey, reference[rows], uv[rows, reference[rows]], missed, cameras=self.cameras,
+                        points=anchor[rows], normals=normals[rows], size=self.size, radius=_REACQUIRE_RADIUS,
+                        min_correlation=self.min_correlation, box_correlation=min(self.min_correlation, _BOX_CORRELATION),
+                        forward_backward=self.o["forward_backward"],
+                        tolerance=_REACQUIRE_SEARCH_TOLERANCE + 2.0 * single[rows],
+                        min_texture=float(min(self.texture)), max_iterations=_REACQUIRE_ITERATIONS, weights=weights)
+                    matched = np.where(np.isfinite(searched), searched, matched)
+                    mcov = np.where(np.isfinite(scov), scov, mcov)
+                if _CONFIRM_REACQUIRED:
+                    # A tracked point's new views are checked now with its held ones (one
+                    # wrong view would fail the point's intersection on the next frame):
+                    # kept, and the point intersected again, when every view agrees.
+                    check = np.flatnonzero(tracked[rows])
+                    matched[check], mcov[check], cx, ccov = confirm_views(
+                        self.cameras, uv[rows[check]], cov2d[rows[check]], matched[check], mcov[check],
+                        max_residual=self.o["max_residual"], floor=_FLOOR)
+                    ok = np.isfinite(cx).all(axis=1)
+                    x[rows[check[ok]]], xcov[rows[check[ok]]] = cx[ok], ccov[ok]
                 uv[rows] = np.where(np.isfinite(matched), matched, uv[rows])
                 cov2d[rows] = np.where(np.isfinite(mcov), mcov, cov2d[rows])
                 # Points that were down to one view and got others back: intersect now.
@@ -504,6 +554,12 @@ class _Tracker:
         tracked = np.isfinite(x).all(axis=1)
         predicted = self.lost.predict(rows, np.where(tracked[:, None], x, np.nan))
         targets = project_all(self.cameras, predicted, margin=self.size)
+        if _PREDICT_VISIBILITY:
+            # The cameras that held the point and are predicted to see it again.
+            asked = np.isfinite(targets).all(axis=2) & self.anchors.held[rows]
+            normals = self._normals(predicted, x, self.anchors.held[rows])
+            seen = predicted_visible(self.cameras, masks, predicted, normals, x, asked, facing=_REVIVE_FACING)
+            targets[asked & ~seen] = np.nan
         where = np.zeros((n, c), bool)
         starts = np.full((n, c, 2), np.nan)
         for k in range(c):
@@ -526,8 +582,8 @@ class _Tracker:
         rows, predicted = rows[two], predicted[two]
         if rows.size == 0:
             return x, x_state
-        bx, bcov, bused, _ = intersect_views(self.cameras, found[rows], fcov[rows], max_residual=self.o["max_residual"],
-                                             floor=_FLOOR)
+        bx, bcov, bused, _ = intersect_views(self.cameras, found[rows], fcov[rows],
+                                             max_residual=min(self.o["max_residual"], _REVIVE_RESIDUAL), floor=_FLOOR)
         ok = np.isfinite(bx).all(axis=1)
         with np.errstate(invalid="ignore"):
             near = np.linalg.norm(bx - predicted, axis=1) <= _REVIVE_RADIUS * pixel_size(self.cameras, bx, bused)
@@ -542,6 +598,10 @@ class _Tracker:
         revived = np.zeros(n, bool)
         revived[back] = True
         self.lost.forget(revived)
+        if _REVIVE_RECUT:
+            # The anchors of a surface that turned away and back are old: the views found
+            # now are cut again from this frame (at the end of the step).
+            self.anchors.drop(revived[:, None] & np.ones(c, bool))
         return x, x_state
 
 

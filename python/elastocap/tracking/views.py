@@ -8,14 +8,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from elastocap import _core
 from elastocap.cameras import Camera
 from elastocap.stereo import intersect, match_patches
 from elastocap.stereo.matching import MatchStatus
 
-__all__ = ["facing_normals", "intersect_views", "plane_affine", "project_all", "spatial_match"]
+__all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_warped_tiles", "project_all", "spatial_match",
+           "spatial_search"]
 
 
 def project_all(cameras: Sequence[Camera], points: NDArray[np.float64], margin: float) -> NDArray[np.float64]:
@@ -142,6 +145,98 @@ def spatial_match(
     return uv, cov
 
 
+def plane_warped_tiles(image: NDArray[np.float32], uv: NDArray[np.float64], affine: NDArray[np.float64],
+                       side: int) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """The patches of ``image`` around ``uv`` (M, 2) as another camera would see them:
+    tile ``i`` samples ``image`` at ``uv[i] + L_i^-1 q`` for the tile's offsets ``q`` from
+    its centre, ``L_i`` the linear part of ``affine[i]`` (M, 2, 3; :func:`plane_affine`).
+    Returns a mosaic of ``side x side`` tiles (bilinear, border replicated) and the tiles'
+    centres (M, 2) in it."""
+    m = len(uv)
+    per_row = max(1, int(np.ceil(np.sqrt(m))))
+    half = side // 2
+    q = np.arange(side, dtype=float) - half
+    qu, qv = np.meshgrid(q, q)  # (side, side): column offset, row offset
+    inverse = np.linalg.inv(affine[:, :, :2])
+    ref_u = uv[:, 0, None, None] + inverse[:, 0, 0, None, None] * qu + inverse[:, 0, 1, None, None] * qv
+    ref_v = uv[:, 1, None, None] + inverse[:, 1, 0, None, None] * qu + inverse[:, 1, 1, None, None] * qv
+    maps = np.zeros((2, per_row * per_row, side, side), np.float32)
+    maps[0, :m], maps[1, :m] = ref_u, ref_v
+
+    def tiled(a: NDArray[np.float32]) -> NDArray[np.float32]:
+        return np.ascontiguousarray(a.reshape(per_row, per_row, side, side).transpose(0, 2, 1, 3)
+                                    .reshape(per_row * side, per_row * side))
+
+    mosaic = cv2.remap(image, tiled(maps[0]), tiled(maps[1]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    index = np.arange(m)
+    centres = np.column_stack([(index % per_row) * side + half, (index // per_row) * side + half]).astype(float)
+    return np.ascontiguousarray(mosaic, dtype=np.float32), centres
+
+
+def spatial_search(
+    images: Sequence[NDArray[np.float32]],
+    reference: NDArray[np.int64],
+    template_uv: NDArray[np.float64],
+    targets: NDArray[np.float64],
+    *,
+    cameras: Sequence[Camera],
+    points: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    size: int,
+    radius: int,
+    min_correlation: float,
+    box_correlation: float,
+    forward_backward: float,
+    tolerance: float | NDArray[np.float64],
+    min_texture: float,
+    max_iterations: int,
+    weights: Sequence[NDArray[np.float32]] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`spatial_match` with a search: each point's patch in its reference camera is
+    first warped into the target camera's view by the plane through ``points`` with
+    ``normals`` (:func:`plane_warped_tiles`), then found there by the tracker's step (NCC
+    box search of ``radius`` pixels around the target, least-squares match, forward-
+    backward check) -- a point held by one stereo pair projects pixels off in a camera
+    45-90 degrees away, and a match started there without a search diverges (track5: 76%
+    of the tries into cameras that see the point). Kept when the correlation reaches
+    ``min_correlation`` and the match lies within ``tolerance`` pixels of the target.
+    Returns positions (N, C, 2) and covariances (N, C, 2, 2), NaN where not found."""
+    n, c = targets.shape[:2]
+    uv = np.full((n, c, 2), np.nan)
+    cov = np.full((n, c, 2, 2), np.nan)
+    wanted = np.isfinite(targets).all(axis=2)
+    tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
+    side = size + 6
+    for r in range(c):
+        for k in range(c):
+            rows = np.flatnonzero((reference == r) & wanted[:, k])
+            if k == r or rows.size == 0:
+                continue
+            affine = plane_affine(cameras, r, k, template_uv[rows], points[rows], normals[rows])
+            det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
+            # A plane seen edge-on (or a failed ray) gives no warp: the identity then.
+            bad = ~(np.isfinite(affine).all(axis=(1, 2)) & (det > 0.05))
+            affine[bad] = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+            mosaic, centres = plane_warped_tiles(images[r], template_uv[rows], affine, side)
+            step_weights = None
+            if weights is not None:
+                weighs, _ = plane_warped_tiles(np.ascontiguousarray(weights[r], dtype=np.float32), template_uv[rows],
+                                               affine, side)
+                step_weights = ([weighs], [np.ones_like(images[k])])
+            # The step predicts 2 last - before: a prediction at the target.
+            before = 2 * centres - targets[rows, k]
+            pos, flags, pcov, corr = _core.track_step(
+                [mosaic], [images[k]], centres[None], before[None], size=size, radius=radius,
+                min_correlation=box_correlation, forward_backward=forward_backward, min_texture=min_texture,
+                max_iterations=max_iterations, weights=step_weights)
+            found = pos[0]
+            good = ((flags[0] == 0) & (corr[0] >= min_correlation)
+                    & (np.linalg.norm(found - targets[rows, k], axis=1) <= tol[rows]))
+            uv[rows[good], k] = found[good]
+            cov[rows[good], k] = pcov[0, good]
+    return uv, cov
+
+
 def intersect_views(
     cameras: Sequence[Camera],
     uv: NDArray[np.float64],
@@ -174,3 +269,39 @@ def intersect_views(
         used[rows[keep]] = result.used[keep]
         rejected[rows] = (observed[rows] & ~result.used & result.valid[:, None]) | bad
     return points, covariance, used, rejected
+
+
+def confirm_views(
+    cameras: Sequence[Camera],
+    uv: NDArray[np.float64],
+    cov: NDArray[np.float64],
+    new_uv: NDArray[np.float64],
+    new_cov: NDArray[np.float64],
+    *,
+    max_residual: float,
+    floor: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """New views ``new_uv`` (N, C, 2; NaN where none, covariances ``new_cov``) of points
+    held in ``uv`` (N, C, 2, with ``cov``), checked by intersecting each point's held and new
+    views together (:func:`intersect_views`): a point's new views are kept when every one
+    of them is used and the intersection holds (one wrong view would otherwise fail the
+    point's intersection on the next frame and end its track), refused (NaN) otherwise.
+    Returns the kept new views and their covariances, and the points intersected with them
+    (N, 3) and their covariances (N, 3, 3), NaN for points without a kept new view."""
+    n = len(uv)
+    new = np.isfinite(new_uv[..., 0]) & ~np.isfinite(uv[..., 0])
+    out_uv = np.where(new[..., None], new_uv, np.nan)
+    out_cov = np.where(new[..., None, None], new_cov, np.nan)
+    points = np.full((n, 3), np.nan)
+    covariance = np.full((n, 3, 3), np.nan)
+    rows = np.flatnonzero(new.any(axis=1))
+    if rows.size == 0:
+        return out_uv, out_cov, points, covariance
+    both_uv = np.where(new[rows, :, None], new_uv[rows], uv[rows])
+    both_cov = np.where(new[rows, :, None, None], new_cov[rows], cov[rows])
+    x, xcov, used, _ = intersect_views(cameras, both_uv, both_cov, max_residual=max_residual, floor=floor)
+    ok = np.isfinite(x).all(axis=1) & (used | ~new[rows]).all(axis=1)
+    out_uv[rows[~ok]] = np.nan
+    out_cov[rows[~ok]] = np.nan
+    points[rows[ok]], covariance[rows[ok]] = x[ok], xcov[ok]
+    return out_uv, out_cov, points, covariance
