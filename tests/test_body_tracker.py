@@ -149,8 +149,9 @@ def test_the_lost_test_measures_a_drop_against_the_recent_frames_spread() -> Non
     # a track whose share wanders as much is not lost for that drop
     noisy = [0.80, 0.90, 0.82, 0.88, 0.78, 0.92, 0.84, 0.86, 0.81, 0.89]
     assert SEED2_DRIFTED >= lost_threshold(noisy)
-    # never less than LOST_DROP, however steady the frames
+    # never less than LOST_DROP below the recent frames' upper quartile, however steady
     assert lost_threshold([0.9] * 10) == pytest.approx(0.9 - LOST_DROP)
+    assert lost_threshold([0.9] * 5 + [0.91] * 5) == pytest.approx(0.91 - LOST_DROP)
     # few frames: the old fixed drop; none: 0.9
     assert lost_threshold([0.85, 0.86]) == pytest.approx(0.855 - 0.1)
     assert lost_threshold([]) == 0.9

@@ -45,9 +45,10 @@ SHAPE_PRIOR_SIGMA = 0.01
 #: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
 #: default ``shape_bounds``).
 SHAPE_RANGE = (0.5, 2.0)
-#: A tracked frame is lost when its explained share falls below the median of the recent
-#: frames' by more than this many times their spread (``1.4826`` times the median absolute
-#: deviation, so a Gaussian's standard deviation) ...
+#: A tracked frame is lost when its explained share falls below the upper quartile of the
+#: recent frames' (what the track explained while it held: a slow drift pulls their median
+#: down with it, tuning seed 2's frames 17-21) by more than this many times their spread
+#: (``1.4826`` times the median absolute deviation, so a Gaussian's standard deviation) ...
 LOST_SPREADS = 3.0
 #: ... and by at least this much. Masks alone, the share of a well-tracked frame moves by
 #: up to ~0.02 from frame to frame (spread ~0.005-0.01) and the median ray distance stays
@@ -192,18 +193,19 @@ def limb_length_groups(model: BodyModel, groups: Any) -> NDArray[np.int64]:
 
 def lost_threshold(recent: Sequence[float]) -> float:
     """The explained share under which a tracked frame counts as lost, given the shares of
-    the recent observed frames (oldest first): their median less :data:`LOST_SPREADS`
-    times their spread (``1.4826`` times the median absolute deviation), and at least
-    :data:`LOST_DROP` less; with fewer than :data:`LOST_MIN_RECENT` frames, whose spread
-    says little, :data:`LOST_DROP_FEW` less; with none, 0.9."""
+    the recent observed frames (oldest first): their upper quartile less
+    :data:`LOST_SPREADS` times their spread (``1.4826`` times the median absolute deviation
+    from their median), and at least :data:`LOST_DROP` less; with fewer than
+    :data:`LOST_MIN_RECENT` frames, whose spread says little, their median less
+    :data:`LOST_DROP_FEW` (the test of before); with none, 0.9."""
     shares = np.asarray(recent, dtype=np.float64)[-LOST_RECENT:]
     if len(shares) == 0:
         return 0.9
-    reference = float(np.median(shares))
+    median = float(np.median(shares))
     if len(shares) < LOST_MIN_RECENT:
-        return reference - LOST_DROP_FEW
-    spread = 1.4826 * float(np.median(np.abs(shares - reference)))
-    return reference - max(LOST_SPREADS * spread, LOST_DROP)
+        return median - LOST_DROP_FEW
+    spread = 1.4826 * float(np.median(np.abs(shares - median)))
+    return float(np.percentile(shares, 75)) - max(LOST_SPREADS * spread, LOST_DROP)
 
 
 @dataclass(frozen=True)
