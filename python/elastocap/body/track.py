@@ -25,7 +25,7 @@ from elastocap.body.model import SHAPE_NAMES, SKIN_LEVEL, BodyModel, BodyState
 from elastocap.body.search import search_pose
 from elastocap.cameras.camera import Camera
 
-__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "narrow_shape_family", "observation_distances", "track_body"]
+__all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "lost_threshold", "narrow_shape_family", "observation_distances", "track_body"]
 
 #: Observations within this distance of the fitted skin (metres) count as explained.
 EXPLAINED_DISTANCE = 0.02
@@ -45,6 +45,22 @@ SHAPE_PRIOR_SIGMA = 0.01
 #: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
 #: default ``shape_bounds``).
 SHAPE_RANGE = (0.5, 2.0)
+#: A tracked frame is lost when its explained share falls below the upper quartile of the
+#: recent frames' (what the track explained while it held: a slow drift pulls their median
+#: down with it, tuning seed 2's frames 17-21) by more than this many times their spread
+#: (``1.4826`` times the median absolute deviation, so a Gaussian's standard deviation) ...
+LOST_SPREADS = 3.0
+#: ... and by at least this much. Masks alone, the share of a well-tracked frame moves by
+#: up to ~0.02 from frame to frame (spread ~0.005-0.01) and the median ray distance stays
+#: at 2-4 mm even when a limb has drifted 10 cm (the capsule figure, tuning seed 2: frame
+#: 10 fell 0.849 -> 0.809 with the skin from 16 to 23 mm, frame 11 to 0.67 and 36 mm; the
+#: fixed drop of 0.1 used before waited for frame 11; ``benches/README.md``, branch body7).
+LOST_DROP = 0.03
+#: Frames whose quality sets the reference of the lost test, and how many it needs before
+#: it trusts their spread (fewer: the drop is :data:`LOST_DROP_FEW`).
+LOST_RECENT = 10
+LOST_MIN_RECENT = 4
+LOST_DROP_FEW = 0.1
 
 
 @dataclass(frozen=True)
@@ -175,6 +191,23 @@ def limb_length_groups(model: BodyModel, groups: Any) -> NDArray[np.int64]:
     return renumbered.astype(np.int64)
 
 
+def lost_threshold(recent: Sequence[float]) -> float:
+    """The explained share under which a tracked frame counts as lost, given the shares of
+    the recent observed frames (oldest first): their upper quartile less
+    :data:`LOST_SPREADS` times their spread (``1.4826`` times the median absolute deviation
+    from their median), and at least :data:`LOST_DROP` less; with fewer than
+    :data:`LOST_MIN_RECENT` frames, whose spread says little, their median less
+    :data:`LOST_DROP_FEW` (the test of before); with none, 0.9."""
+    shares = np.asarray(recent, dtype=np.float64)[-LOST_RECENT:]
+    if len(shares) == 0:
+        return 0.9
+    median = float(np.median(shares))
+    if len(shares) < LOST_MIN_RECENT:
+        return median - LOST_DROP_FEW
+    spread = 1.4826 * float(np.median(np.abs(shares - median)))
+    return float(np.percentile(shares, 75)) - max(LOST_SPREADS * spread, LOST_DROP)
+
+
 @dataclass(frozen=True)
 class _Frame:
     """One frame's observations with the silhouette rays drawn once."""
@@ -241,8 +274,9 @@ class BodyTracker:
         Levenberg-Marquardt iterations per tracked frame.
     lost_distance : float, default 0.015, keyword-only
         A tracked frame whose observations lie farther than this (median, metres) from the
-        fitted skin, or of which clearly less are explained than in the frames before
-        (0.1 less, and below 0.9), is searched for again.
+        fitted skin, or of which clearly less are explained than in the recent frames
+        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`), is searched
+        for again; the search's result replaces the tracked fit when it explains more.
     refuse_distance : float, default 0.03, keyword-only
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
@@ -413,11 +447,15 @@ class BodyTracker:
 
     def _lost(self, quality: FrameQuality) -> bool:
         """Farther than ``lost_distance`` (median), or explaining clearly less than the
-        frames before did (a subject the model fits only roughly explains less every
-        frame; a lost track falls from there)."""
-        recent = [q.explained for q, seen in zip(self._quality[-10:], self._observed[-10:]) if seen]
-        reference = float(np.median(recent)) if recent else 1.0
-        return quality.median_distance > self.lost_distance or quality.explained < min(reference - 0.1, 0.9)
+        frames before did: a subject the model fits only roughly explains less every
+        frame, and a lost track falls from there. "Clearly" is measured against the recent
+        frames' own spread (:data:`LOST_SPREADS`, :data:`LOST_DROP`), not a fixed share:
+        with silhouettes alone a limb that drifts off its data costs only a few percent of
+        the rays, and the median distance does not move at all."""
+        if quality.median_distance > self.lost_distance:
+            return True
+        recent = [q.explained for q, seen in zip(self._quality[-LOST_RECENT:], self._observed[-LOST_RECENT:]) if seen]
+        return quality.explained < lost_threshold(recent)
 
     def update(self, observations: BodyObservations | Mapping[str, Any]) -> BodyState:
         """Fits the next frame and returns its state (shape may still change until
@@ -452,7 +490,9 @@ class BodyTracker:
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
         if self._lost(quality):
             found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
-            if (found_quality.median_distance, -found_quality.explained) < (quality.median_distance, -quality.explained):
+            # By the explained share first: with silhouettes alone the median distance is
+            # 2-4 mm for a fit with a limb 10 cm off as for a good one.
+            if (-found_quality.explained, found_quality.median_distance) < (-quality.explained, quality.median_distance):
                 state, quality, searched = found, found_quality, True
         self._append(frame, state, quality, searched=searched, observed=True)
         if not self._shape_fixed and len(self._states) >= self.window:
