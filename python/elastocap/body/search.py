@@ -32,6 +32,10 @@ CARRIED = 4
 #: Coarse results whose headings differ by less than this (radians) are one valley.
 DISTINCT_HEADING = np.radians(30)
 
+#: A middle-stage result whose heading differs from the best one's by more than this
+#: (radians) faces the other way: it is refined beside the best (front and back).
+OPPOSITE_HEADING = np.pi / 2
+
 #: Limb restarts (first joint angle of the upper arm / thigh, radians).
 ARM_SWINGS = (-1.0, -0.4, 0.4, 1.0)
 LEG_SWINGS = (-0.3, 0.3, 0.9)
@@ -58,7 +62,9 @@ def search_pose(
     2. Middle: the :data:`CARRIED` best of distinct headings, and each turned by half a
        turn (front and back look alike), fitted 30 iterations on more observations; the
        best by ``score`` is fitted fully.
-    3. Restarts, while observations stay unexplained: each limb alone from a few swings,
+    3. Restarts, while observations stay unexplained: for the best of stage 2 and for the
+       best facing the other way (:data:`OPPOSITE_HEADING`) each, the better one kept at
+       the end: each limb alone from a few swings,
        straight and bent (an arm's raise kept, then zeroed), untwisted; the legs swapped and restarted together from each stride.
        A restart is kept when it explains the observations better.
     4. With ``fit_shape``, the shape is fitted last, from the pose found.
@@ -105,17 +111,30 @@ def search_pose(
             state = fit(init, shape, 30, 1200)
             middle.append((score(state), state))
     middle.sort(key=lambda m: m[0][0])
-    state = fit(middle[0][1], shape, 60, None)
-    best: list[Any] = [score(state), state]
+    # Front and back: the best of the middle stage and the best facing the other way are
+    # both refined fully, limb restarts included, and the one that then explains the
+    # observations better is kept. A figure seen with its limbs nearly straight explains
+    # its silhouettes almost as well facing backwards; which facing is right shows only
+    # once each has its elbows and knees bent the way its joints allow, which the limb
+    # restarts find.
+    facings = [middle[0][1]]
+    opposite = [m for m in middle if abs(_turn(m[1].motion[3] - facings[0].motion[3])) > OPPOSITE_HEADING]
+    if opposite:
+        facings.append(opposite[0][1])
+    results = []
+    for init in facings:
+        state = fit(init, shape, 60, None)
+        best: list[Any] = [score(state), state]
 
-    def attempt(trial: BodyState) -> None:
-        refined = fit(trial, shape, 30, 1200)
-        s = score(refined)
-        if s[0] < best[0][0]:
-            best[:] = [s, refined]
+        def attempt(trial: BodyState, best: list[Any] = best) -> None:
+            refined = fit(trial, shape, 30, 1200)
+            s = score(refined)
+            if s[0] < best[0][0]:
+                best[:] = [s, refined]
 
-    _restart_limbs(model, best, attempt, set_angles)
-    state = best[1]
+        _restart_limbs(model, best, attempt, set_angles)
+        results.append(best)
+    state = min(results, key=lambda b: b[0][0])[1]
     return fit(state, None, 60, None) if fit_shape else state
 
 
