@@ -21,6 +21,7 @@ __all__ = [
     "__version__",
     "mls_shape_functions",
     "polar_rotation",
+    "raster_fragments",
     "sample_grid",
     "signed_distance",
     "SparseCholesky",
