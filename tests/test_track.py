@@ -180,15 +180,15 @@ def test_tracked_views_keep_going_below_the_seeding_texture_floor(tmp_path, monk
     # seeded on frame 0 fall below the seeding floor (1x the noise) while still matching.
     # With the lower floor for tracked views (hysteresis) most points stay, and stay right;
     # with one floor for both, most are lost as "match failed".
-    import elastocap.tracking.tracker as tracker
+    from elastocap.tracking import settings
 
     truth = write_scene(tmp_path / "fade", frames=5, cameras=6, seed=1, points=500, fade=0.55)
     capture = elastocap.Capture.open(tmp_path / "fade")
     kept = {}
-    low, high = tracker._KEEP_TEXTURE_OVER_NOISE, tracker._TEXTURE_OVER_NOISE
+    low, high = settings.KEEP_TEXTURE_OVER_NOISE, settings.TEXTURE_OVER_NOISE
     assert low < high
     for floor in (low, high):
-        monkeypatch.setattr(tracker, "_KEEP_TEXTURE_OVER_NOISE", floor)
+        monkeypatch.setattr(settings, "KEEP_TEXTURE_OVER_NOISE", floor)
         tracks = track_points(capture)
         born = tracks.flags[0] == TrackFlag.TRACKED
         kept[floor] = int((tracks.flags[4][born] == TrackFlag.TRACKED).sum())

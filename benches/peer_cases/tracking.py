@@ -146,7 +146,7 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
 
 def _speed_row(folder: Path, repeats: int) -> dict[str, Any]:
     from elastocap import Capture, _core
-    from elastocap.tracking.tracker import STEP_ITERATIONS
+    from elastocap.tracking.settings import STEP_ITERATIONS
 
     capture = Capture.open(folder)
     names = capture.rig.names

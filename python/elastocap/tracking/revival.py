@@ -12,11 +12,22 @@ positions of the last frames are read back from their files)."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-__all__ = ["Lost"]
+from elastocap.tracking import settings
+from elastocap.tracking.filters import pixel_size
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.views import intersect_views, project_all
+from elastocap.tracking.visibility import predicted_visible
+
+if TYPE_CHECKING:
+    from elastocap.tracking.step import FrameTracker
+
+__all__ = ["Lost", "revive"]
 
 # Neighbours whose motion predicts a lost point, and the fewest that will do.
 NEIGHBOURS = 8
@@ -96,3 +107,74 @@ class Lost:
         if "lost_since" in arrays:
             self.since = np.asarray(arrays["lost_since"], np.int64).copy()
             self.x = np.asarray(arrays["lost_x"], float).copy()
+
+
+def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
+           alive: NDArray[np.bool_], uv: NDArray[np.float64], cov2d: NDArray[np.float64], x: NDArray[np.float64],
+           xcov: NDArray[np.float64], x_state: NDArray[np.float64], flags: NDArray[np.uint8],
+           flags2d: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Records the points lost on this frame and brings back lost ones whose anchors
+    match again (``uv``, ``cov2d``, ``xcov``, ``flags`` and ``flags2d`` are updated in
+    place); returns ``x`` and ``x_state``."""
+    assert tracker.lost is not None and tracker.anchors is not None
+    n, c = uv.shape[:2]
+    tracker.lost.grow(n)
+    left = np.isfinite(uv[..., 0]).any(axis=1)
+    tracker.lost.record(alive & ~left, tracker.x_last, frame)
+    tracker.lost.forget((tracker.lost.since[:n] >= 0) & (frame - tracker.lost.since[:n] > settings.REVIVE_FRAMES))
+    rows = tracker.lost.candidates(frame)
+    rows = rows[(rows < n) & ~left[rows]]
+    if rows.size == 0:
+        return x, x_state
+    tracked = np.isfinite(x).all(axis=1)
+    predicted = tracker.lost.predict(rows, np.where(tracked[:, None], x, np.nan))
+    targets = project_all(tracker.cameras, predicted, margin=tracker.size)
+    if settings.PREDICT_VISIBILITY:
+        # The cameras that held the point and are predicted to see it again.
+        asked = np.isfinite(targets).all(axis=2) & tracker.anchors.held[rows]
+        normals = tracker.normals(predicted, x, tracker.anchors.held[rows])
+        seen = predicted_visible(tracker.cameras, masks, predicted, normals, x, asked, facing=settings.REVIVE_FACING)
+        targets[asked & ~seen] = np.nan
+    where = np.zeros((n, c), bool)
+    starts = np.full((n, c, 2), np.nan)
+    for k in range(c):
+        t = targets[:, k]
+        seen = np.isfinite(t).all(axis=1)
+        iu = np.clip(np.round(np.nan_to_num(t[:, 0])).astype(int), 0, masks[k].shape[1] - 1)
+        iv = np.clip(np.round(np.nan_to_num(t[:, 1])).astype(int), 0, masks[k].shape[0] - 1)
+        ok = seen & masks[k][iv, iu] & tracker.anchors.held[rows, k]
+        where[rows[ok], k] = True
+        starts[rows[ok], k] = t[ok]
+    pairs = where[rows].sum(axis=1) >= 2
+    rows, predicted = rows[pairs], predicted[pairs]
+    if rows.size == 0:
+        return x, x_state
+    found, fcov = tracker.anchors.search(grey, starts, where, radius=settings.REVIVE_RADIUS, min_correlation=tracker.min_correlation,
+                                      box_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION),
+                                      forward_backward=tracker.o["forward_backward"], min_texture=tracker.keep_texture,
+                                      max_iterations=settings.STEP_ITERATIONS)
+    two = np.isfinite(found[rows, :, 0]).sum(axis=1) >= 2
+    rows, predicted = rows[two], predicted[two]
+    if rows.size == 0:
+        return x, x_state
+    bx, bcov, bused, _ = intersect_views(tracker.cameras, found[rows], fcov[rows],
+                                         max_residual=min(tracker.o["max_residual"], settings.REVIVE_RESIDUAL), floor=settings.FLOOR)
+    ok = np.isfinite(bx).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        near = np.linalg.norm(bx - predicted, axis=1) <= settings.REVIVE_RADIUS * pixel_size(tracker.cameras, bx, bused)
+    ok &= near
+    back = rows[ok]
+    uv[back] = np.where(bused[ok][..., None], found[back], np.nan)
+    cov2d[back] = np.where(bused[ok][..., None, None], fcov[back], np.nan)
+    flags2d[back] = np.where(bused[ok], TrackFlag.TRACKED, flags2d[back])
+    x, x_state = x.copy(), x_state.copy()
+    x[back], xcov[back], x_state[back] = bx[ok], bcov[ok], bx[ok]
+    flags[back] = TrackFlag.TRACKED
+    revived = np.zeros(n, bool)
+    revived[back] = True
+    tracker.lost.forget(revived)
+    if settings.REVIVE_RECUT:
+        # The anchors of a surface that turned away and back are old: the views found
+        # now are cut again from this frame (at the end of the step).
+        tracker.anchors.drop(revived[:, None] & np.ones(c, bool))
+    return x, x_state

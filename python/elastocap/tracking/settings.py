@@ -1,0 +1,67 @@
+"""The tracker's tuned constants (issue 15), in one module so that every family of the
+tracker reads the same values and a bench or a test can override one (each is read at call
+time as ``settings.NAME``). Measured on the textured capture's tuning seed 0
+(benches/README.md, the sections of branches tracking and track3-track6)."""
+
+from __future__ import annotations
+
+from elastocap.tracking.flags import TrackFlag
+
+# The matcher's covariance holds the noise of one match, not the drift of a chain of
+# them: each view gets this standard deviation (pixels) on top in the intersection.
+FLOOR = 0.1
+# Least RMS gradient of a patch along its weakest direction, in multiples of the image's
+# noise level (smooth printed textures are weak at 11 px).
+TEXTURE_OVER_NOISE = 1.0
+# The same floor for a view already tracked (hysteresis): a seed's patch turns and changes
+# shading from frame to frame, and its weakest gradient wanders below the seeding floor
+# without the match going wrong. Measured on the textured capture (seed 0, frame pairs
+# started at the truth, views at least 12 px inside the silhouette): the floor at 1.0 x
+# noise refuses 51% of them, at 0.5 x 12%, for a median error of 0.12 and 0.14 px.
+KEEP_TEXTURE_OVER_NOISE = 0.5
+# Least correlation of the box search's peak (a start for least-squares matching).
+BOX_CORRELATION = 0.5
+# Largest correction of a frame-to-frame match by its anchor, pixels.
+ANCHOR_REACH = 1.5
+# Gauss-Newton iterations of the frame-to-frame match: from the box search's start a
+# match that will converge does so in a few; the rest wander along the weak direction of a
+# smooth texture (measured on the textured capture: 8 instead of 15 keeps 1.6% more views
+# and costs 23% less CPU).
+STEP_ITERATIONS = 8
+# Largest distance of a rescued view from its linear prediction, pixels.
+RESCUE_REACH = 3.0
+# A lost point is looked for again for this many frames after it was lost...
+REVIVE_FRAMES = 15
+# ... by its anchors, in a box of this half-side (pixels) around the projections of its
+# position predicted from its neighbours' motion; the intersection must land as near the
+# prediction (pixel equivalents).
+REVIVE_RADIUS = 8
+# Largest reprojection residual of a revived point's views, pixels (with two views, the
+# distance from the epipolar line: a wrong match found far from the prediction).
+REVIVE_RESIDUAL = 1.5
+REVIVE_RECUT = False
+# Least cosine between a lost point's predicted normal and the direction to a camera it is
+# looked for in (a surface coming back into view is first seen at grazing angles).
+REVIVE_FACING = 0.0
+# Largest distance of a re-acquired view from the projection of the point, pixels: a
+# point held by one stereo pair has a poor depth, whose error shows in a camera 45-90
+# degrees away as an offset of pixels along the epipolar line (the intersection with the
+# new view then checks it and fixes the depth).
+REACQUIRE_TOLERANCE = 1.5
+# The re-acquisition searches (NCC box of this half-side, pixels, with the patch warped by
+# the neighbours' plane into the other camera) before its least-squares match; 0: the
+# match alone, started at the projection. A found view may lie this far from the
+# projection (the intersection with the view then checks it).
+REACQUIRE_RADIUS = 0
+REACQUIRE_SEARCH_TOLERANCE = 3.0
+REACQUIRE_ITERATIONS = 20
+# Re-acquired views of a tracked point kept only when they intersect with its held ones.
+CONFIRM_REACQUIRED = True
+# Start shapes of cross-camera matches from the plane of the neighbouring tracked points
+# (else from the direction of the cameras that see the point).
+FITTED_NORMALS = True
+# Re-acquire and revive a point only in the cameras predicted to see it
+# (:mod:`elastocap.tracking.visibility`), not in every camera whose silhouette it falls in.
+PREDICT_VISIBILITY = True
+# The frame-to-frame failures a view's anchor may rescue.
+RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

@@ -1,0 +1,259 @@
+"""The tracker's per-frame step (issue 15): the state carried from frame to frame and one
+frame's work on it. Every camera's points tracked from the previous frame in one Rust call
+(prediction, NCC box search, temporal LSM, forward-backward check), corrected by their
+anchors and rescued from them, intersected across the cameras, filtered as trajectories;
+then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), lost points revived
+(:mod:`elastocap.tracking.revival`) and new points seeded (:mod:`elastocap.tracking.seeding`).
+The step returns the arrays that :func:`elastocap.tracking.tracks.write_frame` writes, with
+the 2-D state that :meth:`FrameTracker.resume` reads back."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap import _core
+from elastocap.capture import Capture
+from elastocap.stereo.matching import noise_level
+from elastocap.tracking import settings
+from elastocap.tracking.anchors import Anchors
+from elastocap.tracking.filters import pixel_size, trajectory_flags
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.reacquire import reacquire
+from elastocap.tracking.revival import Lost, revive
+from elastocap.tracking.seeding import seed_points
+from elastocap.tracking.tracks import frame_file, read_frame
+from elastocap.tracking.views import facing_normals, intersect_views, surface_normals
+
+__all__ = ["FrameTracker", "point_flags"]
+
+
+def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32))
+
+
+class FrameTracker:
+    """The state carried from frame to frame (all points, ids in order of seeding)."""
+
+    def __init__(self, capture: Capture, spacing: int, size: int, radius: int, min_correlation: float,
+                 options: dict[str, Any]) -> None:
+        self.capture = capture
+        self.names = capture.rig.names
+        self.cameras = capture.rig.cameras
+        self.spacing, self.size, self.radius, self.min_correlation = spacing, size, radius, min_correlation
+        self.o = options
+        c = len(self.cameras)
+        self.uv = np.zeros((0, c, 2))
+        self.uv_last = np.zeros((0, c, 2))
+        self.x_last = np.zeros((0, 3))
+        self.x_before = np.zeros((0, 3))
+        self.point_flags = np.zeros(0, np.uint8)
+        self.grey: list[NDArray[np.float32]] | None = None
+        # The previous frame's template weights (its masks as 0/1 floats), when used.
+        self.weights: list[NDArray[np.float32]] | None = None
+        self.anchors = Anchors(c, size) if options["anchor"] else None
+        self.lost = Lost(settings.REVIVE_FRAMES) if options["revive"] else None
+        self.texture: list[float] = []
+        self.keep_texture = 0.0
+
+    def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
+        grey = [_grey(self.capture.image(name, frame)) for name in self.names]
+        masks = [self.capture.mask(name, frame) for name in self.names]
+        if not self.texture:
+            self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
+            self.keep_texture = settings.KEEP_TEXTURE_OVER_NOISE / settings.TEXTURE_OVER_NOISE * min(self.texture)
+        return grey, masks
+
+    def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
+        if not self.o["mask_weights"]:
+            return None
+        return [np.ascontiguousarray(m, dtype=np.float32) for m in masks]
+
+    def resume(self, out: str | Path, chosen: list[int]) -> int:
+        """Restores the state after the longest prefix of ``chosen`` already written;
+        returns the index to continue from."""
+        done = 0
+        while done < len(chosen) and frame_file(out, chosen[done]).exists():
+            done += 1
+        if done == 0:
+            return 0
+        last = read_frame(frame_file(out, chosen[done - 1]))
+        before = read_frame(frame_file(out, chosen[done - 2])) if done >= 2 else None
+        n = len(last["ids"])
+        self.uv = last["uv"].astype(float)
+        self.uv_last = np.full_like(self.uv, np.nan)
+        self.x_last = last["positions"].astype(float)
+        self.x_before = np.full((n, 3), np.nan)
+        if before is not None:
+            m = len(before["ids"])
+            self.uv_last[:m] = before["uv"]
+            self.x_before[:m] = before["positions"]
+        self.point_flags = last["flags"].astype(np.uint8)
+        if self.lost is not None:
+            first = max(0, done - 1 - settings.REVIVE_FRAMES - 1)
+            history = {chosen[j]: read_frame(frame_file(out, chosen[j]))["positions"] for j in range(first, done)}
+            self.lost.restore(last, history)
+        self.grey, masks = self._read(chosen[done - 1])
+        self.weights = self._weights(masks)
+        if self.anchors is not None and "anchor_frame" in last:
+            where_frames = last["anchor_frame"]
+            for source in np.unique(where_frames[where_frames >= 0]):
+                if source == chosen[done - 1]:
+                    grey, weights = self.grey, self.weights
+                else:
+                    grey, source_masks = self._read(int(source))
+                    weights = self._weights(source_masks)
+                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
+        return done
+    def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
+        grey, masks = self._read(frame)
+        weights = self._weights(masks)
+        n, c = self.uv.shape[:2]
+        alive = np.isfinite(self.uv).all(axis=2).any(axis=1)
+        if first or n == 0 or self.grey is None:
+            uv = np.full((n, c, 2), np.nan)
+            flags2d = np.full((n, c), TrackFlag.NOT_SEEDED, np.uint8)
+            cov2d = np.full((n, c, 2, 2), np.nan)
+            corr = np.full((n, c), np.nan)
+        else:
+            pos, f2d, cv2d, cr = _core.track_step(
+                self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
+                np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
+                min_correlation=min(self.min_correlation, settings.BOX_CORRELATION), forward_backward=self.o["forward_backward"],
+                min_texture=self.keep_texture, max_iterations=settings.STEP_ITERATIONS,
+                weights=None if weights is None or self.weights is None else (self.weights, weights))
+            uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
+            # The box search only has to find the start (it does not model rotation or
+            # scale); the least-squares match, which does, must reach the threshold.
+            weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
+            flags2d[weak] = TrackFlag.LOW_CORRELATION
+            uv = np.where(weak[..., None], np.nan, uv)
+            if self.anchors is not None:
+                uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=settings.ANCHOR_REACH,
+                                                 min_texture=self.keep_texture)
+                self.anchors.cut(grey, uv, stale, frame, weights=weights)
+                if self.o["rescue"]:
+                    # Views lost by the frame-to-frame match (not at the border) found again
+                    # from their anchor at the linear prediction.
+                    lost = (np.isfinite(self.uv[..., 0]) & ~np.isfinite(uv[..., 0])
+                            & np.isin(flags2d, settings.RESCUED))
+                    start = np.where(np.isfinite(self.uv_last), 2 * self.uv - self.uv_last, self.uv)
+                    found, fcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
+                                                      reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
+                    back = np.isfinite(found[..., 0])
+                    uv = np.where(back[..., None], found, uv)
+                    cov2d = np.where(back[..., None, None], fcov, cov2d)
+                    flags2d[back] = TrackFlag.TRACKED
+        x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=settings.FLOOR)
+        flags2d[rejected] = TrackFlag.EPIPOLAR
+        pixel = pixel_size(self.cameras, x, used)
+        traj = trajectory_flags(x, self.x_last, self.x_before, pixel, max_velocity=self.o["max_velocity"],
+                                max_acceleration=self.o["max_acceleration"], uniformity=self.o["uniformity"],
+                                neighbours=self.o["neighbours"])
+        x[traj > 0] = np.nan
+        xcov[traj > 0] = np.nan
+        tracked = np.isfinite(x).all(axis=1)
+        # A point down to one view (occluded in the others) keeps it for a frame: its 3-D
+        # position predicted from the last two is where the others are searched again.
+        views = np.isfinite(uv[..., 0])
+        single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.isfinite(self.x_last).all(axis=1)
+        keep = (used & tracked[:, None]) | (views & single[:, None])
+        uv = np.where(keep[..., None], uv, np.nan)
+        flags = point_flags(flags2d, self.uv, traj, tracked, alive, self.point_flags)
+        anchor = np.where(tracked[:, None], x, np.where(np.isfinite(self.x_before), 2 * self.x_last - self.x_before, self.x_last))
+        anchor[~(tracked | single)] = np.nan
+
+        # Lost views re-acquired by spatial matching from the view of best correlation.
+        reacquire(self, grey, masks, weights, uv, cov2d, corr, x, xcov, flags, tracked, single, anchor)
+        lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
+        uv[lone & ~single] = np.nan
+        # A single view that found no partner is given up.
+        uv[single & ~np.isfinite(x).all(axis=1) & lone] = np.nan
+        # Keep the prediction of a point that waits on one view (its next frame predicts on).
+        x_state = np.where((single & ~np.isfinite(x).all(axis=1))[:, None], anchor, x)
+
+        if self.lost is not None and n:
+            x, x_state = revive(self, frame, grey, masks, alive, uv, cov2d, x, xcov, x_state, flags, flags2d)
+
+        # New points where the textured masks have none.
+        if reseed:
+            new = seed_points(grey, masks, self.cameras, uv, spacing=self.spacing, size=self.size,
+                              min_correlation=self.min_correlation, min_views=self.o["min_views"],
+                              min_texture=float(min(self.texture)), tolerance=self.o["max_residual"],
+                              max_residual=self.o["max_residual"], floor=settings.FLOOR)
+            if len(new):
+                ncov = np.where(np.isfinite(new)[..., None], np.eye(2) * 0.01, np.nan)
+                nx, nxcov, nused, _ = intersect_views(self.cameras, new, ncov, max_residual=self.o["max_residual"], floor=settings.FLOOR)
+                ok = np.isfinite(nx).all(axis=1)
+                new, nx, nxcov, nused = new[ok], nx[ok], nxcov[ok], nused[ok]
+                new = np.where(nused[..., None], new, np.nan)
+                m = len(new)
+                uv = np.concatenate([uv, new])
+                x = np.concatenate([x, nx])
+                xcov = np.concatenate([xcov, nxcov])
+                flags = np.concatenate([flags, np.zeros(m, np.uint8)])
+                flags2d = np.concatenate([flags2d, np.where(nused, 0, TrackFlag.NOT_SEEDED).astype(np.uint8)])
+                self.uv = np.concatenate([self.uv, np.full((m, c, 2), np.nan)])
+                self.x_last = np.concatenate([self.x_last, np.full((m, 3), np.nan)])
+                self.x_before = np.concatenate([self.x_before, np.full((m, 3), np.nan)])
+        total = len(uv)
+        if self.anchors is not None:
+            views_now = np.isfinite(uv[..., 0])
+            self.anchors.grow(total)
+            # A lost point keeps the anchors it had while it may be revived.
+            waiting = np.zeros(total, bool)
+            if self.lost is not None:
+                self.lost.grow(total)
+                waiting = self.lost.since[:total] >= 0
+            self.anchors.drop(~views_now & ~waiting[:, None])
+            self.anchors.cut(grey, uv, views_now & ~self.anchors.held[:total], frame, weights=weights)
+        self.uv_last, self.uv = self.uv, uv
+        if len(x_state) < len(x):
+            x_state = np.concatenate([x_state, x[len(x_state):]])
+        self.x_before, self.x_last = self.x_last, x_state
+        self.point_flags = flags
+        if self.lost is not None:
+            self.lost.remember(frame, x)
+        self.grey = grey
+        self.weights = weights
+        return {
+            "ids": np.arange(total, dtype=np.int64),
+            "positions": x,
+            "covariances": xcov,
+            "flags": flags,
+            "uv": uv,
+            "flags2d": flags2d,
+            **({} if self.lost is None else self.lost.state(total)),
+            **({} if self.anchors is None else {
+                "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
+                "anchor_uv": self.anchors.uv[:total],
+            }),
+        }
+
+    def normals(self, points: NDArray[np.float64], cloud: NDArray[np.float64],
+                 seen: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """Surface normals at ``points`` for the start shape of wide-baseline matches."""
+        towards = facing_normals(self.cameras, points, seen)
+        return surface_normals(points, cloud, towards) if settings.FITTED_NORMALS else towards
+
+
+def point_flags(flags2d: NDArray[np.uint8], previous: NDArray[np.float64], traj: NDArray[np.uint8],
+                 tracked: NDArray[np.bool_], alive: NDArray[np.bool_], before: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """Per point: 0 where tracked; else the trajectory filter's flag; else the most common
+    2-D reason among the cameras that held it; a point dead before keeps its flag."""
+    n = len(tracked)
+    flags = np.zeros(n, np.uint8)
+    held = np.isfinite(previous).all(axis=2)
+    counts = np.zeros((n, len(TrackFlag)), int)
+    rows, cols = np.nonzero(held)
+    np.add.at(counts, (rows, flags2d[rows, cols]), 1)
+    counts[:, :2] = 0
+    reason = np.where(counts.any(axis=1), np.argmax(counts, axis=1), TrackFlag.FEW_VIEWS)
+    flags[~tracked] = reason[~tracked]
+    flags[traj > 0] = traj[traj > 0]
+    flags[~alive] = np.where(before[~alive] == 0, TrackFlag.NOT_SEEDED, before[~alive])
+    return flags
