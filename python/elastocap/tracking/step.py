@@ -1,7 +1,8 @@
 """The tracker's per-frame step (issue 15): the state carried from frame to frame and one
 frame's work on it. Every camera's points tracked from the previous frame in one Rust call
 (prediction, NCC box search, temporal LSM, forward-backward check), corrected by their
-anchors and rescued from them, intersected across the cameras, filtered as trajectories;
+anchors and rescued from them, re-tied to one another across the cameras
+(:mod:`elastocap.tracking.retie`), intersected, filtered as trajectories;
 then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), lost points revived
 (:mod:`elastocap.tracking.revival`) and new points seeded (:mod:`elastocap.tracking.seeding`).
 The step returns the arrays that :func:`elastocap.tracking.tracks.write_frame` writes, with
@@ -24,6 +25,7 @@ from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.reacquire import reacquire
+from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import frame_file, read_frame
@@ -148,6 +150,13 @@ class FrameTracker:
                     uv = np.where(back[..., None], found, uv)
                     cov2d = np.where(back[..., None, None], fcov, cov2d)
                     flags2d[back] = TrackFlag.TRACKED
+            if settings.RETIE:
+                # The held views' disparity measured afresh (their chains drift apart).
+                uv, cov2d, removed = retie_views(grey, uv, cov2d, corr, size=self.size, min_correlation=self.min_correlation,
+                                                 tolerance=settings.RETIE_TOLERANCE, drop=settings.RETIE_DROP,
+                                                 drop_failed=settings.RETIE_DROP_FAILED,
+                                                 min_texture=self.keep_texture, weights=weights)
+                flags2d[removed] = TrackFlag.EPIPOLAR
         x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=settings.FLOOR)
         flags2d[rejected] = TrackFlag.EPIPOLAR
         pixel = pixel_size(self.cameras, x, used)

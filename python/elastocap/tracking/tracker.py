@@ -2,7 +2,8 @@
 
 Per frame: every camera's points tracked from the previous frame in one Rust call
 (prediction, NCC box search, temporal LSM, forward-backward check; parallel over points,
-GIL released), the views of each point intersected (blunders rejected, residual threshold),
+GIL released), the views of each point re-tied to its reference view by spatial LSM and
+intersected (blunders rejected, residual threshold),
 the 3-D trajectories filtered (velocity, acceleration, local uniformity), lost views
 re-acquired by spatial LSM at the projection of the 3-D point, and new points seeded where
 the textured mask has none. Each frame is written to ``OUT/tracks/<frame:06d>.npz`` before
