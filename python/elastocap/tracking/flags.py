@@ -37,12 +37,6 @@ class TrackFlag(IntEnum):
         Least-squares matching diverged or found too little texture.
     FEW_VIEWS : 10
         Fewer than two cameras kept it.
-    REVIVED : 11
-        Found again after it was lost (``track_points(..., revive=True)``) and not yet
-        confirmed: tracked for too few frames since, or not yet seen by a third camera. Its
-        position is withheld (the surface that comes back is first seen at grazing angles).
-
-    Code 11 is set by the Python tracker only (the Rust core's ``track::Flag`` stops at 10).
     """
 
     TRACKED = 0
@@ -56,4 +50,3 @@ class TrackFlag(IntEnum):
     NONUNIFORM = 8
     MATCH_FAILED = 9
     FEW_VIEWS = 10
-    REVIVED = 11

@@ -36,17 +36,13 @@ MIN_NEIGHBOURS = 3
 
 class Lost:
     """Per point: the frame it was lost on (-1 while not lost) and its last 3-D position;
-    the frame it was revived on (-1 once it is confirmed, or never revived) and whether it
-    has been intersected with three views since; and the tracked positions of every point
-    over the last frames (to choose, when a lost point is predicted, neighbours tracked both
-    then and now)."""
+    and the tracked positions of every point over the last frames (to choose, when a lost
+    point is predicted, neighbours tracked both then and now)."""
 
     def __init__(self, window: int) -> None:
         self.window = window
         self.since = np.zeros(0, np.int64)
         self.x = np.zeros((0, 3))
-        self.revived = np.zeros(0, np.int64)
-        self.third = np.zeros(0, bool)
         self.history: dict[int, NDArray[np.float64]] = {}
 
     def grow(self, n: int) -> None:
@@ -54,24 +50,6 @@ class Lost:
         if extra > 0:
             self.since = np.concatenate([self.since, np.full(extra, -1, np.int64)])
             self.x = np.concatenate([self.x, np.full((extra, 3), np.nan)])
-            self.revived = np.concatenate([self.revived, np.full(extra, -1, np.int64)])
-            self.third = np.concatenate([self.third, np.zeros(extra, bool)])
-
-    def withheld(self, frame: int, tracked: NDArray[np.bool_], views: NDArray[np.int64], *, frames: int,
-                 third_view: bool) -> NDArray[np.bool_]:
-        """(N,) the revived points whose positions stay out of the output on ``frame``:
-        revived fewer than ``frames`` frames ago or (with ``third_view``) not yet intersected
-        with three views since. ``tracked`` (N,) the points with a position now, ``views``
-        (N,) their view counts. A revived point lost again, or confirmed, leaves probation."""
-        n = len(tracked)
-        self.grow(n)
-        on = self.revived[:n] >= 0
-        self.revived[:n][on & ~tracked] = -1
-        on &= tracked
-        self.third[:n] |= on & (views >= 3)
-        confirmed = on & (frame - self.revived[:n] >= frames) & (self.third[:n] | (not third_view))
-        self.revived[:n][confirmed] = -1
-        return on & ~confirmed
 
     def remember(self, frame: int, positions: NDArray[np.float64]) -> None:
         """The tracked positions (N, 3; NaN where not tracked) written for ``frame``."""
@@ -121,8 +99,7 @@ class Lost:
 
     def state(self, n: int) -> dict[str, NDArray[np.generic]]:
         self.grow(n)
-        return {"lost_since": self.since[:n], "lost_x": self.x[:n], "revived_on": self.revived[:n],
-                "revived_third": self.third[:n]}
+        return {"lost_since": self.since[:n], "lost_x": self.x[:n]}
 
     def restore(self, arrays: dict[str, NDArray[np.generic]], history: dict[int, NDArray[np.float64]]) -> None:
         """The state written with a frame, and the positions of the frames before it."""
@@ -130,9 +107,6 @@ class Lost:
         if "lost_since" in arrays:
             self.since = np.asarray(arrays["lost_since"], np.int64).copy()
             self.x = np.asarray(arrays["lost_x"], float).copy()
-        if "revived_on" in arrays:
-            self.revived = np.asarray(arrays["revived_on"], np.int64).copy()
-            self.third = np.asarray(arrays["revived_third"], bool).copy()
 
 
 def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
@@ -199,8 +173,6 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     revived = np.zeros(n, bool)
     revived[back] = True
     tracker.lost.forget(revived)
-    tracker.lost.revived[back] = frame
-    tracker.lost.third[back] = False
     if settings.REVIVE_RECUT:
         # The anchors of a surface that turned away and back are old: the views found
         # now are cut again from this frame (at the end of the step).

@@ -40,11 +40,6 @@ REVIVE_RADIUS = 8
 # distance from the epipolar line: a wrong match found far from the prediction).
 REVIVE_RESIDUAL = 1.5
 REVIVE_RECUT = False
-# A revived point's positions are withheld (flag REVIVED) until it has been tracked for this
-# many frames since its revival (0: never withheld)...
-REVIVE_PROBATION = 3
-# ... and, when True, intersected with a third view since.
-REVIVE_THIRD_VIEW = False
 # Least cosine between a lost point's predicted normal and the direction to a camera it is
 # looked for in (a surface coming back into view is first seen at grazing angles).
 REVIVE_FACING = 0.0

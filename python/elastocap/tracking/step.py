@@ -94,12 +94,6 @@ class FrameTracker:
             m = len(before["ids"])
             self.uv_last[:m] = before["uv"]
             self.x_before[:m] = before["positions"]
-        if "withheld_x" in last:
-            # Revived points on probation: their positions are the state, not the output.
-            self.x_last = np.where(np.isfinite(last["withheld_x"]), last["withheld_x"], self.x_last)
-        if before is not None and "withheld_x" in before:
-            m = len(before["ids"])
-            self.x_before[:m] = np.where(np.isfinite(before["withheld_x"]), before["withheld_x"], self.x_before[:m])
         self.point_flags = last["flags"].astype(np.uint8)
         if self.lost is not None:
             first = max(0, done - 1 - settings.REVIVE_FRAMES - 1)
@@ -231,16 +225,7 @@ class FrameTracker:
             x_state = np.concatenate([x_state, x[len(x_state):]])
         self.x_before, self.x_last = self.x_last, x_state
         self.point_flags = flags
-        withheld = np.zeros(total, bool)
         if self.lost is not None:
-            # A revived point's positions stay out of the output until it has been tracked
-            # for a few frames (and seen by a third camera): the surface that comes back is
-            # first seen at grazing angles and its first positions are often off.
-            withheld = self.lost.withheld(frame, np.isfinite(x).all(axis=1), np.isfinite(uv[..., 0]).sum(axis=1),
-                                          frames=settings.REVIVE_PROBATION, third_view=settings.REVIVE_THIRD_VIEW)
-            held_x = np.where(withheld[:, None], x, np.nan)
-            x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
-            x[withheld], xcov[withheld], flags[withheld] = np.nan, np.nan, TrackFlag.REVIVED
             self.lost.remember(frame, x)
         self.grey = grey
         self.weights = weights
@@ -251,7 +236,7 @@ class FrameTracker:
             "flags": flags,
             "uv": uv,
             "flags2d": flags2d,
-            **({} if self.lost is None else {**self.lost.state(total), "withheld_x": held_x}),
+            **({} if self.lost is None else self.lost.state(total)),
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
                 "anchor_uv": self.anchors.uv[:total],
