@@ -127,8 +127,10 @@ def track_points(
         intersect near the prediction (:mod:`elastocap.tracking.revival`). Needs
         ``anchor``. Off by default: on the textured capture it keeps 1% more points through
         their visibility but its revived positions are less accurate (old anchors of a
-        surface that turned), and 2% more kept 3-D positions lie beyond 5 px-equivalents
-        (benches/README.md, branch track4).
+        surface that turned) for as long as they are tracked, not only on their first
+        frames: on seed 0, 12% of them lie beyond 5 px-equivalents against 4.6% of the
+        others, and withholding the first 3-6 frames after a revival does not change that
+        (benches/README.md, branches track4 and track7).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
