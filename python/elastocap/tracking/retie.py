@@ -9,7 +9,9 @@ reprojection residual cannot see. A spatial match of the reference view's patch 
 other held views, started at their tracked positions, measures the disparity afresh on
 this frame: on the textured capture (seed 0) its distance from the tracked view predicts
 the 3-D error (kept positions beyond 5 px-equivalents: 1.1% where it is under 0.1 px,
-16% at 0.3-0.5 px, 38-55% beyond 0.5 px; benches/README.md, branch track7)."""
+16% at 0.3-0.5 px, 38-55% beyond 0.5 px; benches/README.md, branch track7). The
+reference is the view whose anchor is oldest: it has been cut again fewest times, so it
+has drifted least (on seed 0 it beats the view of best correlation on every figure)."""
 
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ def retie_views(
     images: Sequence[NDArray[np.float32]],
     uv: NDArray[np.float64],
     cov: NDArray[np.float64],
-    corr: NDArray[np.float64],
+    preference: NDArray[np.float64],
     *,
     size: int,
     min_correlation: float,
@@ -38,8 +40,8 @@ def retie_views(
     weights: Sequence[NDArray[np.float32]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Re-tie the views ``uv`` (N, C, 2; NaN where not held, covariances ``cov`` (N, C, 2,
-    2)) of points held in two or more cameras to each point's reference view (its view of
-    best correlation ``corr`` (N, C)).
+    2)) of points held in two or more cameras to each point's reference view (its held view
+    of highest ``preference`` (N, C)).
 
     The reference patch is matched into each other held view started at its tracked
     position; a match that converges within ``tolerance`` pixels of it replaces it (with
@@ -53,7 +55,7 @@ def retie_views(
     removed = np.zeros(held.shape, bool)
     if rows.size == 0:
         return uv, cov, removed
-    score = np.where(held[rows], np.nan_to_num(corr[rows], nan=0.0) + 1.0, -1.0)
+    score = np.where(held[rows], np.nan_to_num(preference[rows], nan=0.0) + 1.0, -1.0)
     reference = np.argmax(score, axis=1)
     sub = np.arange(rows.size)
     targets = np.where(held[rows, :, None], uv[rows], np.nan)

@@ -152,7 +152,13 @@ class FrameTracker:
                     flags2d[back] = TrackFlag.TRACKED
             if settings.RETIE:
                 # The held views' disparity measured afresh (their chains drift apart).
-                uv, cov2d, removed = retie_views(grey, uv, cov2d, corr, size=self.size, min_correlation=self.min_correlation,
+                preference = np.nan_to_num(corr, nan=0.0)
+                if settings.RETIE_REFERENCE == "anchor" and self.anchors is not None:
+                    # The view whose anchor is oldest (cut again fewest times: drifted
+                    # least), the correlation breaking ties.
+                    age = np.where(self.anchors.held[:n], frame - self.anchors.frame[:n], 0)
+                    preference = age / (frame + 1.0) + 1e-3 * preference
+                uv, cov2d, removed = retie_views(grey, uv, cov2d, preference, size=self.size, min_correlation=self.min_correlation,
                                                  tolerance=settings.RETIE_TOLERANCE, drop=settings.RETIE_DROP,
                                                  drop_failed=settings.RETIE_DROP_FAILED,
                                                  min_texture=self.keep_texture, weights=weights)
