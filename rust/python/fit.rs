@@ -42,6 +42,11 @@ fn metrics_dict<'py>(py: Python<'py>, m: &FrameMetrics) -> PyResult<Bound<'py, P
     metrics.set_item("solver_seconds", m.solver_seconds)?;
     metrics.set_item("unexplained", m.unexplained)?;
     metrics.set_item("samples", m.samples)?;
+    let steps = PyDict::new(py);
+    for (name, seconds) in crate::fit::STEPS.iter().zip(m.step_seconds) {
+        steps.set_item(name, seconds)?;
+    }
+    metrics.set_item("step_seconds", steps)?;
     Ok(metrics)
 }
 
@@ -156,7 +161,7 @@ impl FitCore {
             volume,
             silhouette,
         };
-        let views = views.map(silhouette_views).transpose()?;
+        let views = views.as_deref().map(silhouette_views).transpose()?;
         let mut workspace = self
             .workspace
             .lock()
@@ -267,9 +272,9 @@ fn frame_tracks(
     )?)
 }
 
-fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
+fn silhouette_views<'a>(views: &'a [View<'_>]) -> PyResult<Vec<SilhouetteView<'a>>> {
     views
-        .into_iter()
+        .iter()
         .enumerate()
         .map(|(index, (k, dist, r, t, signed))| {
             let nine = |v: &[f64], name: &str| -> PyResult<[f64; 9]> {
@@ -281,8 +286,8 @@ fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
                 .try_into()
                 .map_err(|_| invalid_input(format!("views[{index}]: t must hold 3 values")))?;
             let (height, width) = (signed.shape()[0], signed.shape()[1]);
-            let camera = Camera::new(nine(&k, "K")?, &dist, nine(&r, "R")?, t, width, height)?;
-            let values = c_slice(&signed, "views signed distance")?.to_vec();
+            let camera = Camera::new(nine(k, "K")?, dist, nine(r, "R")?, t, width, height)?;
+            let values = c_slice(signed, "views signed distance")?;
             Ok(SilhouetteView::new(camera, index, values, width, height)?)
         })
         .collect()

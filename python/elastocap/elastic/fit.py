@@ -64,7 +64,10 @@ class FrameFit:
         ``elastic_energy``, ``volume_ratio`` (surface volume over the rest surface's),
         ``penetrating`` (surface nodes inside another part), ``invalidated``,
         ``iterations``, ``solver_iterations``, ``solver_converged``, ``solver_seconds``
-        (assembly and linear solves), ``seconds``; ``samples`` (the target surface's samples
+        (assembly and linear solves), ``seconds``, ``step_seconds`` (wall seconds per step
+        of the iteration: rotations, associate, contacts, coverage, volume, energy,
+        silhouette, assemble, solve, measure; of the last stage when the silhouette term
+        refines a hull-only fit); ``samples`` (the target surface's samples
         of the coverage term) and ``unexplained`` (those no fitted surface node explains at
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
