@@ -52,8 +52,24 @@ const JACOBIAN_STEP: f64 = 1e-4;
 #[derive(Debug, Clone)]
 pub struct SilhouetteView<'a> {
     camera: Camera,
-    /// $S$ in pixels, row-major `(height, width)`, positive outside the mask.
+    /// $S$ in pixels over the window, row-major, positive outside the mask.
     signed: &'a [f64],
+    window: Window,
+}
+
+/// The part of a camera's image where a view's distances are given exactly: the term reads
+/// only the band around the mask its nodes can reach (`python/elastocap/elastic/silhouette.py`,
+/// `term_margins`), a person fills a few percent of a frame, and outside the window the
+/// distance to the mask's bounding box less half a pixel stands in (a lower bound, at least
+/// the window's margin).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// First row and column of the window.
+    pub origin: [usize; 2],
+    /// Rows and columns of the window.
+    pub size: [usize; 2],
+    /// The mask's bounding box: first and last row, first and last column.
+    pub bounds: [usize; 4],
 }
 
 impl<'a> SilhouetteView<'a> {
@@ -71,11 +87,50 @@ impl<'a> SilhouetteView<'a> {
         width: usize,
         height: usize,
     ) -> Result<Self> {
-        if width != camera.width || height != camera.height || signed.len() != width * height {
+        if width != camera.width || height != camera.height {
             return Err(Error::MaskSize {
                 camera: index,
                 got_width: width,
                 got_height: height,
+                width: camera.width,
+                height: camera.height,
+            });
+        }
+        let window = Window {
+            origin: [0, 0],
+            size: [height, width],
+            bounds: [0, height.saturating_sub(1), 0, width.saturating_sub(1)],
+        };
+        Self::windowed(camera, index, signed, window)
+    }
+
+    /// [`Self::new`] with the distances given over `window` only (`signed` row-major over
+    /// its rows and columns).
+    ///
+    /// # Errors
+    /// [`Error::MaskSize`] when the window or the mask's bounding box does not lie in the
+    /// camera's image or `signed` does not fill the window, [`Error::NonFinite`] for a
+    /// non-finite distance.
+    pub fn windowed(
+        camera: Camera,
+        index: usize,
+        signed: &'a [f64],
+        window: Window,
+    ) -> Result<Self> {
+        let ([row, column], [rows, columns]) = (window.origin, window.size);
+        let [top, bottom, left, right] = window.bounds;
+        let fits = row + rows <= camera.height
+            && column + columns <= camera.width
+            && signed.len() == rows * columns
+            && top <= bottom
+            && bottom < camera.height
+            && left <= right
+            && right < camera.width;
+        if !fits {
+            return Err(Error::MaskSize {
+                camera: index,
+                got_width: columns,
+                got_height: rows,
                 width: camera.width,
                 height: camera.height,
             });
@@ -92,7 +147,26 @@ impl<'a> SilhouetteView<'a> {
                 row,
             });
         }
-        Ok(Self { camera, signed })
+        Ok(Self {
+            camera,
+            signed,
+            window,
+        })
+    }
+
+    /// $S$ at pixel centre (`column`, `row`) of the image.
+    fn at_pixel(&self, column: usize, row: usize) -> f64 {
+        let ([r0, c0], [rows, columns]) = (self.window.origin, self.window.size);
+        if (r0..r0 + rows).contains(&row) && (c0..c0 + columns).contains(&column) {
+            return self.signed[(row - r0) * columns + (column - c0)];
+        }
+        // The same operations as numpy's in `signed_mask_distance`, so a windowed view
+        // reads what the whole image's would, to the bit.
+        let [top, bottom, left, right] = self.window.bounds.map(|b| b as f64);
+        let (r, c) = (row as f64, column as f64);
+        let dr = (top - r).max(r - bottom).max(0.0);
+        let dc = (left - c).max(c - right).max(0.0);
+        (dr * dr + dc * dc).sqrt() - 0.5
     }
 
     /// $S$ and its gradient at pixel `q` (bilinear; central differences one pixel apart),
@@ -108,7 +182,7 @@ impl<'a> SilhouetteView<'a> {
                 (v as usize).min(h.saturating_sub(2)),
             );
             let (fu, fv) = (u - i as f64, v - j as f64);
-            let s = |c: usize, r: usize| self.signed[r.min(h - 1) * w + c.min(w - 1)];
+            let s = |c: usize, r: usize| self.at_pixel(c.min(w - 1), r.min(h - 1));
             Some(
                 (1.0 - fv) * ((1.0 - fu) * s(i, j) + fu * s(i + 1, j))
                     + fv * ((1.0 - fu) * s(i, j + 1) + fu * s(i + 1, j + 1)),
