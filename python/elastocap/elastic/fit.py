@@ -64,10 +64,7 @@ class FrameFit:
         ``elastic_energy``, ``volume_ratio`` (surface volume over the rest surface's),
         ``penetrating`` (surface nodes inside another part), ``invalidated``,
         ``iterations``, ``solver_iterations``, ``solver_converged``, ``solver_seconds``
-        (assembly and linear solves), ``seconds``, ``step_seconds`` (wall seconds per step
-        of the iteration: rotations, associate, contacts, coverage, volume, energy,
-        silhouette, assemble, solve, measure; of the last stage when the silhouette term
-        refines a hull-only fit); ``samples`` (the target surface's samples
+        (assembly and linear solves), ``seconds``; ``samples`` (the target surface's samples
         of the coverage term) and ``unexplained`` (those no fitted surface node explains at
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
@@ -403,6 +400,9 @@ def fit_sequence(
         positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **first,
                                               silhouette=0.0 if staged else silhouette,
                                               views=None if staged else views)
+        # Per-step timings are for profiling the core (``_core.FitCore.fit_frame``); a
+        # frame's metrics are figures that compare across runs.
+        metrics.pop("step_seconds", None)
         chained = positions
         if staged:
             # The masks' pulls go to the nearest mask outline, which is a neighbouring
@@ -411,6 +411,7 @@ def fit_sequence(
             # against the masks from there, where the nearest outline is the limb's own.
             refined_positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained),
                                                           **options, silhouette=silhouette, views=views)
+            refined.pop("step_seconds", None)
             # A refinement that takes the volume farther from rest than the volume bound
             # (5%) is not the masks' precision but their coarseness: on images where a limb
             # is a few pixels wide (96 x 72, 160 nodes) it swelled the surface to 3x the
