@@ -336,6 +336,60 @@ mod tests {
         (values, [n; 3], [-1.0; 3])
     }
 
+    /// The two-pass search (one neighbour, then the candidates for samples whose nearest
+    /// node faces away) finds the node a full scan finds: the nearest of the
+    /// [`CANDIDATES`] nearest (by distance, then index) whose normal faces the sample's.
+    #[test]
+    fn each_sample_pulls_the_node_a_full_scan_finds() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut random_unit = |rng: &mut rand_chacha::ChaCha8Rng| {
+            unit(&std::array::from_fn::<f64, 3, _>(|_| {
+                rng.random_range(-1.0..1.0)
+            }))
+        };
+        let n = 300;
+        let positions: Vec<[f64; 3]> = (0..n)
+            .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
+            .collect();
+        let normals: Vec<[f64; 3]> = (0..n).map(|_| random_unit(&mut rng)).collect();
+        let support = vec![0.05; n];
+        let samples = TargetSamples {
+            points: (0..2000)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-1.1..1.1)))
+                .collect(),
+            normals: (0..2000).map(|_| random_unit(&mut rng)).collect(),
+            measure: 1.0,
+        };
+        let found = coverage(
+            &samples, &positions, &normals, &positions, &support, 1.0, 1.0, false,
+        );
+        let mut expected = Vec::new();
+        let mut unexplained = 0;
+        for (y, g) in samples.points.iter().zip(&samples.normals) {
+            let mut order: Vec<usize> = (0..n).collect();
+            order.sort_by(|&a, &b| {
+                let (da, db) = (distance(&positions[a], y), distance(&positions[b], y));
+                da.total_cmp(&db).then(a.cmp(&b))
+            });
+            match order[..CANDIDATES]
+                .iter()
+                .find(|&&p| dot(&normals[p], g) > 0.0)
+            {
+                None => unexplained += 1,
+                Some(&p) if distance(&positions[p], y) > EXPLAINED_FRACTION * support[p] => {
+                    unexplained += 1;
+                    expected.push((p, *y));
+                }
+                Some(_) => {}
+            }
+        }
+        assert!(expected.len() > 1000, "{}", expected.len());
+        assert_eq!(found.unexplained, unexplained);
+        let got: Vec<(usize, [f64; 3])> = found.pulls.iter().map(|p| (p.node, p.target)).collect();
+        assert_eq!(got, expected);
+    }
+
     #[test]
     fn narrow_band_samples_lie_on_the_surface_with_outward_normals_and_cover_its_area() {
         let (r, h) = (0.5, 0.02);
