@@ -92,7 +92,7 @@ pub struct FrameTargets<'a, const D: usize> {
     /// Samples of the target surface, for the coverage term.
     pub samples: Option<&'a TargetSamples<D>>,
     /// The cameras and their masks' signed distances, for the silhouette term (3-D only).
-    pub silhouettes: Option<&'a [SilhouetteView]>,
+    pub silhouettes: Option<&'a [SilhouetteView<'a>]>,
     /// Tracked points attached to the model, for the track term ([`tracks`]).
     pub tracks: Option<&'a FrameTracks<D>>,
 }
@@ -149,7 +149,23 @@ pub struct FrameMetrics {
     pub unexplained: usize,
     /// Target samples (coverage; 0 without samples).
     pub samples: usize,
+    /// Wall-clock seconds per step of the iteration, in the order of [`STEPS`].
+    pub step_seconds: [f64; STEPS.len()],
 }
+
+/// The steps of a frame's iteration timed in [`FrameMetrics::step_seconds`].
+pub const STEPS: [&str; 10] = [
+    "rotations",
+    "associate",
+    "contacts",
+    "coverage",
+    "volume",
+    "energy",
+    "silhouette",
+    "assemble",
+    "solve",
+    "measure",
+];
 
 impl FitOptions {
     /// Fails unless the weights and tolerances are finite and non-negative (the stiffness
@@ -226,12 +242,22 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
     };
     let mut stop = StopRule::new(options.stop_fraction);
     let mut held: Vec<Contact<D>> = Vec::new();
+    let mut clock = std::time::Instant::now();
+    let mut lap = |metrics: &mut FrameMetrics, step: usize| {
+        let now = std::time::Instant::now();
+        metrics.step_seconds[step] += (now - clock).as_secs_f64();
+        clock = now;
+    };
     for iteration in 0..options.max_iterations {
+        lap(&mut metrics, 9);
         let rotations = model.rotations(&x)?;
+        lap(&mut metrics, 0);
         let surface = associate_surface(workspace, target, &x, options.invalidate);
         metrics.invalidated = surface.invalidated;
+        lap(&mut metrics, 1);
         let (contacts, penetrating) =
             contact_terms(workspace, &surface, options.self_intersection, &held);
+        lap(&mut metrics, 2);
         let coverage = coverage_term(
             workspace,
             &surface,
@@ -239,14 +265,17 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             options.coverage,
             options.invalidate,
         );
+        lap(&mut metrics, 3);
         // The whole objective of the system below ($2 \alpha E + D + C$, as its normal
         // equations weigh the terms), not the data terms alone: the coverage term's pulls
         // vanish once the surface is in place, and $D + C$ then stops falling while the
         // strain they left still relaxes (a rigidly moved capsule stopped after 2
         // iterations at 11% of a 5% stretch's energy).
         let volume = volume_term(workspace, &surface.positions, x.len(), options.volume);
+        lap(&mut metrics, 4);
         let elastic = 2.0 * alpha * model.energy(&x, &rotations)?;
         let penalty = volume.as_ref().map_or(0.0, |v| v.energy());
+        lap(&mut metrics, 5);
         let outline = silhouette(
             targets.silhouettes.unwrap_or(&[]),
             &surface.positions,
@@ -255,6 +284,7 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             options.silhouette,
         );
         let tracked = targets.tracks.map(|t| t.term(&x)).unwrap_or_default();
+        lap(&mut metrics, 6);
         if stop.should_stop(
             elastic
                 + surface.distance_term()
@@ -281,7 +311,8 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
             options.contact,
         )?;
         tracked.add_to(&mut system);
-        let clock = std::time::Instant::now();
+        lap(&mut metrics, 7);
+        let solve_clock = std::time::Instant::now();
         let status = solve::solve(
             model,
             workspace,
@@ -295,8 +326,10 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
         )?;
         metrics.solver_iterations += status.iterations;
         metrics.solver_converged &= status.converged;
-        metrics.solver_seconds += clock.elapsed().as_secs_f64();
+        metrics.solver_seconds += solve_clock.elapsed().as_secs_f64();
+        lap(&mut metrics, 8);
     }
+    lap(&mut metrics, 9);
     measure(model, workspace, target, &x, &mut metrics)?;
     if let Some(samples) = targets.samples {
         let surface = associate_surface(workspace, target, &x, false);
@@ -304,6 +337,7 @@ pub fn fit_frame_with<const D: usize, F: Field<D>>(
         metrics.unexplained = found.unexplained;
         metrics.samples = samples.len();
     }
+    lap(&mut metrics, 9);
     Ok((x, metrics))
 }
 

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from skimage.measure import marching_cubes
 
 import elastocap
+import elastocap._core as _core
 from elastocap import ElasticModel, InvalidInputError, fit_sequence
 from elastocap.elastic.measures import surface_error
 from elastocap.elastic.fit import STAGED_TOLERANCE
@@ -176,6 +177,32 @@ def test_a_fit_on_cropped_mask_distances_is_the_fit_on_exact_ones(moving_block: 
     exact = fit_sequence(model, hulls, cameras=rig.cameras, masks=masks)
     for frame in exact.frames:
         assert np.array_equal(cropped.fits[frame].positions, exact.fits[frame].positions), f"frame {frame}"
+
+
+def test_a_windowed_view_reads_what_the_whole_image_would(moving_block: tuple) -> None:
+    # Only each mask's window crosses into the core; beyond it the core computes the
+    # bounding box's distance itself, and must read the very values numpy's full image
+    # holds (a frame on the windows is the frame on the full images, to the bit).
+    from elastocap.elastic.fit import _field_arrays, target_field
+    from elastocap.elastic.silhouette import silhouette_views, term_margins
+
+    _, hulls, masks, rig = moving_block
+    model = ElasticModel.from_mesh(hulls[0].mesh(), n_nodes=200)
+    surface = model.surface_nodes
+    # Small margins, so that nodes read the distances beyond the windows too.
+    margins = [max(2, m // 4) for m in term_margins(rig.cameras, model.nodes[surface], model.support[surface])]
+    windowed = silhouette_views(rig.cameras, masks[1], margins)
+    assert all(view[5] is not None and view[4].size < masks[1][0].size for view in windowed)
+    whole = [(*view[:4], signed_mask_distance(mask, margin), None)
+             for view, mask, margin in zip(windowed, masks[1], margins)]
+    values, origin, spacing = _field_arrays(target_field(hulls[1]))
+    core = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
+    results = [core.fit_frame(values, origin, spacing, model.nodes, silhouette=1.0, views=views)
+               for views in (windowed, whole)]
+    assert np.array_equal(results[0][0], results[1][0])
+    too_far = [(*windowed[0][:5], ((masks[1][0].shape[1], masks[1][0].shape[0]), (10_000, 0), windowed[0][5][2]))]
+    with pytest.raises(InvalidInputError, match="mask 0"):
+        core.fit_frame(values, origin, spacing, model.nodes, silhouette=1.0, views=too_far)
 
 
 def test_a_bad_crop_margin_is_refused() -> None:

@@ -220,12 +220,22 @@ class FitCore:
         coverage: float = 2.0,
         volume: float = 4.0,
         silhouette: float = 0.0,
-        views: list[tuple[list[float], list[float], list[float], list[float], NDArray[np.float64]]] | None = None,
+        views: list[
+            tuple[
+                list[float],
+                list[float],
+                list[float],
+                list[float],
+                NDArray[np.float64],
+                tuple[tuple[int, int], tuple[int, int], tuple[int, int, int, int]] | None,
+            ]
+        ]
+        | None = None,
         tracks: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None,
         track_weight: float = 1.0,
         track_sigma: float = 1.0,
         track_scale: float = 10.0,
-    ) -> tuple[NDArray[np.float64], dict[str, float | int | bool]]: ...
+    ) -> tuple[NDArray[np.float64], dict[str, float | int | bool | dict[str, float]]]: ...
 
 @final
 class BodySkeleton:

@@ -25,6 +25,7 @@ use crate::efg::Block;
 use crate::error::{Error, Result};
 use crate::grid_sample::GridField;
 use crate::linalg::{distance, dot, quadratic_form, sub, unit};
+use crate::spatial_hash::Knn;
 use crate::SpatialHash;
 
 /// Model surface nodes examined around each sample for a normal-compatible one.
@@ -154,10 +155,33 @@ pub fn coverage<const D: usize>(
     let Ok(hash) = SpatialHash::new(positions) else {
         return Coverage::default();
     };
-    let k = CANDIDATES.min(n);
-    let Ok(near) = hash.knn(Some(&samples.points), k) else {
+    // Most samples' nearest node faces their way: one neighbour settles them, and only the
+    // rest look among the CANDIDATES nearest (the same node either way: the lists are
+    // sorted by distance, then index). The term's knn costs a fraction of asking every
+    // sample for all of them.
+    let Ok(nearest) = hash.knn(Some(&samples.points), 1) else {
         return Coverage::default();
     };
+    let facing = |j: usize| dot(&normals[nearest.indices[j] as usize], &samples.normals[j]) > 0.0;
+    let wide: Vec<usize> = (0..samples.len()).filter(|&j| !facing(j)).collect();
+    let wide_points: Vec<[f64; D]> = wide.iter().map(|&j| samples.points[j]).collect();
+    let k = CANDIDATES.min(n);
+    let near = if wide.is_empty() {
+        Knn {
+            k,
+            indices: Vec::new(),
+            distances: Vec::new(),
+        }
+    } else {
+        let Ok(near) = hash.knn(Some(&wide_points), k) else {
+            return Coverage::default();
+        };
+        near
+    };
+    let mut wide_row = vec![usize::MAX; samples.len()];
+    for (row, &j) in wide.iter().enumerate() {
+        wide_row[j] = row;
+    }
     let scale = weight * samples.measure / node_measure;
     // Per sample: None if explained, Some(None) if unexplained without a compatible node
     // among the candidates, Some(Some(pull)) otherwise.
@@ -165,14 +189,18 @@ pub fn coverage<const D: usize>(
         .into_par_iter()
         .map(|j| {
             let (y, g) = (&samples.points[j], &samples.normals[j]);
-            let row = &near.indices[j * k..(j + 1) * k];
-            let gaps = &near.distances[j * k..(j + 1) * k];
-            let Some((p, gap)) = row
-                .iter()
-                .zip(gaps)
-                .map(|(&p, &gap)| (p as usize, gap))
-                .find(|&(p, _)| dot(&normals[p], g) > 0.0)
-            else {
+            let candidate = if wide_row[j] == usize::MAX {
+                Some((nearest.indices[j] as usize, nearest.distances[j]))
+            } else {
+                let r = wide_row[j];
+                let row = &near.indices[r * k..(r + 1) * k];
+                let gaps = &near.distances[r * k..(r + 1) * k];
+                row.iter()
+                    .zip(gaps)
+                    .map(|(&p, &gap)| (p as usize, gap))
+                    .find(|&(p, _)| dot(&normals[p], g) > 0.0)
+            };
+            let Some((p, gap)) = candidate else {
                 return Some(None);
             };
             if gap <= EXPLAINED_FRACTION * support[p] {
@@ -306,6 +334,60 @@ mod tests {
             }
         }
         (values, [n; 3], [-1.0; 3])
+    }
+
+    /// The two-pass search (one neighbour, then the candidates for samples whose nearest
+    /// node faces away) finds the node a full scan finds: the nearest of the
+    /// [`CANDIDATES`] nearest (by distance, then index) whose normal faces the sample's.
+    #[test]
+    fn each_sample_pulls_the_node_a_full_scan_finds() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut random_unit = |rng: &mut rand_chacha::ChaCha8Rng| {
+            unit(&std::array::from_fn::<f64, 3, _>(|_| {
+                rng.random_range(-1.0..1.0)
+            }))
+        };
+        let n = 300;
+        let positions: Vec<[f64; 3]> = (0..n)
+            .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
+            .collect();
+        let normals: Vec<[f64; 3]> = (0..n).map(|_| random_unit(&mut rng)).collect();
+        let support = vec![0.05; n];
+        let samples = TargetSamples {
+            points: (0..2000)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-1.1..1.1)))
+                .collect(),
+            normals: (0..2000).map(|_| random_unit(&mut rng)).collect(),
+            measure: 1.0,
+        };
+        let found = coverage(
+            &samples, &positions, &normals, &positions, &support, 1.0, 1.0, false,
+        );
+        let mut expected = Vec::new();
+        let mut unexplained = 0;
+        for (y, g) in samples.points.iter().zip(&samples.normals) {
+            let mut order: Vec<usize> = (0..n).collect();
+            order.sort_by(|&a, &b| {
+                let (da, db) = (distance(&positions[a], y), distance(&positions[b], y));
+                da.total_cmp(&db).then(a.cmp(&b))
+            });
+            match order[..CANDIDATES]
+                .iter()
+                .find(|&&p| dot(&normals[p], g) > 0.0)
+            {
+                None => unexplained += 1,
+                Some(&p) if distance(&positions[p], y) > EXPLAINED_FRACTION * support[p] => {
+                    unexplained += 1;
+                    expected.push((p, *y));
+                }
+                Some(_) => {}
+            }
+        }
+        assert!(expected.len() > 1000, "{}", expected.len());
+        assert_eq!(found.unexplained, unexplained);
+        let got: Vec<(usize, [f64; 3])> = found.pulls.iter().map(|p| (p.node, p.target)).collect();
+        assert_eq!(got, expected);
     }
 
     #[test]

@@ -42,18 +42,37 @@ pub const RIM_COSINE: f64 = 0.3;
 /// fast-motion capture, seed 1: drawing rim nodes out from their projected support away,
 /// 20-40 pixels, raised the fit's error from 1.11 to 1.22 of the hull's).
 pub const RIM_BAND_PIXELS: f64 = 2.0;
+/// The exponent bits of a float64: all set for infinities and NaN.
+const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
 /// Step of the finite differences of the projection, as a fraction of the node's support.
 const JACOBIAN_STEP: f64 = 1e-4;
 
-/// One camera and its mask's signed distance.
+/// One camera and its mask's signed distance (borrowed: eight masks of 1024 x 768 are 50
+/// MB of float64, and copying them cost a fifth of a frame's refinement).
 #[derive(Debug, Clone)]
-pub struct SilhouetteView {
+pub struct SilhouetteView<'a> {
     camera: Camera,
-    /// $S$ in pixels, row-major `(height, width)`, positive outside the mask.
-    signed: Vec<f64>,
+    /// $S$ in pixels over the window, row-major, positive outside the mask.
+    signed: &'a [f64],
+    window: Window,
 }
 
-impl SilhouetteView {
+/// The part of a camera's image where a view's distances are given exactly: the term reads
+/// only the band around the mask its nodes can reach (`python/elastocap/elastic/silhouette.py`,
+/// `term_margins`), a person fills a few percent of a frame, and outside the window the
+/// distance to the mask's bounding box less half a pixel stands in (a lower bound, at least
+/// the window's margin).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// First row and column of the window.
+    pub origin: [usize; 2],
+    /// Rows and columns of the window.
+    pub size: [usize; 2],
+    /// The mask's bounding box: first and last row, first and last column.
+    pub bounds: [usize; 4],
+}
+
+impl<'a> SilhouetteView<'a> {
     /// A view from `camera` (the rig's camera number `index`) and the signed distance
     /// `signed` of its mask (pixels, row-major over `width` x `height` pixels, positive
     /// outside the mask).
@@ -64,11 +83,11 @@ impl SilhouetteView {
     pub fn new(
         camera: Camera,
         index: usize,
-        signed: Vec<f64>,
+        signed: &'a [f64],
         width: usize,
         height: usize,
     ) -> Result<Self> {
-        if width != camera.width || height != camera.height || signed.len() != width * height {
+        if width != camera.width || height != camera.height {
             return Err(Error::MaskSize {
                 camera: index,
                 got_width: width,
@@ -77,13 +96,77 @@ impl SilhouetteView {
                 height: camera.height,
             });
         }
-        if let Some(row) = signed.iter().position(|v| !v.is_finite()) {
+        let window = Window {
+            origin: [0, 0],
+            size: [height, width],
+            bounds: [0, height.saturating_sub(1), 0, width.saturating_sub(1)],
+        };
+        Self::windowed(camera, index, signed, window)
+    }
+
+    /// [`Self::new`] with the distances given over `window` only (`signed` row-major over
+    /// its rows and columns).
+    ///
+    /// # Errors
+    /// [`Error::MaskSize`] when the window or the mask's bounding box does not lie in the
+    /// camera's image or `signed` does not fill the window, [`Error::NonFinite`] for a
+    /// non-finite distance.
+    pub fn windowed(
+        camera: Camera,
+        index: usize,
+        signed: &'a [f64],
+        window: Window,
+    ) -> Result<Self> {
+        let ([row, column], [rows, columns]) = (window.origin, window.size);
+        let [top, bottom, left, right] = window.bounds;
+        let fits = row + rows <= camera.height
+            && column + columns <= camera.width
+            && signed.len() == rows * columns
+            && top <= bottom
+            && bottom < camera.height
+            && left <= right
+            && right < camera.width;
+        if !fits {
+            return Err(Error::MaskSize {
+                camera: index,
+                got_width: columns,
+                got_height: rows,
+                width: camera.width,
+                height: camera.height,
+            });
+        }
+        // A branch-free pass over each block (vectorised), the exact place only on failure:
+        // an early-exit scan of 6 million values cost 6 ms per camera.
+        let bad = |v: &f64| v.to_bits() & EXPONENT == EXPONENT;
+        let any_bad = signed
+            .chunks(4096)
+            .any(|block| block.iter().fold(false, |found, v| found | bad(v)));
+        if let Some(row) = any_bad.then(|| signed.iter().position(bad)).flatten() {
             return Err(Error::NonFinite {
                 argument: "silhouette signed distance",
                 row,
             });
         }
-        Ok(Self { camera, signed })
+        Ok(Self {
+            camera,
+            signed,
+            window,
+        })
+    }
+
+    /// $S$ at pixel centre (`column`, `row`) of the image.
+    fn at_pixel(&self, column: usize, row: usize) -> f64 {
+        let ([r0, c0], [rows, columns]) = (self.window.origin, self.window.size);
+        if (r0..r0 + rows).contains(&row) && (c0..c0 + columns).contains(&column) {
+            return self.signed[(row - r0) * columns + (column - c0)];
+        }
+        // The same operations as numpy's in `signed_mask_distance`, so a windowed view
+        // reads what the whole image's would, to the bit.
+        let [top, bottom, left, right] = self.window.bounds.map(|b| b as f64);
+        let (r, c) = (row as f64, column as f64);
+        let dr = (top - r).max(r - bottom).max(0.0);
+        let dc = (left - c).max(c - right).max(0.0);
+        (dr * dr + dc * dc).sqrt() - 0.5
     }
 
     /// $S$ and its gradient at pixel `q` (bilinear; central differences one pixel apart),
@@ -99,7 +182,7 @@ impl SilhouetteView {
                 (v as usize).min(h.saturating_sub(2)),
             );
             let (fu, fv) = (u - i as f64, v - j as f64);
-            let s = |c: usize, r: usize| self.signed[r.min(h - 1) * w + c.min(w - 1)];
+            let s = |c: usize, r: usize| self.at_pixel(c.min(w - 1), r.min(h - 1));
             Some(
                 (1.0 - fv) * ((1.0 - fu) * s(i, j) + fu * s(i + 1, j))
                     + fv * ((1.0 - fu) * s(i, j + 1) + fu * s(i + 1, j + 1)),
@@ -153,7 +236,7 @@ pub struct Silhouette<const D: usize> {
 /// The pulls of `views` on the surface nodes at `positions` (unit outward `normals`,
 /// supports `support`) with weight `weight` per node and camera; none in 2-D.
 pub fn silhouette<const D: usize>(
-    views: &[SilhouetteView],
+    views: &[SilhouetteView<'_>],
     positions: &[[f64; D]],
     normals: &[[f64; D]],
     support: &[f64],

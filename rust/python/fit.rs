@@ -11,7 +11,7 @@ use super::elastic::ElasticCore;
 use super::{c_slice, invalid_input, rows};
 use crate::camera::Camera;
 use crate::fit::coverage::TargetSamples;
-use crate::fit::silhouette::SilhouetteView;
+use crate::fit::silhouette::{SilhouetteView, Window};
 use crate::fit::tracks::FrameTracks;
 use crate::fit::{fit_frame_with, FitOptions, FitWorkspace, FrameMetrics, FrameTargets};
 use crate::grid_sample::GridField;
@@ -42,6 +42,11 @@ fn metrics_dict<'py>(py: Python<'py>, m: &FrameMetrics) -> PyResult<Bound<'py, P
     metrics.set_item("solver_seconds", m.solver_seconds)?;
     metrics.set_item("unexplained", m.unexplained)?;
     metrics.set_item("samples", m.samples)?;
+    let steps = PyDict::new(py);
+    for (name, seconds) in crate::fit::STEPS.iter().zip(m.step_seconds) {
+        steps.set_item(name, seconds)?;
+    }
+    metrics.set_item("step_seconds", steps)?;
     Ok(metrics)
 }
 
@@ -156,7 +161,7 @@ impl FitCore {
             volume,
             silhouette,
         };
-        let views = views.map(silhouette_views).transpose()?;
+        let views = views.as_deref().map(silhouette_views).transpose()?;
         let mut workspace = self
             .workspace
             .lock()
@@ -219,14 +224,21 @@ impl FitCore {
 }
 
 /// One camera of the silhouette term: K (9, row-major), distortion (OpenCV's order), R (9,
-/// row-major), t (3), and its mask's signed distance (H, W) in pixels, positive outside.
+/// row-major), t (3), its mask's signed distance in pixels, positive outside, and where it
+/// lies: None for the whole image (H, W), or the image's `(width, height)`, the window's
+/// first `(row, column)` and the mask's bounding box `(top, bottom, left, right)` (rows
+/// and columns, inclusive) when the distance covers a window of the image only.
 type View<'py> = (
     Vec<f64>,
     Vec<f64>,
     Vec<f64>,
     Vec<f64>,
     PyReadonlyArray2<'py, f64>,
+    Option<Placement>,
 );
+
+/// A windowed view's image size, window origin and mask bounding box (see [`View`]).
+type Placement = ((usize, usize), (usize, usize), (usize, usize, usize, usize));
 
 /// The track term's arrays: nodes (T, k), MLS weights (T, k), tracked positions (T, 3) and
 /// precisions (T, 3, 3).
@@ -267,11 +279,11 @@ fn frame_tracks(
     )?)
 }
 
-fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
+fn silhouette_views<'a>(views: &'a [View<'_>]) -> PyResult<Vec<SilhouetteView<'a>>> {
     views
-        .into_iter()
+        .iter()
         .enumerate()
-        .map(|(index, (k, dist, r, t, signed))| {
+        .map(|(index, (k, dist, r, t, signed, placement))| {
             let nine = |v: &[f64], name: &str| -> PyResult<[f64; 9]> {
                 v.try_into().map_err(|_| {
                     invalid_input(format!("views[{index}]: {name} must hold 9 values"))
@@ -280,10 +292,23 @@ fn silhouette_views(views: Vec<View<'_>>) -> PyResult<Vec<SilhouetteView>> {
             let t: [f64; 3] = t[..]
                 .try_into()
                 .map_err(|_| invalid_input(format!("views[{index}]: t must hold 3 values")))?;
-            let (height, width) = (signed.shape()[0], signed.shape()[1]);
-            let camera = Camera::new(nine(&k, "K")?, &dist, nine(&r, "R")?, t, width, height)?;
-            let values = c_slice(&signed, "views signed distance")?.to_vec();
-            Ok(SilhouetteView::new(camera, index, values, width, height)?)
+            let (rows, columns) = (signed.shape()[0], signed.shape()[1]);
+            let values = c_slice(signed, "views signed distance")?;
+            Ok(match *placement {
+                None => {
+                    let camera = Camera::new(nine(k, "K")?, dist, nine(r, "R")?, t, columns, rows)?;
+                    SilhouetteView::new(camera, index, values, columns, rows)?
+                }
+                Some(((width, height), (row, column), (top, bottom, left, right))) => {
+                    let camera = Camera::new(nine(k, "K")?, dist, nine(r, "R")?, t, width, height)?;
+                    let window = Window {
+                        origin: [row, column],
+                        size: [rows, columns],
+                        bounds: [top, bottom, left, right],
+                    };
+                    SilhouetteView::windowed(camera, index, values, window)?
+                }
+            })
         })
         .collect()
 }

@@ -400,6 +400,9 @@ def fit_sequence(
         positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **first,
                                               silhouette=0.0 if staged else silhouette,
                                               views=None if staged else views)
+        # Per-step timings are for profiling the core (``_core.FitCore.fit_frame``); a
+        # frame's metrics are figures that compare across runs.
+        metrics.pop("step_seconds", None)
         chained = positions
         if staged:
             # The masks' pulls go to the nearest mask outline, which is a neighbouring
@@ -408,6 +411,7 @@ def fit_sequence(
             # against the masks from there, where the nearest outline is the limb's own.
             refined_positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained),
                                                           **options, silhouette=silhouette, views=views)
+            refined.pop("step_seconds", None)
             # A refinement that takes the volume farther from rest than the volume bound
             # (5%) is not the masks' precision but their coarseness: on images where a limb
             # is a few pixels wide (96 x 72, 160 nodes) it swelled the surface to 3x the

@@ -72,17 +72,26 @@ def signed_mask_distance(mask: NDArray[Any], margin: int | None = None) -> NDArr
         return np.full(inside.shape, -float(np.hypot(*inside.shape)))
     if margin is None:
         return _exact_signed(inside)
-    rows, columns = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
-    (r0, r1), (c0, c1) = (rows[0], rows[-1]), (columns[0], columns[-1])
-    # Outside the box: the distance from each pixel centre to the box of mask pixel
-    # centres, as a row and a column term, less the half pixel to the outline.
+    window, origin, bounds = _windowed_signed(inside, margin)
+    (r0, r1, c0, c1) = bounds
     dr = np.maximum(np.maximum(r0 - np.arange(inside.shape[0]), np.arange(inside.shape[0]) - r1), 0)
     dc = np.maximum(np.maximum(c0 - np.arange(inside.shape[1]), np.arange(inside.shape[1]) - c1), 0)
-    # (a square root of the sums, not np.hypot: libm's hypot per pixel was 2% of a fit)
     out = np.sqrt((dr.astype(np.float64) ** 2)[:, None] + (dc.astype(np.float64) ** 2)[None, :]) - 0.5
-    box = (slice(max(r0 - margin, 0), r1 + margin + 1), slice(max(c0 - margin, 0), c1 + margin + 1))
-    out[box] = _exact_signed(np.ascontiguousarray(inside[box]))
+    out[origin[0]:origin[0] + window.shape[0], origin[1]:origin[1] + window.shape[1]] = window
     return out
+
+
+def _windowed_signed(inside: NDArray[np.bool_], margin: int) -> tuple[NDArray[np.float64], tuple[int, int], tuple[int, int, int, int]]:
+    """:func:`signed_mask_distance` of a mask with both kinds of pixel within ``margin`` of
+    its bounding box only: ``(window (h, w) float64, its first (row, column), the mask's
+    bounding box (top, bottom, left, right), inclusive)``. Elsewhere the distance is the
+    bounding box's less half a pixel, which ``rust/fit/silhouette.rs`` computes where it
+    reads it."""
+    rows, columns = np.flatnonzero(inside.any(axis=1)), np.flatnonzero(inside.any(axis=0))
+    (r0, r1), (c0, c1) = (int(rows[0]), int(rows[-1])), (int(columns[0]), int(columns[-1]))
+    top, left = max(r0 - margin, 0), max(c0 - margin, 0)
+    window = _exact_signed(np.ascontiguousarray(inside[top:r1 + margin + 1, left:c1 + margin + 1]))
+    return window, (top, left), (r0, r1, c0, c1)
 
 
 def _exact_signed(inside: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -129,7 +138,11 @@ def term_margins(cameras: Sequence[Any], positions: NDArray[np.float64], support
 
 def silhouette_views(cameras: Sequence[Any], masks: Sequence[NDArray[Any]],
                      margins: Sequence[int | None] | None = None) -> list[tuple[Any, ...]]:
-    """One ``(K, dist, R, t, signed distance)`` per camera, for ``FitCore.fit_frame(views=)``.
+    """One ``(K, dist, R, t, signed distance, placement)`` per camera, for
+    ``FitCore.fit_frame(views=)``: with a camera's margin, the signed distance covers the
+    window :func:`signed_mask_distance` computes exactly and ``placement`` is ``((width,
+    height), (first row, first column), (top, bottom, left, right))`` (the image, the
+    window, the mask's bounding box); without one, the whole image and None.
 
     Parameters
     ----------
@@ -151,11 +164,20 @@ def silhouette_views(cameras: Sequence[Any], masks: Sequence[NDArray[Any]],
         if mask is None:
             continue
         dist = np.ravel(np.asarray(camera.full_dist, dtype=np.float64))
+        inside = np.asarray(mask).astype(bool)
+        placement = None
+        if margin is not None and inside.ndim == 2 and inside.any() and not inside.all():
+            # Only the window is handed over; the term computes the rest where it reads it.
+            signed, origin, bounds = _windowed_signed(inside, margin)
+            placement = ((inside.shape[1], inside.shape[0]), origin, bounds)
+        else:
+            signed = signed_mask_distance(inside, margin)
         views.append((
             np.asarray(camera.K, dtype=np.float64).ravel().tolist(),
             dist.tolist(),
             np.asarray(camera.R, dtype=np.float64).ravel().tolist(),
             np.asarray(camera.t, dtype=np.float64).ravel().tolist(),
-            np.ascontiguousarray(signed_mask_distance(mask, margin)),
+            np.ascontiguousarray(signed),
+            placement,
         ))
     return views
