@@ -6,9 +6,10 @@ restarted (a walking figure's elbows and knees bend one way only)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from elastocap.body import BodyModel, BodyState
-from elastocap.body.search import search_pose
+from elastocap.body.search import RESTART_ITERATIONS, RESTART_PROBE, search_pose
 
 MODEL = BodyModel.default_human()
 ELBOW = MODEL.motion_names.index("l_forearm.0")
@@ -59,3 +60,55 @@ def test_a_search_without_an_opposite_facing_keeps_its_best() -> None:
     state = search_pose(MODEL, np.array([0.1, -0.2, 0.9]), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
     assert _facing(float(state.motion[3])) < 0.2
     assert np.allclose(state.motion[:3], [0.1, -0.2, 0.9])
+
+
+def test_the_other_facing_is_not_refined_beside_a_well_explained_best() -> None:
+    """The best facing explains nearly everything (the demo's body figure: 0.986): the
+    other facing (0.81 there) has nothing left to explain better, and its full fit and
+    restarts (9 of the demo search's 24 CPU s) are skipped."""
+    refined: list[float] = []
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        if iterations == 60:
+            refined.append(_facing(float(state.motion[3])))
+        return state
+
+    def score(state: BodyState) -> tuple[float, float]:
+        heading = _facing(float(state.motion[3]))
+        if heading < 0.2:
+            return 0.003, 0.99
+        return (0.01, 0.8) if heading > np.pi - 0.2 else (0.05, 0.2)
+
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
+    assert _facing(float(state.motion[3])) < 0.2
+    # one full fit, of the right facing; before, the backward facing had one too
+    assert refined == [pytest.approx(0.0, abs=0.2)]
+
+
+def test_a_restart_that_is_far_behind_after_its_probe_is_not_fitted_on() -> None:
+    """A limb restart is fitted :data:`RESTART_PROBE` iterations and goes on only when it
+    is then within :data:`RESTART_MARGIN` of the best; one that is (a fit that needs more
+    iterations: its score falls with each) is fitted on and kept when it wins."""
+    calls: list[int] = []
+    FLAG = 4  # a root angle the search never sets: marks a state fitted on after its probe
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        calls.append(iterations)
+        motion = state.motion.copy()
+        motion[FLAG] = 1.0 if iterations == RESTART_ITERATIONS - RESTART_PROBE else 0.0
+        return state.replace(motion=motion)
+
+    def score(state: BodyState) -> tuple[float, float]:
+        if _facing(float(state.motion[3])) > 0.2:
+            return 0.05, 0.2
+        bent = state.motion[ELBOW] > 0.3
+        # a bent elbow is right, but shows it fully only after more than the probe's
+        # iterations; after the probe it is within the margin of the straight best (0.02)
+        return (0.004 if bent and state.motion[FLAG] else 0.0105 if bent else 0.02), 0.9
+
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
+    assert state.motion[ELBOW] > 0.3 and score(state)[0] == 0.004
+    probes = calls.count(RESTART_PROBE)
+    assert probes > 0
+    # only the bent-elbow restarts (near the best after the probe) went on
+    assert 0 < calls.count(RESTART_ITERATIONS - RESTART_PROBE) < probes

@@ -57,10 +57,15 @@ LOST_SPREADS = 3.0
 #: fixed drop of 0.1 used before waited for frame 11; ``benches/README.md``, branch body7).
 LOST_DROP = 0.03
 #: Frames whose quality sets the reference of the lost test, and how many it needs before
-#: it trusts their spread (fewer: the drop is :data:`LOST_DROP_FEW`).
+#: it trusts their spread (fewer: the spread is :data:`LOST_PRIOR_SPREAD`).
 LOST_RECENT = 10
 LOST_MIN_RECENT = 4
-LOST_DROP_FEW = 0.1
+#: The spread assumed for the first tracked frames, whose few predecessors do not measure
+#: one: the largest spread of a held masks-only track (1.4826 MAD of the explained share,
+#: 0.004-0.010 on the capsule figure's tuning seeds 2 and 12, ``benches/README.md``,
+#: branch body7). Before, these frames were lost only 0.1 below their predecessors' median,
+#: which let a drift of 5 mm skin pass for three frames (branch body8).
+LOST_PRIOR_SPREAD = 0.01
 
 
 @dataclass(frozen=True)
@@ -196,15 +201,16 @@ def lost_threshold(recent: Sequence[float]) -> float:
     the recent observed frames (oldest first): their upper quartile less
     :data:`LOST_SPREADS` times their spread (``1.4826`` times the median absolute deviation
     from their median), and at least :data:`LOST_DROP` less; with fewer than
-    :data:`LOST_MIN_RECENT` frames, whose spread says little, their median less
-    :data:`LOST_DROP_FEW` (the test of before); with none, 0.9."""
+    :data:`LOST_MIN_RECENT` frames, whose spread says little, the spread is
+    :data:`LOST_PRIOR_SPREAD`; with none, 0.9."""
     shares = np.asarray(recent, dtype=np.float64)[-LOST_RECENT:]
     if len(shares) == 0:
         return 0.9
     median = float(np.median(shares))
     if len(shares) < LOST_MIN_RECENT:
-        return median - LOST_DROP_FEW
-    spread = 1.4826 * float(np.median(np.abs(shares - median)))
+        spread = LOST_PRIOR_SPREAD
+    else:
+        spread = 1.4826 * float(np.median(np.abs(shares - median)))
     return float(np.percentile(shares, 75)) - max(LOST_SPREADS * spread, LOST_DROP)
 
 
