@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from elastocap.body import BodyModel, BodyState
-from elastocap.body.search import RESTART_ITERATIONS, RESTART_PROBE, search_pose
+from elastocap.body.search import search_pose
 
 MODEL = BodyModel.default_human()
 ELBOW = MODEL.motion_names.index("l_forearm.0")
@@ -85,30 +85,29 @@ def test_the_other_facing_is_not_refined_beside_a_well_explained_best() -> None:
     assert refined == [pytest.approx(0.0, abs=0.2)]
 
 
-def test_a_restart_that_is_far_behind_after_its_probe_is_not_fitted_on() -> None:
-    """A limb restart is fitted :data:`RESTART_PROBE` iterations and goes on only when it
-    is then within :data:`RESTART_MARGIN` of the best; one that is (a fit that needs more
-    iterations: its score falls with each) is fitted on and kept when it wins."""
-    calls: list[int] = []
-    FLAG = 4  # a root angle the search never sets: marks a state fitted on after its probe
+
+RAISE = MODEL.motion_names.index("l_upperarm.1")
+
+
+def test_a_pose_the_global_starts_miss_is_found_from_a_given_start() -> None:
+    """Only a pose with the left arm raised high (no coarse start or limb restart sets the
+    raise) explains the frame; the search finds it from ``starts`` (the tracker's last held
+    frame), and without it returns something else."""
 
     def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
-        calls.append(iterations)
-        motion = state.motion.copy()
-        motion[FLAG] = 1.0 if iterations == RESTART_ITERATIONS - RESTART_PROBE else 0.0
-        return state.replace(motion=motion)
+        return state
 
     def score(state: BodyState) -> tuple[float, float]:
-        if _facing(float(state.motion[3])) > 0.2:
-            return 0.05, 0.2
-        bent = state.motion[ELBOW] > 0.3
-        # a bent elbow is right, but shows it fully only after more than the probe's
-        # iterations; after the probe it is within the margin of the straight best (0.02)
-        return (0.004 if bent and state.motion[FLAG] else 0.0105 if bent else 0.02), 0.9
+        right = _facing(float(state.motion[3])) < 0.3
+        if right and abs(state.motion[RAISE] - 1.2) < 0.05:
+            return 0.002, 0.95
+        return (0.01, 0.8) if right else (0.03, 0.5)
 
-    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
-    assert state.motion[ELBOW] > 0.3 and score(state)[0] == 0.004
-    probes = calls.count(RESTART_PROBE)
-    assert probes > 0
-    # only the bent-elbow restarts (near the best after the probe) went on
-    assert 0 < calls.count(RESTART_ITERATIONS - RESTART_PROBE) < probes
+    held = MODEL.rest_state(position=(0.0, 0.0, 0.0))
+    motion = held.motion.copy()
+    motion[3], motion[RAISE] = 0.1, 1.2
+    shape = np.ones(MODEL.n_shape)
+    found = search_pose(MODEL, np.zeros(3), shape, fit, score, fit_shape=False, headings=8, starts=[held.replace(motion=motion)])
+    assert score(found)[0] == 0.002
+    alone = search_pose(MODEL, np.zeros(3), shape, fit, score, fit_shape=False, headings=8)
+    assert score(alone)[0] == 0.01

@@ -182,6 +182,28 @@ def test_the_first_tracked_frames_are_lost_for_a_drop_a_held_track_does_not_make
     assert not tracker._lost(FrameQuality(0.003, SEED2_SHARES[1], 4000))
 
 
+def test_a_lost_frame_is_searched_from_the_last_held_frame_too() -> None:
+    """The search of a lost frame starts also from the last frame the track held (not a
+    lost one whose search found nothing better), its root moved with the data's centre."""
+    tracker = BodyTracker(MODEL, cameras=CAMERAS)
+    rng = np.random.default_rng(0)
+    states = []
+    for f, held in enumerate((True, True, False)):
+        motion = MODEL.rest_state().motion.copy()
+        motion[MODEL.motion_names.index("l_upperarm.1")] = 0.2 * f
+        states.append(BodyState(np.ones(MODEL.n_shape), motion))
+        points = rng.normal(0, 0.1, (50, 3)) + [0.1 * f, 0, 1]
+        frame = tracker._prepare(BodyObservations(points=points), f)
+        tracker._append(frame, states[-1], FrameQuality(0.003, 0.9, 50), searched=False, observed=True, held=held)
+    now = tracker._prepare(BodyObservations(points=rng.normal(0, 0.1, (50, 3)) + [0.5, 0, 1]), 3)
+    (start,) = tracker._held_start(now)
+    # frame 1's pose (frame 2 was lost), moved by the centres' difference
+    assert np.allclose(start.motion[3:], states[1].motion[3:])
+    shift = now.centre() - tracker._frames[1].centre()
+    assert np.allclose(start.motion[:3], states[1].motion[:3] + shift)
+    assert 0.35 < shift[0] < 0.45
+
+
 def test_a_subject_the_model_cannot_explain_is_refused() -> None:
     """A four-legged animal (a horizontal barrel on legs, a neck and a head)."""
     parts = [trimesh.creation.capsule(0.9, 0.22).apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))]

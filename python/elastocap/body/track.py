@@ -362,6 +362,7 @@ class BodyTracker:
         self._quality: list[FrameQuality] = []
         self._searched: list[bool] = []
         self._observed: list[bool] = []
+        self._held: list[bool] = []
         self._shape_fixed = False
 
     # -- observations ---------------------------------------------------------------------
@@ -424,9 +425,11 @@ class BodyTracker:
             sigma_shape=self.sigma_shape if shape is None and not all(len(f.points) == 0 for f in frames) else None,
         )
 
-    def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:
+    def search(
+        self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool, starts: Sequence[BodyState] = ()
+    ) -> tuple[BodyState, FrameQuality]:
         """The global pose search on one frame (:func:`~elastocap.body.search.search_pose`):
-        the root at the centre of the data, ``headings`` headings."""
+        the root at the centre of the data, ``headings`` headings, and ``starts``."""
         centre = frame.centre()
         if centre is None:
             raise InvalidInputError("the frame's observations do not locate the body")
@@ -440,8 +443,23 @@ class BodyTracker:
                 return 0.0, 1.0
             return float(np.mean(np.minimum(d, 0.05))), float(np.mean(d <= EXPLAINED_DISTANCE))
 
-        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings)
+        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings, starts=starts)
         return state, self.quality(state, frame)
+
+    def _held_start(self, frame: _Frame) -> list[BodyState]:
+        """The last frame the track held (not lost), its root moved with the data's centre:
+        a start for the search of a lost frame. The global starts alone did not find the
+        capsule figure on its seed 3's frames 10-17 (``benches/README.md``, branch body7),
+        while its pose had changed little since the last held frame."""
+        held = [i for i, ok in enumerate(self._held) if ok]
+        if not held:
+            return []
+        last = held[-1]
+        motion = self._states[last].motion.copy()
+        now, then = frame.centre(), self._frames[last].centre()
+        if now is not None and then is not None:
+            motion[:3] += now - then
+        return [BodyState(self._states[last].shape, np.clip(motion, self.model.lower, self.model.upper))]
 
     def _predict(self) -> BodyState:
         last = self._states[-1]
@@ -494,13 +512,15 @@ class BodyTracker:
             return predicted
         fit = self._fit([frame], [predicted], shape=predicted.shape, iterations=self.max_iterations)
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
+        held = True
         if self._lost(quality):
-            found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
+            found, found_quality = self.search(frame, predicted.shape, fit_shape=False, starts=self._held_start(frame))
             # By the explained share first: with silhouettes alone the median distance is
             # 2-4 mm for a fit with a limb 10 cm off as for a good one.
             if (-found_quality.explained, found_quality.median_distance) < (-quality.explained, quality.median_distance):
                 state, quality, searched = found, found_quality, True
-        self._append(frame, state, quality, searched=searched, observed=True)
+            held = not self._lost(quality)
+        self._append(frame, state, quality, searched=searched, observed=True, held=held)
         if not self._shape_fixed and len(self._states) >= self.window:
             self._fit_shape()
         return self._states[-1]
@@ -514,7 +534,10 @@ class BodyTracker:
         if not self._shape_fixed and len(self._states) >= self.window:
             self._fit_shape()
 
-    def _append(self, frame: _Frame, state: BodyState, quality: FrameQuality, *, searched: bool, observed: bool) -> None:
+    def _append(self, frame: _Frame, state: BodyState, quality: FrameQuality, *, searched: bool, observed: bool, held: bool | None = None) -> None:
+        # held: the frame passed the lost test (its own fit, or the search's); by default
+        # every observed frame (the first, a resumed one)
+        self._held.append(observed if held is None else held)
         self._frames.append(frame)
         self._states.append(state)
         self._quality.append(quality)
