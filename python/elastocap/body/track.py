@@ -5,7 +5,8 @@ data, several headings fitted briefly, the best refined); every later frame star
 its predecessor moved on at constant velocity and is fitted with the shape held; the shape
 is fitted once, jointly over the first ``window`` frames, and then shared by the whole take
 (BVH bones have fixed lengths). A frame the prediction loses (its observations far from
-the fitted skin) is searched for again. A subject the model cannot explain (an animal, an
+the fitted skin) is searched for again, from the global starts and from the last frame the
+track held. A subject the model cannot explain (an animal, an
 object) is refused on the first frame.
 """
 
@@ -281,8 +282,10 @@ class BodyTracker:
     lost_distance : float, default 0.015, keyword-only
         A tracked frame whose observations lie farther than this (median, metres) from the
         fitted skin, or of which clearly less are explained than in the recent frames
-        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`), is searched
-        for again; the search's result replaces the tracked fit when it explains more.
+        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`; for the
+        first tracked frames :data:`LOST_PRIOR_SPREAD` stands for the spread), is searched
+        for again, from the global starts and from the last frame the track held; the
+        search's result replaces the tracked fit when it explains more.
     refuse_distance : float, default 0.03, keyword-only
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
