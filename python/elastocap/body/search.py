@@ -140,7 +140,7 @@ def search_pose(
     opposite = [m for m in middle if abs(_turn(m[1].motion[3] - facings[0].motion[3])) > OPPOSITE_HEADING]
     if opposite:
         facings.append(opposite[0][1])
-    results = []
+    results: list[list[Any]] = []
     for init in facings:
         if results and results[0][0][1] >= WELL_EXPLAINED:
             # The best facing explains nearly every observation: the other facing has
