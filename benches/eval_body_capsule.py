@@ -69,7 +69,7 @@ def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int, tr
         rows.append({"frame": f, "fit_cpu_s": round(time.process_time() - t0, 2), "masks": masks, "surface": surface})
     track = tracker.result()
     per_frame = []
-    for row, state in zip(rows, track.states):
+    for row, state, searched, quality in zip(rows, track.states, track.searched, track.quality):
         f = int(row["frame"])  # type: ignore[call-overload]
         _, origins = model.pose(state)
         world = origins @ Z_UP_TO_WORLD.T
@@ -86,6 +86,7 @@ def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int, tr
             "joint_max_mm": round(1000 * float(np.max(errors)), 1),
             "skin_mean_mm": round(1000 * 0.5 * float(d_fit.mean() + d_true.mean()), 2),
             "model_iou_min": round(min(ious), 3), "model_iou_median": round(float(np.median(ious)), 3),
+            "searched": searched, "explained": round(quality.explained, 4),
         }  # fmt: skip
         per_frame.append(result)
         print(json.dumps(result), flush=True)
@@ -99,6 +100,7 @@ def run(mode: str, scene: ClutterScene, frames: int, start: int, stride: int, tr
         "model_iou_min": min(float(r["model_iou_min"]) for r in per_frame),  # type: ignore[arg-type]
         "fit_cpu_s_median_tracked": float(np.median([r["fit_cpu_s"] for r in per_frame[1:]])) if len(per_frame) > 1 else None,
         "fit_cpu_s_first": per_frame[0]["fit_cpu_s"],
+        "frames_searched_after_first": int(sum(track.searched[1:])),
     }  # fmt: skip
     if mode == "stereo":
         summary["done"] = joint_rms <= 30 and float(np.mean(skin)) <= 10

@@ -6,6 +6,7 @@ restarted (a walking figure's elbows and knees bend one way only)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from elastocap.body import BodyModel, BodyState
 from elastocap.body.search import search_pose
@@ -59,3 +60,54 @@ def test_a_search_without_an_opposite_facing_keeps_its_best() -> None:
     state = search_pose(MODEL, np.array([0.1, -0.2, 0.9]), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
     assert _facing(float(state.motion[3])) < 0.2
     assert np.allclose(state.motion[:3], [0.1, -0.2, 0.9])
+
+
+def test_the_other_facing_is_not_refined_beside_a_well_explained_best() -> None:
+    """The best facing explains nearly everything (the demo's body figure: 0.986): the
+    other facing (0.81 there) has nothing left to explain better, and its full fit and
+    restarts (9 of the demo search's 24 CPU s) are skipped."""
+    refined: list[float] = []
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        if iterations == 60:
+            refined.append(_facing(float(state.motion[3])))
+        return state
+
+    def score(state: BodyState) -> tuple[float, float]:
+        heading = _facing(float(state.motion[3]))
+        if heading < 0.2:
+            return 0.003, 0.99
+        return (0.01, 0.8) if heading > np.pi - 0.2 else (0.05, 0.2)
+
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
+    assert _facing(float(state.motion[3])) < 0.2
+    # one full fit, of the right facing; before, the backward facing had one too
+    assert refined == [pytest.approx(0.0, abs=0.2)]
+
+
+
+RAISE = MODEL.motion_names.index("l_upperarm.1")
+
+
+def test_a_pose_the_global_starts_miss_is_found_from_a_given_start() -> None:
+    """Only a pose with the left arm raised high (no coarse start or limb restart sets the
+    raise) explains the frame; the search finds it from ``starts`` (the tracker's last held
+    frame), and without it returns something else."""
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        return state
+
+    def score(state: BodyState) -> tuple[float, float]:
+        right = _facing(float(state.motion[3])) < 0.3
+        if right and abs(state.motion[RAISE] - 1.2) < 0.05:
+            return 0.002, 0.95
+        return (0.01, 0.8) if right else (0.03, 0.5)
+
+    held = MODEL.rest_state(position=(0.0, 0.0, 0.0))
+    motion = held.motion.copy()
+    motion[3], motion[RAISE] = 0.1, 1.2
+    shape = np.ones(MODEL.n_shape)
+    found = search_pose(MODEL, np.zeros(3), shape, fit, score, fit_shape=False, headings=8, starts=[held.replace(motion=motion)])
+    assert score(found)[0] == 0.002
+    alone = search_pose(MODEL, np.zeros(3), shape, fit, score, fit_shape=False, headings=8)
+    assert score(alone)[0] == 0.01

@@ -5,7 +5,8 @@ data, several headings fitted briefly, the best refined); every later frame star
 its predecessor moved on at constant velocity and is fitted with the shape held; the shape
 is fitted once, jointly over the first ``window`` frames, and then shared by the whole take
 (BVH bones have fixed lengths). A frame the prediction loses (its observations far from
-the fitted skin) is searched for again. A subject the model cannot explain (an animal, an
+the fitted skin) is searched for again, from the global starts and from the last frame the
+track held. A subject the model cannot explain (an animal, an
 object) is refused on the first frame.
 """
 
@@ -57,10 +58,15 @@ LOST_SPREADS = 3.0
 #: fixed drop of 0.1 used before waited for frame 11; ``benches/README.md``, branch body7).
 LOST_DROP = 0.03
 #: Frames whose quality sets the reference of the lost test, and how many it needs before
-#: it trusts their spread (fewer: the drop is :data:`LOST_DROP_FEW`).
+#: it trusts their spread (fewer: the spread is :data:`LOST_PRIOR_SPREAD`).
 LOST_RECENT = 10
 LOST_MIN_RECENT = 4
-LOST_DROP_FEW = 0.1
+#: The spread assumed for the first tracked frames, whose few predecessors do not measure
+#: one: the largest spread of a held masks-only track (1.4826 MAD of the explained share,
+#: 0.004-0.010 on the capsule figure's tuning seeds 2 and 12, ``benches/README.md``,
+#: branch body7). Before, these frames were lost only 0.1 below their predecessors' median,
+#: which let a drift of 5 mm skin pass for three frames (branch body8).
+LOST_PRIOR_SPREAD = 0.01
 
 
 @dataclass(frozen=True)
@@ -196,15 +202,16 @@ def lost_threshold(recent: Sequence[float]) -> float:
     the recent observed frames (oldest first): their upper quartile less
     :data:`LOST_SPREADS` times their spread (``1.4826`` times the median absolute deviation
     from their median), and at least :data:`LOST_DROP` less; with fewer than
-    :data:`LOST_MIN_RECENT` frames, whose spread says little, their median less
-    :data:`LOST_DROP_FEW` (the test of before); with none, 0.9."""
+    :data:`LOST_MIN_RECENT` frames, whose spread says little, the spread is
+    :data:`LOST_PRIOR_SPREAD`; with none, 0.9."""
     shares = np.asarray(recent, dtype=np.float64)[-LOST_RECENT:]
     if len(shares) == 0:
         return 0.9
     median = float(np.median(shares))
     if len(shares) < LOST_MIN_RECENT:
-        return median - LOST_DROP_FEW
-    spread = 1.4826 * float(np.median(np.abs(shares - median)))
+        spread = LOST_PRIOR_SPREAD
+    else:
+        spread = 1.4826 * float(np.median(np.abs(shares - median)))
     return float(np.percentile(shares, 75)) - max(LOST_SPREADS * spread, LOST_DROP)
 
 
@@ -275,8 +282,10 @@ class BodyTracker:
     lost_distance : float, default 0.015, keyword-only
         A tracked frame whose observations lie farther than this (median, metres) from the
         fitted skin, or of which clearly less are explained than in the recent frames
-        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`), is searched
-        for again; the search's result replaces the tracked fit when it explains more.
+        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`; for the
+        first tracked frames :data:`LOST_PRIOR_SPREAD` stands for the spread), is searched
+        for again, from the global starts and from the last frame the track held; the
+        search's result replaces the tracked fit when it explains more.
     refuse_distance : float, default 0.03, keyword-only
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
@@ -356,6 +365,7 @@ class BodyTracker:
         self._quality: list[FrameQuality] = []
         self._searched: list[bool] = []
         self._observed: list[bool] = []
+        self._held: list[bool] = []
         self._shape_fixed = False
 
     # -- observations ---------------------------------------------------------------------
@@ -418,9 +428,11 @@ class BodyTracker:
             sigma_shape=self.sigma_shape if shape is None and not all(len(f.points) == 0 for f in frames) else None,
         )
 
-    def search(self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool) -> tuple[BodyState, FrameQuality]:
+    def search(
+        self, frame: _Frame, shape: NDArray[np.float64], *, fit_shape: bool, starts: Sequence[BodyState] = ()
+    ) -> tuple[BodyState, FrameQuality]:
         """The global pose search on one frame (:func:`~elastocap.body.search.search_pose`):
-        the root at the centre of the data, ``headings`` headings."""
+        the root at the centre of the data, ``headings`` headings, and ``starts``."""
         centre = frame.centre()
         if centre is None:
             raise InvalidInputError("the frame's observations do not locate the body")
@@ -434,8 +446,23 @@ class BodyTracker:
                 return 0.0, 1.0
             return float(np.mean(np.minimum(d, 0.05))), float(np.mean(d <= EXPLAINED_DISTANCE))
 
-        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings)
+        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings, starts=starts)
         return state, self.quality(state, frame)
+
+    def _held_start(self, frame: _Frame) -> list[BodyState]:
+        """The last frame the track held (not lost), its root moved with the data's centre:
+        a start for the search of a lost frame. The global starts alone did not find the
+        capsule figure on its seed 3's frames 10-17 (``benches/README.md``, branch body7),
+        while its pose had changed little since the last held frame."""
+        held = [i for i, ok in enumerate(self._held) if ok]
+        if not held:
+            return []
+        last = held[-1]
+        motion = self._states[last].motion.copy()
+        now, then = frame.centre(), self._frames[last].centre()
+        if now is not None and then is not None:
+            motion[:3] += now - then
+        return [BodyState(self._states[last].shape, np.clip(motion, self.model.lower, self.model.upper))]
 
     def _predict(self) -> BodyState:
         last = self._states[-1]
@@ -488,13 +515,15 @@ class BodyTracker:
             return predicted
         fit = self._fit([frame], [predicted], shape=predicted.shape, iterations=self.max_iterations)
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
+        held = True
         if self._lost(quality):
-            found, found_quality = self.search(frame, predicted.shape, fit_shape=False)
+            found, found_quality = self.search(frame, predicted.shape, fit_shape=False, starts=self._held_start(frame))
             # By the explained share first: with silhouettes alone the median distance is
             # 2-4 mm for a fit with a limb 10 cm off as for a good one.
             if (-found_quality.explained, found_quality.median_distance) < (-quality.explained, quality.median_distance):
                 state, quality, searched = found, found_quality, True
-        self._append(frame, state, quality, searched=searched, observed=True)
+            held = not self._lost(quality)
+        self._append(frame, state, quality, searched=searched, observed=True, held=held)
         if not self._shape_fixed and len(self._states) >= self.window:
             self._fit_shape()
         return self._states[-1]
@@ -508,7 +537,10 @@ class BodyTracker:
         if not self._shape_fixed and len(self._states) >= self.window:
             self._fit_shape()
 
-    def _append(self, frame: _Frame, state: BodyState, quality: FrameQuality, *, searched: bool, observed: bool) -> None:
+    def _append(self, frame: _Frame, state: BodyState, quality: FrameQuality, *, searched: bool, observed: bool, held: bool | None = None) -> None:
+        # held: the frame passed the lost test (its own fit, or the search's); by default
+        # every observed frame (the first, a resumed one)
+        self._held.append(observed if held is None else held)
         self._frames.append(frame)
         self._states.append(state)
         self._quality.append(quality)
