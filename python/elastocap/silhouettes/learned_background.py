@@ -1,12 +1,12 @@
 """Each static camera's background learned by the silhouette loop itself:
 :class:`LearnedBackground` and :func:`background_outline`.
 
-The cameras do not move, so a pixel the loop has confirmed as background (far outside both
-its final silhouette and the fitted body model's) shows the same thing on the next frames
+The cameras do not move, so a pixel the loop has confirmed as background (outside the
+fitted body model's silhouette, grown by a margin) shows the same thing on the next frames
 unless something moves over it. Per pixel the model keeps a running mean of the colours
 seen there while confirmed, and how many consecutive confirmations agreed with it: a
-moving distractor passing over the pixel disagrees and restarts the count, so only what
-stayed put is trusted. The light changes smoothly over the take (it dims, a band sweeps
+moving distractor passing over the pixel, or a limb the model missed, disagrees and
+restarts the count, so only what stayed put is trusted. The light changes smoothly over the take (it dims, a band sweeps
 across the views); the model stores colours under its own reference light and, per frame,
 estimates a smooth gain field from the pixels confirmed now, by normalised convolution.
 
