@@ -176,3 +176,23 @@ def test_bad_input_is_refused() -> None:
         background_outline(np.ones((4, 4), bool), np.zeros((4, 4)), band=0)
     with pytest.raises(InvalidInputError, match="tolerance"):
         LearnedBackground(tolerance=0)
+
+
+def test_a_gain_computed_once_gives_the_same_model_and_distance() -> None:
+    # The loop computes the frame's gain once for the outline test and the update.
+    a, images, truths = learned(frames=6)
+    b, _, _ = learned(frames=6)
+    rng = np.random.default_rng(9)
+    truth = figure(6)
+    image = render(backdrop(np.random.default_rng(0)), truth, 6, 12, rng)
+    support = ~(cv2.dilate(truth.astype(np.uint8), disk(10)) != 0)
+    gain = b.gain(image, support)
+    np.testing.assert_array_equal(a.distance(image, support), b.distance(image, None, gain=gain))
+    a.update(image, support)
+    b.update(image, support, gain=gain)
+    np.testing.assert_array_equal(a.mean, b.mean)
+    np.testing.assert_array_equal(a.count, b.count)
+    with pytest.raises(InvalidInputError, match="gain"):
+        b.update(image, support, gain=np.zeros((H, W)))
+    with pytest.raises(InvalidInputError, match="gain"):
+        b.distance(image, None, gain=np.ones((H, W + 1)))

@@ -126,17 +126,30 @@ class LearnedBackground:
             ok = ok & (np.abs(now / np.maximum(ref, 1e-3) / field - 1.0) < 0.15)
         return field
 
-    def distance(self, image: Any, support: Any) -> NDArray[np.float32]:
+    def _checked_gain(self, gain: Any, shape: tuple[int, ...]) -> NDArray[np.float32]:
+        g = np.asarray(gain, dtype=np.float32)
+        if g.shape != shape or not (np.isfinite(g).all() and (g > 0).all()):
+            raise InvalidInputError(f"gain must be a finite, positive (H, W) field of the image's shape {shape}, got shape {g.shape}")
+        return g
+
+    def distance(self, image: Any, support: Any, *, gain: Any = None) -> NDArray[np.float32]:
         """Per pixel, the RGB distance of ``image`` from the learned background under this
-        frame's light (:meth:`gain` from ``support``); ``inf`` where not trusted."""
+        frame's light (:meth:`gain` from ``support``, unless given: the loop computes it
+        once a frame for this and :meth:`update`); ``inf`` where not trusted."""
         colour = _checked_image(image, self.shape)
-        gain = self._gain(colour, _checked_mask("support", support, colour.shape[:2]))
+        if gain is None:
+            gain = self._gain(colour, _checked_mask("support", support, colour.shape[:2]))
+        else:
+            gain = self._checked_gain(gain, colour.shape[:2])
         assert self.mean is not None
         d = np.linalg.norm(colour - gain[..., None] * self.mean, axis=2).astype(np.float32)
         return np.where(self.trusted(), d, np.float32(np.inf))
 
-    def update(self, image: Any, confirmed: Any) -> None:
+    def update(self, image: Any, confirmed: Any, *, gain: Any = None) -> None:
         """Learn one frame: ``confirmed`` (H, W) marks the pixels known to show background.
+
+        ``gain``: this frame's :meth:`gain` with ``confirmed`` as its support, when already
+        computed (the same model and support give the same field).
 
         A confirmed pixel whose colour (under the reference light) lies within
         :attr:`tolerance` of its mean is averaged in and its count grows; otherwise it
@@ -148,7 +161,8 @@ class LearnedBackground:
             self.mean = colour.copy()
             self.count = seen.astype(np.int32)
             return
-        x = colour / self._gain(colour, seen)[..., None]
+        field = self._gain(colour, seen) if gain is None else self._checked_gain(gain, colour.shape[:2])
+        x = colour / field[..., None]
         close = np.linalg.norm(x - self.mean, axis=2) < self.tolerance
         agree = seen & close & (self.count > 0)
         restart = seen & ~agree

@@ -198,6 +198,7 @@ class SilhouetteTracker:
         self.colour_models = {n: ColourModel() for n in rig.names}
         self.background_options = None if background is False else {**BACKGROUND_DEFAULTS, **(background if isinstance(background, Mapping) else {})}
         self.backgrounds = {n: LearnedBackground() for n in rig.names}
+        self._gains: dict[str, NDArray[np.float32]] = {}
         body_cameras = [c.replace(R=c.R @ Z_UP_TO_WORLD) for c in rig.cameras]
         self.body = BodyTracker(self.model, cameras=body_cameras, **{**TRACKER_DEFAULTS, **(tracker or {})})
         self.previous: dict[str, NDArray[np.bool_]] | None = None
@@ -248,14 +249,17 @@ class SilhouetteTracker:
         return np.asarray(cv2.dilate(model.astype(np.uint8), kernel) == 0)
 
     def _outline(self, name: str, image: Any, mask: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        # The light's gain of this frame is estimated where this frame's model says
-        # background, as the learned background was taught.
         learned = self.backgrounds[name]
-        if self.background_options is None or learned.count is None or not mask.any():
+        if self.background_options is None or learned.count is None or not model.any():
             return mask
         started = time.perf_counter()
-        distance = learned.distance(image, self._outside_model(model))
-        out = background_outline(mask, distance, **self.background_options)
+        # The light's gain of this frame is estimated where this frame's model says
+        # background, as the learned background is taught: one field for both (the
+        # Gaussian blurs are most of this stage's cost).
+        self._gains[name] = learned.gain(image, self._outside_model(model))
+        out = mask
+        if mask.any():
+            out = background_outline(mask, learned.distance(image, None, gain=self._gains[name]), **self.background_options)
         self.timings["background"] += time.perf_counter() - started
         return out if out.any() else mask
 
@@ -265,7 +269,8 @@ class SilhouetteTracker:
         started = time.perf_counter()
         for n, model in projected.items():
             if model.any():
-                self.backgrounds[n].update(images[n], self._outside_model(model))
+                self.backgrounds[n].update(images[n], self._outside_model(model), gain=self._gains.get(n))
+        self._gains = {}
         self.timings["background"] += time.perf_counter() - started
 
     def _learn_colours(self, images: Mapping[str, Any], final: Mapping[str, NDArray[np.bool_]], projected: Mapping[str, NDArray[np.bool_]]) -> None:
