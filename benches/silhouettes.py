@@ -63,6 +63,7 @@ def main() -> None:
     parser.add_argument("--band", default="{}", help="refine_in_band options, JSON; 'false': contours only")
     parser.add_argument("--consistency", default="{}", help="consistent_silhouettes options, JSON; 'false': no multi-view check")
     parser.add_argument("--appearance", default="{}", help="appearance_silhouette options, JSON; 'false': no colour model over frames")
+    parser.add_argument("--background", default="{}", help="background_outline options, JSON; 'false': no learned background")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     scene = ClutterScene(args.seed, cameras=args.cameras, size=(width, height), frames=args.frames)
@@ -72,7 +73,7 @@ def main() -> None:
     render_s = time.perf_counter() - started
     median = {n: np.median(np.stack([fr.images[n] for fr in frames]), axis=0).astype(np.int16) for n in names}
     mog = {n: cv2.createBackgroundSubtractorMOG2(history=100, detectShadows=False) for n in names}
-    tracker = SilhouetteTracker(scene.rig, tracker=json.loads(args.tracker), band=json.loads(args.band), consistency=json.loads(args.consistency), appearance=json.loads(args.appearance))
+    tracker = SilhouetteTracker(scene.rig, tracker=json.loads(args.tracker), band=json.loads(args.band), consistency=json.loads(args.consistency), appearance=json.loads(args.appearance), background=json.loads(args.background))
     model = tracker.model
     rows = []
     for f, fr in enumerate(frames):
@@ -86,7 +87,8 @@ def main() -> None:
         snake_cpu = tracker.timings["snakes_cpu"] - before["snakes_cpu"]
         consistency_s = tracker.timings["consistency"] - before["consistency"]
         appearance_s = tracker.timings["appearance"] - before["appearance"]
-        result: dict[str, object] = {"frame": f, "step_s": round(step_s, 3), "snakes_ms_per_view": round(1000 * snake_s / len(names), 1), "snakes_cpu_ms_per_view": round(1000 * snake_cpu / len(names), 1), "band_ms_per_view": round(1000 * band_s / len(names), 1), "consistency_ms_per_view": round(1000 * consistency_s / len(names), 1), "appearance_ms_per_view": round(1000 * appearance_s / len(names), 1), "body_s": round(body_s, 3)}
+        background_s = tracker.timings["background"] - before["background"]
+        result: dict[str, object] = {"frame": f, "step_s": round(step_s, 3), "snakes_ms_per_view": round(1000 * snake_s / len(names), 1), "snakes_cpu_ms_per_view": round(1000 * snake_cpu / len(names), 1), "band_ms_per_view": round(1000 * band_s / len(names), 1), "consistency_ms_per_view": round(1000 * consistency_s / len(names), 1), "appearance_ms_per_view": round(1000 * appearance_s / len(names), 1), "background_ms_per_view": round(1000 * background_s / len(names), 1), "body_s": round(body_s, 3)}
         methods = {"ours": ours, "first_pass": tracker.first_pass, "model": tracker.model_masks}
         t0 = time.perf_counter()
         methods["grabcut"] = {n: grabcut(fr.images[n], tracker.model_masks[n]) for n in names}
@@ -117,6 +119,7 @@ def main() -> None:
     summary["snakes_cpu_ms_per_view_max"] = float(np.max([r["snakes_cpu_ms_per_view"] for r in rows]))
     summary["consistency_ms_per_view_median"] = float(np.median([r["consistency_ms_per_view"] for r in rows]))
     summary["appearance_ms_per_view_median"] = float(np.median([r["appearance_ms_per_view"] for r in rows]))
+    summary["background_ms_per_view_median"] = float(np.median([r["background_ms_per_view"] for r in rows]))
     summary["band_ms_per_view_median"] = float(np.median([r["band_ms_per_view"] for r in rows]))
     summary["body_s_median"] = float(np.median([r["body_s"] for r in rows]))
     summary["step_s_median"] = float(np.median([r["step_s"] for r in rows]))

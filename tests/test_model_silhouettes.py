@@ -54,6 +54,16 @@ def test_the_loop_beats_the_snake_alone(piece) -> None:
     assert loop_iou[1:].mean() > alone_iou[1:].mean()
     assert np.median(loop_iou) > 0.7
     assert loop_iou[2, 0] > 0.5
+    # Each view's learned background, taught by the loop outside its fitted model, knows the
+    # background under the scene's light and has not learned the figure as background.
+    last = frames[-1]
+    for n in names:
+        support = ~tracker.model_masks[n]
+        distance = tracker.backgrounds[n].distance(last.images[n], support)
+        known = np.isfinite(distance)
+        assert (known & ~last.masks[n]).mean() > 0.3
+        assert np.median(distance[known & ~last.masks[n]]) < 10.0
+        assert (known & last.masks[n] & (distance < 15.0)).sum() < 0.02 * last.masks[n].sum()
 
 
 def test_the_first_frame_needs_agreement(piece) -> None:
