@@ -46,6 +46,16 @@ SOLVER_TOLERANCE = 1e-6
 # drift 1.657% -> 1.682%; 1e-4 saved more but moved the refinement's result on the pitted
 # block of tests/test_fit_silhouette.py: benches/README.md, session 10).
 STAGED_TOLERANCE = 1e-5
+# A frame's iteration stops when its last decrease of the objective is below this fraction
+# of its total decrease so far (SPEC 5: 1%) ...
+STOP_FRACTION = 0.01
+# ... and the fit to the hull alone that the silhouette term's refinement starts from
+# goes further to its minimum: along the surface is where it stops short. Horse gallop
+# (benches/eval_horse.py, 5,873 nodes): mean drift 1.717% -> 1.679% of the diagonal for 7%
+# more iterations (0.002 in both stages: 1.660% for 27% more, and the refinement then swells
+# past the volume bound on coarse masks; in the refinement alone: 1.714%); benches/README.md,
+# session 13.
+STAGED_STOP_FRACTION = 0.002
 
 
 @dataclass(frozen=True)
@@ -171,6 +181,8 @@ def fit_sequence(
     stiffness: float = 1.0,
     contact: float = 1.0,
     max_iterations: int = 10,
+    stop_fraction: float = STOP_FRACTION,
+    staged_stop_fraction: float = STAGED_STOP_FRACTION,
     invalidate: bool = True,
     self_intersection: bool = True,
     hold_contacts: bool = False,
@@ -215,8 +227,16 @@ def fit_sequence(
     contact : float
         gamma / beta, the weight of the self-intersection term (SPEC 5: 1).
     max_iterations : int
-        Iterations per frame (SPEC 5: 10); a frame also stops when the last decrease of D
-        is below 1% of its total decrease.
+        Iterations per frame (SPEC 5: 10), per stage when the silhouette term refines a
+        hull-only fit.
+    stop_fraction : float
+        A frame also stops when the last decrease of its objective is below this fraction
+        of its total decrease so far (SPEC 5: 0.01).
+    staged_stop_fraction : float
+        The same for the fit to the hull alone that the silhouette term's refinement
+        starts from (``silhouette_stage`` "chain" or "refine"): 0.002 takes it the rest of
+        the way to its minimum, where it otherwise stops short along the surface (horse
+        gallop: mean drift 1.717% -> 1.679% of the diagonal, 7% more iterations).
     invalidate, self_intersection : bool
         Turn the invalidation of colliding associations and the self-intersection term on
         or off.
@@ -342,6 +362,9 @@ def fit_sequence(
     tracks = check_tracks(tracks, frames)
     if tracks is not None and model.dim != 3:
         raise InvalidInputError("tracks are 3-D points: a 2-D model does not take them")
+    for name, value in (("stop_fraction", stop_fraction), ("staged_stop_fraction", staged_stop_fraction)):
+        if not (np.isfinite(value) and 0 <= value < 1):
+            raise InvalidInputError(f"{name} must be in [0, 1), got {value}")
     for name, value in (("track_weight", track_weight), ("track_scale", track_scale), ("track_sigma", track_sigma)):
         if value is not None and not (np.isfinite(value) and value >= 0 and (name == "track_weight" or value > 0)):
             raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {value}")
@@ -388,7 +411,8 @@ def fit_sequence(
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
-        options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations, invalidate=invalidate,
+        options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
+                       stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
                        # A body keeps its volume; a 2-D silhouette does not keep its area.
                        volume=volume if model.dim == 3 else 0.0,
@@ -396,7 +420,7 @@ def fit_sequence(
                        tracks=pulling, track_weight=track_weight, track_sigma=sigma, track_scale=track_scale)
         clock = time.perf_counter()
         staged = views is not None and silhouette_stage != "joint"
-        first = dict(options, solver_tolerance=staged_tolerance) if staged else options
+        first = dict(options, solver_tolerance=staged_tolerance, stop_fraction=staged_stop_fraction) if staged else options
         positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **first,
                                               silhouette=0.0 if staged else silhouette,
                                               views=None if staged else views)
