@@ -78,5 +78,28 @@ RETIE_DROP_FAILED = True
 # through 33.3%, kept 3-D beyond 5 px-eq 3.84%, image 0.65%), or "correlation", the one of
 # best correlation (33.4%, 4.38%, 1.07%).
 RETIE_REFERENCE = "anchor"
+# A held view predicted hidden (outside its silhouette, behind another tracked point,
+# and with HIDDEN_FACING above -1 its surface turned away) on this many consecutive frames
+# is ended (0: never; :mod:`elastocap.tracking.hidden`). With HIDDEN_EVIDENCE only where
+# its own match agrees: the frame-to-frame correlation below HIDDEN_CORRELATION or the
+# re-tie moving it farther than HIDDEN_SHIFT pixels (or failing). With HIDDEN_SET_ASIDE a
+# point that keeps two other views keeps the hidden one tracked but out of the intersection.
+HIDDEN_FRAMES = 0
+HIDDEN_FACING = -2.0
+HIDDEN_EVIDENCE = False
+HIDDEN_CORRELATION = 0.9
+HIDDEN_SHIFT = 0.3
+HIDDEN_SET_ASIDE = False
+# The reported covariance with the drift of the views (:mod:`elastocap.tracking.drift`):
+# (DRIFT_SCALE[0] + DRIFT_SCALE[1] f) S + pixel^2 (DRIFT_VARIANCE[0] + DRIFT_VARIANCE[1] f)
+# I, f the most cuts again of the point's anchors; calibrated on seed 0 (median
+# Mahalanobis distance 5.7 -> 1.7; benches/README.md, branch track8). DRIFT False: the
+# intersection's covariance as it is.
+DRIFT = True
+DRIFT_SCALE = (0.06, 1.0)
+DRIFT_VARIANCE = (0.07, 0.22)
+# Positions whose standard deviation along the weakest direction of that covariance
+# exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept.
+UNCERTAIN_SD = float("inf")
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
