@@ -25,7 +25,7 @@ from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.drift import drift_covariance, weakest_sd
 from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.hidden import hidden_run, hidden_views
+from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -172,7 +172,7 @@ class FrameTracker:
         flags2d[rejected] = TrackFlag.EPIPOLAR
         set_aside = np.zeros((n, c), bool)
         if settings.HIDDEN_FRAMES and n:
-            uv, cov2d, x, xcov, used, set_aside = self._hidden(masks, uv, cov2d, x, xcov, used, corr, shift, flags2d)
+            uv, cov2d, x, xcov, used, set_aside = end_hidden_views(self, masks, uv, cov2d, x, xcov, used, corr, shift, flags2d)
         pixel = pixel_size(self.cameras, x, used)
         traj = trajectory_flags(x, self.x_last, self.x_before, pixel, max_velocity=self.o["max_velocity"],
                                 max_acceleration=self.o["max_acceleration"], uniformity=self.o["uniformity"],
@@ -276,43 +276,6 @@ class FrameTracker:
         x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
         x[unsure], xcov[unsure], flags[unsure] = np.nan, np.nan, TrackFlag.UNCERTAIN
         return x, xcov, flags
-
-    def _hidden(self, masks: list[NDArray[np.bool_]], uv: NDArray[np.float64], cov2d: NDArray[np.float64],
-                x: NDArray[np.float64], xcov: NDArray[np.float64], used: NDArray[np.bool_], corr: NDArray[np.float64],
-                shift: NDArray[np.float64], flags2d: NDArray[np.uint8]) -> tuple[NDArray[np.float64], ...]:
-        """The held views predicted hidden for ``settings.HIDDEN_FRAMES`` consecutive
-        frames (:mod:`elastocap.tracking.hidden`), optionally only where the view's own
-        match agrees (``settings.HIDDEN_EVIDENCE``), ended (flag HIDDEN) or, with
-        ``settings.HIDDEN_SET_ASIDE`` and two other views left, kept tracked but left out
-        of the intersection. Returns ``uv``, ``cov2d``, ``x``, ``xcov``, ``used`` after it
-        and the views set aside (N, C)."""
-        n, c = uv.shape[:2]
-        held = used & np.isfinite(x).all(axis=1)[:, None]
-        hidden = hidden_views(self.cameras, masks, x, held, self.normals, facing=settings.HIDDEN_FACING)
-        self.hidden = hidden_run(self.hidden, hidden)
-        end = hidden & (self.hidden >= settings.HIDDEN_FRAMES)
-        if settings.HIDDEN_EVIDENCE:
-            # The view's own match says the patch changed: its correlation fell, or its
-            # re-tie to the reference moved it (or failed).
-            with np.errstate(invalid="ignore"):
-                end &= (corr < settings.HIDDEN_CORRELATION) | (shift > settings.HIDDEN_SHIFT)
-        set_aside = np.zeros((n, c), bool)
-        if settings.HIDDEN_SET_ASIDE:
-            set_aside = end & ((held & ~end).sum(axis=1) >= 2)[:, None]
-            end &= ~set_aside
-        if not (end.any() or set_aside.any()):
-            return uv, cov2d, x, xcov, used, set_aside
-        uv = np.where(end[..., None], np.nan, uv)
-        cov2d = np.where(end[..., None, None], np.nan, cov2d)
-        flags2d[end] = TrackFlag.HIDDEN
-        rows = np.flatnonzero((end | set_aside).any(axis=1))
-        sub = np.where(set_aside[rows, :, None], np.nan, uv[rows])
-        rx, rcov, rused, rrejected = intersect_views(self.cameras, sub, cov2d[rows], max_residual=self.o["max_residual"],
-                                                     floor=settings.FLOOR)
-        x, xcov, used = x.copy(), xcov.copy(), used.copy()
-        x[rows], xcov[rows], used[rows] = rx, rcov, rused
-        flags2d[rows] = np.where(rrejected, TrackFlag.EPIPOLAR, flags2d[rows])
-        return uv, cov2d, x, xcov, used, set_aside & np.isfinite(x).all(axis=1)[:, None]
 
     def normals(self, points: NDArray[np.float64], cloud: NDArray[np.float64],
                  seen: NDArray[np.bool_]) -> NDArray[np.float64]:
