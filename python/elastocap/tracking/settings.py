@@ -101,7 +101,10 @@ DRIFT = True
 DRIFT_SCALE = (0.06, 1.0)
 DRIFT_VARIANCE = (0.07, 0.22)
 # Positions whose standard deviation along the weakest direction of that covariance
-# exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept.
+# exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
+# tracker follows them on, but a run resumed from its files restarts their trajectory
+# filters (the files hold no position for them), and the hidden views' frame counts
+# restart at zero on resume.
 UNCERTAIN_SD = float("inf")
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
