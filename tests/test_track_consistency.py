@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from elastocap.synth.capture import ring_rig
 from elastocap.tracking.views import intersect_views
@@ -68,17 +69,19 @@ def test_retied_views_restore_the_depth_that_drifted_views_lose():
 
     before = depth_error(uv)
     assert np.median(before) > 3.0  # the drift the residual does not see
-    out, ocov, removed = retie_views(images, uv, cov, corr, size=15, min_correlation=0.75, tolerance=1.5,
+    out, ocov, removed, shift = retie_views(images, uv, cov, corr, size=15, min_correlation=0.75, tolerance=1.5,
                                      drop=np.inf, min_texture=1.0)
     assert not removed.any()
     np.testing.assert_array_equal(out[:, 0], uv[:, 0])  # the reference view stays
+    # The shift each asked view reports is how far its match moved it (the 0.8 px drift).
+    assert np.isnan(shift[:, 0]).all() and np.median(shift[:, 1]) == pytest.approx(0.8, abs=0.1)
     moved = np.linalg.norm(out[:, 1] - truth[:, 1], axis=1)
     assert np.median(moved) < 0.1 and np.max(moved) < 0.3
     after = depth_error(out)
     assert np.median(after) < 0.5 and np.max(after) < 1.5
 
     # With a finite drop distance the drifted views are removed instead.
-    out, _, removed = retie_views(images, uv, cov, corr, size=15, min_correlation=0.75, tolerance=1.5, drop=0.4,
+    out, _, removed, _ = retie_views(images, uv, cov, corr, size=15, min_correlation=0.75, tolerance=1.5, drop=0.4,
                                   min_texture=1.0)
     assert removed[:, 1].mean() > 0.9 and not removed[:, 0].any()
     assert np.isnan(out[removed]).all()

@@ -37,6 +37,9 @@ class Anchors:
         # Where each patch was cut (frame number, position): a resumed run cuts it again.
         self.frame = np.full((0, cameras), -1, np.int64)
         self.uv = np.full((0, cameras, 2), np.nan)
+        # How many times each view's patch was cut since the view was acquired (its drift
+        # grows with the cuts again: :mod:`elastocap.tracking.drift`).
+        self.cuts = np.zeros((0, cameras), np.int64)
 
     def grow(self, n: int) -> None:
         """Room for ``n`` points in all."""
@@ -48,6 +51,7 @@ class Anchors:
             self.held = np.concatenate([self.held, np.zeros((extra, c), bool)])
             self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
             self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
+            self.cuts = np.concatenate([self.cuts, np.zeros((extra, c), np.int64)])
 
     def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
             weights: Sequence[NDArray[np.float32]] | None = None) -> None:
@@ -62,9 +66,17 @@ class Anchors:
         self.held[: len(where)] |= where
         self.frame[: len(where)][where] = frame
         self.uv[: len(where)][where] = uv[where]
+        self.cuts[: len(where)][where] += 1
 
     def drop(self, where: NDArray[np.bool_]) -> None:
         self.held[: len(where)] &= ~where
+        self.cuts[: len(where)][where] = 0
+
+    def recuts(self, views: NDArray[np.bool_]) -> NDArray[np.int64]:
+        """(N,) the most cuts again (after the first) among each point's ``views`` (N, C)."""
+        n = len(views)
+        self.grow(n)
+        return np.where(views & self.held[:n], np.maximum(self.cuts[:n] - 1, 0), 0).max(axis=1, initial=0)
 
     def correct(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], *, min_correlation: float,
                 reach: float, min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

@@ -1,5 +1,5 @@
 """Why a tracked point has no position in a frame: the codes of ``Tracks.flags`` (the same
-integers as the Rust core's ``track::Flag``)."""
+integers as the Rust core's ``track::Flag`` up to 10)."""
 
 from __future__ import annotations
 
@@ -37,6 +37,14 @@ class TrackFlag(IntEnum):
         Least-squares matching diverged or found too little texture.
     FEW_VIEWS : 10
         Fewer than two cameras kept it.
+    HIDDEN : 11
+        Its views were ended because their cameras were predicted not to see it (outside
+        the silhouette or behind another tracked point) on consecutive frames (Python
+        only: the Rust core's step does not set it).
+    UNCERTAIN : 12
+        Tracked, but its predicted standard deviation (the covariance with the drift of
+        its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents: withheld (the
+        tracker follows it on).
     """
 
     TRACKED = 0
@@ -50,3 +58,5 @@ class TrackFlag(IntEnum):
     NONUNIFORM = 8
     MATCH_FAILED = 9
     FEW_VIEWS = 10
+    HIDDEN = 11
+    UNCERTAIN = 12

@@ -38,7 +38,7 @@ def retie_views(
     drop_failed: bool = True,
     min_texture: float,
     weights: Sequence[NDArray[np.float32]] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Re-tie the views ``uv`` (N, C, 2; NaN where not held, covariances ``cov`` (N, C, 2,
     2)) of points held in two or more cameras to each point's reference view (its held view
     of highest ``preference`` (N, C)).
@@ -48,13 +48,17 @@ def retie_views(
     its covariance). A view whose match lands farther than ``drop`` pixels from the tracked
     position is removed (NaN) when ``drop`` is finite; one whose match fails (or lands
     beyond ``tolerance``) is then removed too when ``drop_failed``, and kept as tracked
-    otherwise. Returns the views, their covariances and the
-    removed views (N, C)."""
+    otherwise. Returns the views, their covariances, the
+    removed views (N, C) and each asked view's shift (N, C): the distance of its match from
+    the tracked position in pixels, infinite where the match failed or landed beyond
+    ``tolerance``, NaN where not asked (a reference or a lone view): a view that has lost
+    its point drifts off its reference's (:mod:`elastocap.tracking.hidden`)."""
     held = np.isfinite(uv[..., 0])
     rows = np.flatnonzero(held.sum(axis=1) >= 2)
     removed = np.zeros(held.shape, bool)
+    shift = np.full(held.shape, np.nan)
     if rows.size == 0:
-        return uv, cov, removed
+        return uv, cov, removed, shift
     score = np.where(held[rows], np.nan_to_num(preference[rows], nan=0.0) + 1.0, -1.0)
     reference = np.argmax(score, axis=1)
     sub = np.arange(rows.size)
@@ -67,6 +71,8 @@ def retie_views(
     asked = np.isfinite(targets[..., 0])
     with np.errstate(invalid="ignore"):
         far = found & (np.linalg.norm(matched - targets, axis=2) > drop)
+    with np.errstate(invalid="ignore"):
+        shift[rows] = np.where(found, np.linalg.norm(matched - targets, axis=2), np.where(asked, np.inf, np.nan))
     out_uv, out_cov = uv.copy(), cov.copy()
     replace = found & ~far
     out_uv[rows] = np.where(replace[..., None], matched, uv[rows])
@@ -76,4 +82,4 @@ def retie_views(
         out_uv[rows] = np.where(gone[..., None], np.nan, out_uv[rows])
         out_cov[rows] = np.where(gone[..., None, None], np.nan, out_cov[rows])
         removed[rows] = gone
-    return out_uv, out_cov, removed
+    return out_uv, out_cov, removed, shift

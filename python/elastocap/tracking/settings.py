@@ -78,5 +78,33 @@ RETIE_DROP_FAILED = True
 # through 33.3%, kept 3-D beyond 5 px-eq 3.84%, image 0.65%), or "correlation", the one of
 # best correlation (33.4%, 4.38%, 1.07%).
 RETIE_REFERENCE = "anchor"
+# A held view predicted hidden (outside its silhouette, behind another tracked point,
+# and with HIDDEN_FACING above -1 its surface turned away) on HIDDEN_FRAMES consecutive
+# frames is ended (0: never; :mod:`elastocap.tracking.hidden`); with HIDDEN_EVIDENCE only
+# where its own match agrees: the frame-to-frame correlation below HIDDEN_CORRELATION or
+# the re-tie moving it farther than HIDDEN_SHIFT pixels (or failing). With HIDDEN_SET_ASIDE
+# a point that keeps two other views keeps the hidden one tracked but out of the
+# intersection. Seed 0 (benches/README.md, branch track8): through 33.3 -> 32.8%, kept
+# 3-D beyond 5 px-eq 3.84 -> 3.31%; ended at once (1 frame, no evidence) 31.7% / 2.83%.
+HIDDEN_FRAMES = 2
+HIDDEN_FACING = -2.0
+HIDDEN_EVIDENCE = True
+HIDDEN_CORRELATION = 0.9
+HIDDEN_SHIFT = 0.3
+HIDDEN_SET_ASIDE = False
+# The reported covariance with the drift of the views (:mod:`elastocap.tracking.drift`):
+# (DRIFT_SCALE[0] + DRIFT_SCALE[1] f) S + pixel^2 (DRIFT_VARIANCE[0] + DRIFT_VARIANCE[1] f)
+# I, f the most cuts again of the point's anchors; calibrated on seed 0 (median
+# Mahalanobis distance 5.7 -> 1.7; benches/README.md, branch track8). DRIFT False: the
+# intersection's covariance as it is.
+DRIFT = True
+DRIFT_SCALE = (0.06, 1.0)
+DRIFT_VARIANCE = (0.07, 0.22)
+# Positions whose standard deviation along the weakest direction of that covariance
+# exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
+# tracker follows them on, but a run resumed from its files restarts their trajectory
+# filters (the files hold no position for them), and the hidden views' frame counts
+# restart at zero on resume.
+UNCERTAIN_SD = float("inf")
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

@@ -23,7 +23,9 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
+from elastocap.tracking.drift import drift_covariance, weakest_sd
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -59,6 +61,8 @@ class FrameTracker:
         self.weights: list[NDArray[np.float32]] | None = None
         self.anchors = Anchors(c, size) if options["anchor"] else None
         self.lost = Lost(settings.REVIVE_FRAMES) if options["revive"] else None
+        # Per point and camera: consecutive frames its held view was predicted hidden.
+        self.hidden = np.zeros((0, c), np.int64)
         self.texture: list[float] = []
         self.keep_texture = 0.0
 
@@ -121,7 +125,8 @@ class FrameTracker:
             flags2d = np.full((n, c), TrackFlag.NOT_SEEDED, np.uint8)
             cov2d = np.full((n, c, 2, 2), np.nan)
             corr = np.full((n, c), np.nan)
-        else:
+        shift = np.full((n, c), np.nan)
+        if not (first or n == 0 or self.grey is None):
             pos, f2d, cv2d, cr = _core.track_step(
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
                 np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
@@ -158,13 +163,16 @@ class FrameTracker:
                     # least), the correlation breaking ties.
                     age = np.where(self.anchors.held[:n], frame - self.anchors.frame[:n], 0)
                     preference = age / (frame + 1.0) + 1e-3 * preference
-                uv, cov2d, removed = retie_views(grey, uv, cov2d, preference, size=self.size, min_correlation=self.min_correlation,
+                uv, cov2d, removed, shift = retie_views(grey, uv, cov2d, preference, size=self.size, min_correlation=self.min_correlation,
                                                  tolerance=settings.RETIE_TOLERANCE, drop=settings.RETIE_DROP,
                                                  drop_failed=settings.RETIE_DROP_FAILED,
                                                  min_texture=self.keep_texture, weights=weights)
                 flags2d[removed] = TrackFlag.EPIPOLAR
         x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=settings.FLOOR)
         flags2d[rejected] = TrackFlag.EPIPOLAR
+        set_aside = np.zeros((n, c), bool)
+        if settings.HIDDEN_FRAMES and n:
+            uv, cov2d, x, xcov, used, set_aside = end_hidden_views(self, masks, uv, cov2d, x, xcov, used, corr, shift, flags2d)
         pixel = pixel_size(self.cameras, x, used)
         traj = trajectory_flags(x, self.x_last, self.x_before, pixel, max_velocity=self.o["max_velocity"],
                                 max_acceleration=self.o["max_acceleration"], uniformity=self.o["uniformity"],
@@ -176,7 +184,7 @@ class FrameTracker:
         # position predicted from the last two is where the others are searched again.
         views = np.isfinite(uv[..., 0])
         single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.isfinite(self.x_last).all(axis=1)
-        keep = (used & tracked[:, None]) | (views & single[:, None])
+        keep = ((used | set_aside) & tracked[:, None]) | (views & single[:, None])
         uv = np.where(keep[..., None], uv, np.nan)
         flags = point_flags(flags2d, self.uv, traj, tracked, alive, self.point_flags)
         anchor = np.where(tracked[:, None], x, np.where(np.isfinite(self.x_before), 2 * self.x_last - self.x_before, self.x_last))
@@ -235,11 +243,12 @@ class FrameTracker:
             self.lost.remember(frame, x)
         self.grey = grey
         self.weights = weights
+        x_out, xcov, flags_out = self._reported(uv, x, xcov, flags)
         return {
             "ids": np.arange(total, dtype=np.int64),
-            "positions": x,
+            "positions": x_out,
             "covariances": xcov,
-            "flags": flags,
+            "flags": flags_out,
             "uv": uv,
             "flags2d": flags2d,
             **({} if self.lost is None else self.lost.state(total)),
@@ -248,6 +257,25 @@ class FrameTracker:
                 "anchor_uv": self.anchors.uv[:total],
             }),
         }
+
+    def _reported(self, uv: NDArray[np.float64], x: NDArray[np.float64], xcov: NDArray[np.float64],
+                  flags: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
+        """The positions, covariances and flags written out: the covariance with the drift
+        of the views (``settings.DRIFT``), and the positions it says are too uncertain
+        withheld (``settings.UNCERTAIN_SD``; the state the next frame starts from keeps them)."""
+        if not settings.DRIFT:
+            return x, xcov, flags
+        views = np.isfinite(uv[..., 0])
+        recuts = self.anchors.recuts(views) if self.anchors is not None else np.zeros(len(x), np.int64)
+        pixel = pixel_size(self.cameras, x, views)
+        xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
+        if not np.isfinite(settings.UNCERTAIN_SD):
+            return x, xcov, flags
+        with np.errstate(invalid="ignore"):
+            unsure = weakest_sd(xcov, pixel) > settings.UNCERTAIN_SD
+        x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
+        x[unsure], xcov[unsure], flags[unsure] = np.nan, np.nan, TrackFlag.UNCERTAIN
+        return x, xcov, flags
 
     def normals(self, points: NDArray[np.float64], cloud: NDArray[np.float64],
                  seen: NDArray[np.bool_]) -> NDArray[np.float64]:

@@ -31,8 +31,9 @@ class Tracks:
     positions : (F, N, 3) float64
         World positions (world units); NaN where the point is not tracked.
     covariances : (F, N, 3, 3) float64
-        Covariance of ``positions`` from the forward intersection (world units squared);
-        NaN where not tracked.
+        Covariance of ``positions`` (world units squared): the forward intersection's,
+        with the drift of the views' anchors (:mod:`elastocap.tracking.drift`); NaN where
+        not tracked.
     flags : (F, N) uint8
         :class:`TrackFlag` codes: 0 where tracked, else why not.
     views : (F, N, C, 2) float64, optional
