@@ -56,6 +56,11 @@ STOP_FRACTION = 0.01
 # past the volume bound on coarse masks; in the refinement alone: 1.714%); benches/README.md,
 # session 13.
 STAGED_STOP_FRACTION = 0.002
+# Older tracks whose median offset says where a track anchored after the rest frame is
+# attached (elastic/tracks.py). Textured fast capture, tuning seed 1 (benches/README.md,
+# trackfit2): mean drift 7.01% of the diagonal at 0, 6.87% at 3, 7.05% at 5 (weight 1);
+# at weight 4: 7.28% at 0, 6.66% at 5. No frame lost at 5, weight 1.
+TRACK_RELAY = 5
 
 
 @dataclass(frozen=True)
@@ -199,7 +204,7 @@ def fit_sequence(
     track_weight: float = 1.0,
     track_sigma: float | None = None,
     track_scale: float = 10.0,
-    track_relay: int = 0,
+    track_relay: int = TRACK_RELAY,
     track_relay_radius: float | None = None,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
@@ -328,7 +333,7 @@ def fit_sequence(
         A track anchored at a frame other than the rest frame is attached where the
         ``track_relay`` older tracks nearest to it (median) say the fit is off, instead of
         where that frame's (drifted) fit puts it (:mod:`elastocap.elastic.tracks`; 0: the
-        fit's place).
+        fit's place; default 5).
     track_relay_radius : float, optional
         Those older tracks must lie within this distance, world units (default 4 mean
         node spacings).
