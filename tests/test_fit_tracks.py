@@ -17,7 +17,7 @@ import pytest
 
 from elastocap import ElasticModel, InvalidInputError, Tracks, fit_sequence
 from elastocap.elastic.measures import LOST_LIMB_FRACTION, surface_error
-from elastocap.elastic.tracks import TrackAttachments, material_weights, spread_arrays
+from elastocap.elastic.tracks import TrackAttachments, material_weights
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.synth import CapsuleFigure
 from elastocap.synth.capture import write_synthetic_capture
@@ -102,29 +102,6 @@ def test_a_new_track_is_attached_through_the_older_tracks_not_the_drifted_fit(re
         np.testing.assert_allclose(material, new, atol=1e-9)
     else:
         np.testing.assert_allclose(material, new - d, atol=1e-9)
-
-
-def test_the_tracks_displacement_is_spread_to_the_surface_between_them() -> None:
-    """Tracks on one half of a body moved by u from where the start puts their material
-    points: surface nodes among them are pulled to their start moved by u, with the spread's
-    share of a track's metric; nodes with no track near them are not pulled."""
-    rng = np.random.default_rng(5)
-    start = rng.random((400, 3))
-    surface = np.arange(0, 400, 2)
-    u = np.array([0.02, -0.03, 0.01])
-    material = 0.05 + 0.4 * rng.random((60, 3))  # tracks in the corner [0.05, 0.45]^3 only
-    neighbours, phi = material_weights(material, start, 20)
-    precision = np.broadcast_to(np.eye(3) / 0.01**2, (60, 3, 3)).copy()
-    arrays = (neighbours, phi, material + u, precision)
-    nodes, weights, targets, precisions = spread_arrays(arrays, start, surface, 3, 0.15, 0.25, 0.01)
-    np.testing.assert_array_equal(nodes[:60], neighbours)
-    pulled = nodes[60:, 0]
-    assert len(pulled) > 5 and set(pulled) <= set(surface)
-    assert np.all(weights[60:, 0] == 1) and np.all(weights[60:, 1:] == 0)
-    np.testing.assert_allclose(targets[60:], start[pulled] + u, atol=1e-9)
-    np.testing.assert_allclose(precisions[60:], np.broadcast_to(0.25 * np.eye(3) / 0.01**2, (len(pulled), 3, 3)))
-    far = surface[(start[surface] > 0.75).any(axis=1)]
-    assert not set(far) & set(pulled)
 
 
 @pytest.fixture(scope="module")

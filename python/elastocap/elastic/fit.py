@@ -25,7 +25,7 @@ import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.silhouette import silhouette_views, term_margins
-from elastocap.elastic.tracks import TrackAttachments, check_tracks, spread_arrays
+from elastocap.elastic.tracks import TrackAttachments, check_tracks
 from elastocap.geometry.mesh_distance import TriangleMesh
 from elastocap.hull.carve import Hull
 from elastocap.hull.grid import Grid
@@ -206,8 +206,6 @@ def fit_sequence(
     track_scale: float = 10.0,
     track_relay: int = TRACK_RELAY,
     track_relay_radius: float | None = None,
-    track_spread: float = 0.0,
-    track_spread_count: int = 3,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -339,13 +337,6 @@ def fit_sequence(
     track_relay_radius : float, optional
         Those older tracks must lie within this distance, world units (default 4 mean
         node spacings).
-    track_spread : float
-        Weight, relative to one track's, of the tracks' displacement spread over the
-        surface (:func:`elastocap.elastic.tracks.spread_arrays`): each surface node with
-        ``track_spread_count`` tracks within ``track_relay_radius`` is pulled to its start
-        moved by their median displacement (0 turns it off).
-    track_spread_count : int
-        Tracks a surface node needs around it for the spread.
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -441,10 +432,6 @@ def fit_sequence(
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
-        pulling_tracks = 0 if pulling is None else len(pulling[0])
-        if pulling is not None and track_spread > 0:
-            pulling = spread_arrays(pulling, start, model.surface_nodes, int(track_spread_count), relay_radius,
-                                    float(track_spread), sigma)
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
                        stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
@@ -485,7 +472,7 @@ def fit_sequence(
                 chained = positions
         if attachments is not None:
             # Tracks pulling this frame, and tracks attached at it (anchored here).
-            metrics["tracks"] = pulling_tracks
+            metrics["tracks"] = 0 if pulling is None else len(pulling[0])
             metrics["tracks_attached"] = int(attachments.attach(frame, positions))
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume

@@ -35,7 +35,7 @@ from elastocap._core import InvalidInputError
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
-__all__ = ["TrackAttachments", "check_tracks", "material_weights", "select_frames", "spread_arrays"]
+__all__ = ["TrackAttachments", "check_tracks", "material_weights", "select_frames"]
 
 # MLS support: c times the distance to the farthest of the k nodes (SPEC 4.1's c = 1.1),
 # enlarged by 1.25 where the moment matrix is ill-conditioned (as rust/mls.rs repairs).
@@ -231,48 +231,6 @@ class TrackAttachments:
             np.ascontiguousarray(self.tracks.positions[row, use]),
             np.ascontiguousarray(precision),
         )
-
-
-def spread_arrays(
-    arrays: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
-    start: NDArray[np.float64],
-    surface: NDArray[np.int64],
-    count: int,
-    radius: float,
-    share: float,
-    sigma: float,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The track term's arrays of a frame (:meth:`TrackAttachments.frame_arrays`) with the
-    tracks' displacement spread over the surface: each surface node with ``count`` tracks
-    within ``radius`` of it (their material points at ``start``) is pulled to its start
-    moved by the median of their displacements (tracked position minus material point at
-    the start), with ``share`` of a track's pull. The track term pins the material points
-    the tracks have; between them the surface slides (sliding along it is cheap to the
-    surface term), and the drift is on the surface no track is near."""
-    nodes, phi, targets, precisions = arrays
-    if count <= 0 or share <= 0 or len(targets) < count:
-        return arrays
-    placed = np.einsum("tk,tkd->td", phi, start[nodes])
-    moved = targets - placed
-    distance, nearest = cKDTree(placed).query(start[surface], k=count)
-    distance, nearest = distance.reshape(len(surface), count), nearest.reshape(len(surface), count)
-    near = (distance <= radius).all(axis=1)
-    which = surface[near]
-    if len(which) == 0:
-        return arrays
-    k = nodes.shape[1]
-    extra_nodes = np.zeros((len(which), k), np.int64)
-    extra_nodes[:, 0] = which
-    extra_phi = np.zeros((len(which), k))
-    extra_phi[:, 0] = 1.0
-    extra_targets = start[which] + np.median(moved[nearest[near]], axis=1)
-    extra_precisions = np.broadcast_to(share / sigma**2 * np.eye(3), (len(which), 3, 3))
-    return (
-        np.ascontiguousarray(np.concatenate([nodes, extra_nodes])),
-        np.ascontiguousarray(np.concatenate([phi, extra_phi])),
-        np.ascontiguousarray(np.concatenate([targets, extra_targets])),
-        np.ascontiguousarray(np.concatenate([precisions, extra_precisions])),
-    )
 
 
 def select_frames(tracks: Tracks, frames: Sequence[int]) -> Tracks:
