@@ -80,7 +80,7 @@ def test_material_weights_reproduce_linear_fields() -> None:
     assert np.allclose(np.einsum("tk,tka->ta", phi, nodes[neighbours] @ affine.T), points @ affine.T, atol=1e-9)
 
 
-@pytest.mark.parametrize("relay", [0, 4])
+@pytest.mark.parametrize("relay", [0, 1, 4])
 def test_a_new_track_is_attached_through_the_older_tracks_not_the_drifted_fit(relay: int) -> None:
     """The body moved by v between frames 0 and 1, the fit of frame 1 by v + d (it drifted
     by d along the surface). Old tracks, attached at the rest frame 0, are tracked at frame
@@ -193,3 +193,8 @@ def test_bad_tracks_are_clear_errors(small: tuple) -> None:
         fit_sequence(model, targets, tracks=far)
     with pytest.raises(InvalidInputError, match="track_scale"):
         fit_sequence(model, targets, tracks=_tracks(good.copy()), track_scale=float("nan"))
+    for relay in (-1, 2.5, True):
+        with pytest.raises(InvalidInputError, match="track_relay"):
+            fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay=relay)
+    with pytest.raises(InvalidInputError, match="track_relay_radius"):
+        fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay_radius=0.0)

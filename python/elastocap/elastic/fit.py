@@ -385,7 +385,7 @@ def fit_sequence(
             raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {value}")
     node_spacing = float(np.mean(model.volumes) ** (1 / 3))
     sigma = 0.25 * node_spacing if track_sigma is None else float(track_sigma)
-    if not (isinstance(track_relay, (int, np.integer)) and track_relay >= 0):
+    if isinstance(track_relay, bool) or not (isinstance(track_relay, (int, np.integer)) and track_relay >= 0):
         raise InvalidInputError(f"track_relay must be a non-negative int, got {track_relay!r}")
     relay_radius = 4 * node_spacing if track_relay_radius is None else float(track_relay_radius)
     if not (np.isfinite(relay_radius) and relay_radius > 0):

@@ -204,6 +204,8 @@ class TrackAttachments:
         tracked = self.tracks.positions[row, old]
         placed = np.einsum("tk,tkd->td", self.phi[old], positions[self.neighbours[old]])
         distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.relay)
+        # k = 1 gives 1-D answers.
+        distance, nearest = distance.reshape(len(which), self.relay), nearest.reshape(len(which), self.relay)
         near = (distance <= self.relay_radius).all(axis=1)
         # The median, not the mean: a track the tracker's filters kept on a wrong match
         # must not move its neighbours' anchors.
