@@ -44,18 +44,33 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
     parser.add_argument("--options", type=json.loads, default={}, help="fit_sequence options of the fit with tracks")
     parser.add_argument("--with-only", action="store_true", help="only the fit with tracks (no ratio)")
+    parser.add_argument("--root", type=Path, default=None,
+                        help="capture folder (default /tmp/elastocap_texfast_<seed>_<frames>_<width>)")
+    parser.add_argument("--prepare-only", action="store_true", help="write the capture, hulls and tracks, fit nothing")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="per frame: drift without / with, tracks pulling, their mean age, drifted points near a track")
     args = parser.parse_args()
-    root = Path(f"/tmp/elastocap_texfast_{args.seed}_{args.frames}_{args.size[0]}")
+    root = args.root or Path(f"/tmp/elastocap_texfast_{args.seed}_{args.frames}_{args.size[0]}")
     clock = time.perf_counter()
+    stages = {}
+    cpu = time.process_time()
     write_textured_capture(root, frames=args.frames, seed=args.seed, motion="fast", image_size=tuple(args.size),
                            supersample=2, progress=False)
+    stages["capture"], cpu = time.process_time() - cpu, time.process_time()
     out = root / "out"
     run_hull_stage(root, out, resolution=args.resolution, progress=False)
+    stages["hulls"], cpu = time.process_time() - cpu, time.process_time()
     capture = Capture.open(root)
     if not (out / "tracks" / f"{args.frames - 1:06d}.npz").exists():
         track_points(capture, out=out)
+    stages["tracks"] = time.process_time() - cpu
     tracks = load_tracks(out)
     prepared = time.perf_counter() - clock
+    # CPU seconds of this process only (a stage found done on disk costs ~0).
+    print(json.dumps({"seed": args.seed, "prepare_cpu_seconds": {k: round(v, 1) for k, v in stages.items()},
+                      "prepare_wall_seconds": round(prepared, 1)}))
+    if args.prepare_only:
+        return
     truth = load_textured_truth(root)
     frames = list(range(args.frames))
     hulls = [load_hull(out, f) for f in frames]
@@ -66,7 +81,8 @@ def main() -> None:
     print(f"seed {args.seed}, {args.frames} frames, {model.n_nodes} nodes, hulls of {args.resolution} voxels, "
           f"images {args.size[0]}x{args.size[1]}; {len(tracks.ids)} tracks, {kept} tracked positions; "
           f"capture + hulls + tracks {prepared:.0f} s")
-    drifts = {}
+    drifts: dict[bool, float] = {}
+    curves: dict[bool, tuple] = {}
     for with_tracks in (True,) if args.with_only else (False, True):
         clock, cpu = time.perf_counter(), time.process_time()
         options = dict(args.options) if with_tracks else {}
@@ -77,6 +93,8 @@ def main() -> None:
         drift = [100 * float(np.linalg.norm(vertices[f][ties] - truth.positions[f], axis=1).mean()) / diagonal for f in frames]
         lost = [100 * surface_error(fit.surface(f), meshes[f]).lost_limb_fraction for f in frames]
         drifts[with_tracks] = float(np.mean(drift))
+        curves[with_tracks] = (drift, lost, [fit.fits[f].metrics.get("tracks", 0) for f in frames],
+                               [fit.fits[f].metrics.get("tracks_attached", 0) for f in frames], vertices, ties)
         print(json.dumps({
             "seed": args.seed, "tracks": with_tracks, "options": options,
             "drift_pct_mean": round(float(np.mean(drift)), 3), "drift_pct_max": round(max(drift), 3),
@@ -87,6 +105,34 @@ def main() -> None:
         print("  lost % ", " ".join(f"{v:.1f}" for v in lost))
     if not args.with_only:
         print(json.dumps({"seed": args.seed, "drift_ratio_with_over_without": round(drifts[True] / drifts[False], 3)}))
+    if args.diagnose and not args.with_only:
+        diagnose(truth, tracks, frames, diagonal, curves)
+
+
+def diagnose(truth, tracks, frames, diagonal, curves) -> None:
+    """Where the drift comes from, per frame: drift without / with tracks (% of the
+    diagonal), tracks pulling the frame and attached at it, the tracked positions' count and
+    mean age (frames since the track's first tracked frame), and the share of the truth's
+    points drifted by more than 2% (without tracks) that have a tracked position within 2%
+    of the diagonal of their true position in that frame."""
+    tracked = tracks.flags == 0
+    first = np.where(tracked.any(axis=0), tracked.argmax(axis=0), -1)
+    print("frame drift_without drift_with pulling attached tracked mean_age drifted_pts with_track_near")
+    for i, f in enumerate(frames):
+        row = np.flatnonzero(tracks.frames == f)
+        count, age, near, drifted = 0, 0.0, float("nan"), 0
+        errors = np.linalg.norm(curves[False][4][f][curves[False][5]] - truth.positions[f], axis=1) / diagonal
+        bad = errors > 0.02
+        drifted = int(bad.sum())
+        if len(row):
+            live = np.flatnonzero(tracked[row[0]])
+            count = len(live)
+            age = float(np.mean(row[0] - first[live])) if count else 0.0
+            if count and drifted:
+                d = cKDTree(tracks.positions[row[0], live]).query(truth.positions[f][bad])[0] / diagonal
+                near = float(np.mean(d < 0.02))
+        print(f"{f:3d} {curves[False][0][i]:6.2f} {curves[True][0][i]:6.2f} {curves[True][2][i]:5d} {curves[True][3][i]:5d} "
+              f"{count:5d} {age:5.1f} {drifted:6d} {near:5.2f}")
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import pytest
 
 from elastocap import ElasticModel, InvalidInputError, Tracks, fit_sequence
 from elastocap.elastic.measures import LOST_LIMB_FRACTION, surface_error
-from elastocap.elastic.tracks import material_weights
+from elastocap.elastic.tracks import TrackAttachments, material_weights
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.synth import CapsuleFigure
 from elastocap.synth.capture import write_synthetic_capture
@@ -78,6 +78,30 @@ def test_material_weights_reproduce_linear_fields() -> None:
     assert np.allclose(np.einsum("tk,tka->ta", phi, nodes[neighbours]), points, atol=1e-10)
     affine = rng.normal(size=(3, 3))
     assert np.allclose(np.einsum("tk,tka->ta", phi, nodes[neighbours] @ affine.T), points @ affine.T, atol=1e-9)
+
+
+@pytest.mark.parametrize("relay", [0, 1, 4])
+def test_a_new_track_is_attached_through_the_older_tracks_not_the_drifted_fit(relay: int) -> None:
+    """The body moved by v between frames 0 and 1, the fit of frame 1 by v + d (it drifted
+    by d along the surface). Old tracks, attached at the rest frame 0, are tracked at frame
+    1; a track first seen at frame 1 attached where the fit puts it takes the material
+    point d away from its own; relayed through the old tracks, its own."""
+    rng = np.random.default_rng(3)
+    nodes = rng.random((500, 3))
+    v, d = np.array([0.3, -0.1, 0.2]), np.array([0.08, 0.05, 0.0])
+    old, new = 0.2 + 0.6 * rng.random((30, 3)), 0.3 + 0.4 * rng.random((5, 3))
+    positions = np.full((2, 35, 3), np.nan)
+    positions[0, :30] = old
+    positions[1, :30] = old + v
+    positions[1, 30:] = new + v
+    attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=relay, relay_radius=0.5)
+    assert attachments.attach(0, nodes) == 30
+    assert attachments.attach(1, nodes + v + d) == 5
+    material = np.einsum("tk,tka->ta", attachments.phi[30:], nodes[attachments.neighbours[30:]])
+    if relay:
+        np.testing.assert_allclose(material, new, atol=1e-9)
+    else:
+        np.testing.assert_allclose(material, new - d, atol=1e-9)
 
 
 @pytest.fixture(scope="module")
@@ -169,3 +193,8 @@ def test_bad_tracks_are_clear_errors(small: tuple) -> None:
         fit_sequence(model, targets, tracks=far)
     with pytest.raises(InvalidInputError, match="track_scale"):
         fit_sequence(model, targets, tracks=_tracks(good.copy()), track_scale=float("nan"))
+    for relay in (-1, 2.5, True):
+        with pytest.raises(InvalidInputError, match="track_relay"):
+            fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay=relay)
+    with pytest.raises(InvalidInputError, match="track_relay_radius"):
+        fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay_radius=0.0)

@@ -56,6 +56,11 @@ STOP_FRACTION = 0.01
 # past the volume bound on coarse masks; in the refinement alone: 1.714%); benches/README.md,
 # session 13.
 STAGED_STOP_FRACTION = 0.002
+# Older tracks whose median offset says where a track anchored after the rest frame is
+# attached (elastic/tracks.py). Textured fast capture, tuning seed 1 (benches/README.md,
+# trackfit2): mean drift 7.01% of the diagonal at 0, 6.87% at 3, 7.05% at 5 (weight 1);
+# at weight 4: 7.28% at 0, 6.66% at 5. No frame lost at 5, weight 1.
+TRACK_RELAY = 5
 
 
 @dataclass(frozen=True)
@@ -199,6 +204,8 @@ def fit_sequence(
     track_weight: float = 1.0,
     track_sigma: float | None = None,
     track_scale: float = 10.0,
+    track_relay: int = TRACK_RELAY,
+    track_relay_radius: float | None = None,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -322,6 +329,14 @@ def fit_sequence(
         fast-motion capture (seed 1, 14 frames, 1,000 nodes, ground-truth tracks with 5 mm
         noise): worst lost-limb frame 7.4% of the diagonal without tracks, 17.8% at 3 (fast
         limbs' tracks start too far away to pull), 2.6% at 10.
+    track_relay : int
+        A track anchored at a frame other than the rest frame is attached where the
+        ``track_relay`` older tracks nearest to it (median) say the fit is off, instead of
+        where that frame's (drifted) fit puts it (:mod:`elastocap.elastic.tracks`; 0: the
+        fit's place; default 5).
+    track_relay_radius : float, optional
+        Those older tracks must lie within this distance, world units (default 4 mean
+        node spacings).
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -370,7 +385,13 @@ def fit_sequence(
             raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {value}")
     node_spacing = float(np.mean(model.volumes) ** (1 / 3))
     sigma = 0.25 * node_spacing if track_sigma is None else float(track_sigma)
-    attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(tracks, rest_frame, model.neighbors.shape[1])
+    if isinstance(track_relay, bool) or not (isinstance(track_relay, (int, np.integer)) and track_relay >= 0):
+        raise InvalidInputError(f"track_relay must be a non-negative int, got {track_relay!r}")
+    relay_radius = 4 * node_spacing if track_relay_radius is None else float(track_relay_radius)
+    if not (np.isfinite(relay_radius) and relay_radius > 0):
+        raise InvalidInputError(f"track_relay_radius must be a finite positive number, got {track_relay_radius}")
+    attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
+        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius)
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else _mask_field

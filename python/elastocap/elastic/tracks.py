@@ -11,6 +11,15 @@ pulled to it. Fitting runs outward from the rest frame, so the anchor of a track
 before its other frames, except for a track anchored before the rest frame that also has
 positions after it with none in between: it is not used in those later frames (they are
 fitted before its anchor).
+
+A track seeded after the rest frame is anchored at a frame whose fit has already drifted
+along the surface; attached where that fit puts it, it would hold the drift instead of
+undoing it. With ``relay`` (the default of :func:`elastocap.fit_sequence`), the older
+tracks tracked at that frame say how far the fit is off there: each one's material point
+sits at ``sum phi x`` in the fit but was tracked at ``X``, so the fit is off by ``X - sum
+phi x`` around it. A new track is attached at its tracked position moved back by the
+median of that offset over its nearest older tracks (within a radius), that is at the
+material point the older tracks place there, not the one the drifted fit places there.
 """
 
 from __future__ import annotations
@@ -143,15 +152,19 @@ class TrackAttachments:
 
     tracks: Tracks
     k: int
+    relay: int = 0
+    relay_radius: float = 0.0
     anchor: NDArray[np.int64] = field(init=False)
     neighbours: NDArray[np.int64] = field(init=False)
     phi: NDArray[np.float64] = field(init=False)
     attached: NDArray[np.bool_] = field(init=False)
 
     @classmethod
-    def build(cls, tracks: Tracks, rest_frame: int, k: int) -> TrackAttachments:
-        """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point."""
-        self = cls(tracks, k)
+    def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0) -> TrackAttachments:
+        """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point;
+        ``relay`` older tracks (at most ``relay_radius`` away, world units) correct where a
+        new track is attached (module docs; 0: where the fit puts it)."""
+        self = cls(tracks, k, relay, relay_radius)
         tracked = tracks.flags == TrackFlag.TRACKED
         # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
         gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
@@ -175,10 +188,29 @@ class TrackAttachments:
             return 0
         which = np.flatnonzero(self.anchor == row)
         if len(which):
-            points = self.tracks.positions[row, which]
+            points = self.tracks.positions[row, which] - self._offsets(row, which, positions)
             self.neighbours[which], self.phi[which] = material_weights(points, positions, self.k)
             self.attached[which] = True
         return len(which)
+
+    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(len(which), 3): how far the fit ``positions`` of frame ``row`` is off around
+        the new tracks ``which``, from the older tracks tracked there (module docs); 0
+        where fewer than ``relay`` lie within ``relay_radius``."""
+        offsets = np.zeros((len(which), 3))
+        old = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row))
+        if self.relay <= 0 or len(old) < self.relay:
+            return offsets
+        tracked = self.tracks.positions[row, old]
+        placed = np.einsum("tk,tkd->td", self.phi[old], positions[self.neighbours[old]])
+        distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.relay)
+        # k = 1 gives 1-D answers.
+        distance, nearest = distance.reshape(len(which), self.relay), nearest.reshape(len(which), self.relay)
+        near = (distance <= self.relay_radius).all(axis=1)
+        # The median, not the mean: a track the tracker's filters kept on a wrong match
+        # must not move its neighbours' anchors.
+        offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
+        return offsets
 
     def frame_arrays(
         self, frame: int, sigma: float
