@@ -142,7 +142,7 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
         seen = np.isfinite(t).all(axis=1)
         iu = np.clip(np.round(np.nan_to_num(t[:, 0])).astype(int), 0, masks[k].shape[1] - 1)
         iv = np.clip(np.round(np.nan_to_num(t[:, 1])).astype(int), 0, masks[k].shape[0] - 1)
-        ok = seen & masks[k][iv, iu] & tracker.anchors.held[rows, k] & (tracker.anchors.cuts[rows, k] <= settings.REVIVE_MAX_CUTS)
+        ok = seen & masks[k][iv, iu] & tracker.anchors.held[rows, k]
         where[rows[ok], k] = True
         starts[rows[ok], k] = t[ok]
     pairs = where[rows].sum(axis=1) >= 2

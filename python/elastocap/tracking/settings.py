@@ -33,22 +33,16 @@ RESCUE_REACH = 3.0
 # A lost point is looked for again for this many frames after it was lost...
 REVIVE_FRAMES = 15
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
-# position predicted from its neighbours' motion; the intersection must land as near the
-# prediction (pixel equivalents).
+# position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8
 # The revived intersection must land within this many pixel equivalents of the
 # prediction (the box above only has to find the start). A match that converged to a
 # nearby wrong place stays there for the point's whole life, its anchor holding it: on
-# seed 0 the revived positions within 4 px-eq of the prediction were 8% beyond 5 px-eq on
-# the revival frame and 2.5% after, those 4-8 px-eq away 25% and 18% (benches/README.md,
-# branch track9).
+# seed 0, with the bound at REVIVE_RADIUS, the revivals within 4 px-eq of the prediction
+# were 8% beyond 5 px-eq on the revival frame and 2.5% after, those 4-8 px-eq away 21%
+# and 18%; with the bound at 4 the revived positions are 2.6% and 1.6% beyond (the others
+# 3.4%; benches/README.md, branch track9).
 REVIVE_REACH = 4.0
-# Views whose anchor patch was cut more than this many times (the first cut included)
-# are not searched: each cut again froze the view's drift of that moment into the
-# anchor, which the revived view then inherits (seed 0: revived points whose anchors were
-# cut 4+ times were 53% beyond 5 px-eq on the revival frame, 5 px-eq already before their
-# loss; never cut again, 3.5%).
-REVIVE_MAX_CUTS = 2
 # Largest reprojection residual of a revived point's views, pixels (with two views, the
 # distance from the epipolar line: a wrong match found far from the prediction).
 REVIVE_RESIDUAL = 1.5
