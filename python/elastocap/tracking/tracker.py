@@ -65,7 +65,7 @@ def track_points(
     anchor: bool = True,
     rescue: bool = True,
     mask_weights: bool = True,
-    revive: bool = True,
+    revive: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -119,17 +119,18 @@ def track_points(
         anchor and cross-camera matches (weighted least squares, pixels outside the mask
         weigh 0): a patch on the silhouette's edge then follows the surface, not the
         background in its corner. Most views of limbs lie within a patch of the edge.
-    revive : bool, default True, keyword-only
+    revive : bool, default False, keyword-only
         Look for lost points again, under their own id, for 15 frames after they were lost
         (they left two-camera visibility or all their views failed): their anchor patches
         are searched for around the projections of their position predicted from the
         motion of the points tracked around them, and they come back when two views
         intersect within 4 pixel equivalents of the prediction
         (:mod:`elastocap.tracking.revival`; ``settings.REVIVE_REACH``). Needs ``anchor``.
-        On the textured capture's seed 0 it keeps 0.7 point more of the points through
-        their visibility, the kept 3-D positions beyond 5 px-equivalents unchanged (3.28%
-        against 3.31% without it); a revived point's image error stays higher (median
-        0.67 px against 0.50) (benches/README.md, branch track9).
+        Off by default: on the textured capture it keeps 0.7-1.2 points more of the points
+        through their visibility, but the kept 3-D positions beyond 5 px-equivalents rise
+        by 0.1-0.3 point on the held-out seeds (seed 0: 3.28% against 3.31%) and a revived
+        point's image error stays higher (median 0.7-0.8 px against 0.5) (benches/README.md,
+        branch track9).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
