@@ -32,6 +32,9 @@ STEP_ITERATIONS = 8
 RESCUE_REACH = 3.0
 # A lost point is looked for again for this many frames after it was lost...
 REVIVE_FRAMES = 15
+# Its position is predicted by the rigid motion of its neighbours since it was lost (else
+# by their median displacement).
+REVIVE_RIGID = True
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
 # position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8
