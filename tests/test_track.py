@@ -14,7 +14,7 @@ from elastocap.pipeline.cli import main
 from elastocap.tracking import TrackFlag, Tracks, load_tracks, track_points
 from elastocap.tracking.accuracy import track_accuracy
 from elastocap.tracking.filters import trajectory_flags
-from track_scene import write_scene
+from track_scene import blank_band, write_scene
 
 
 @pytest.fixture(scope="module")
@@ -206,22 +206,10 @@ def test_points_hidden_for_two_frames_come_back_under_their_ids(tmp_path):
     # revival finds them again from their anchors at the projections of their positions
     # predicted from the points tracked around them, under their own ids and right; without
     # it they stay lost (new seeds take their place under new ids).
-    import cv2
-
-    from elastocap._io import save_image
-
     root = tmp_path / "hidden"
     truth = write_scene(root, frames=8, cameras=6, seed=2, points=2500)
     capture = elastocap.Capture.open(root)
-    rng = np.random.default_rng(0)
-    for name in capture.rig.names:
-        for f in (3, 4):
-            path = root / "images" / name / f"{f:06d}.png"
-            image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB).astype(float)
-            middle = image.shape[1] // 2
-            band = image[:, middle - 15:middle + 15]
-            image[:, middle - 15:middle + 15] = 110 + rng.normal(0, 2, band.shape)
-            save_image(path, np.clip(np.round(image), 0, 255).astype(np.uint8))
+    blank_band(root, capture.rig.names, (3, 4))
     back = {}
     for revive in (False, True):
         tracks = track_points(capture, revive=revive)

@@ -122,3 +122,19 @@ def write_scene(out: Path, *, frames: int = 12, cameras: int = 6, size: tuple[in
             th, _ = _hits(o, d / dist[:, None], balls)
             visible[f, k] = inside & (np.abs(th - dist) < 1e-6)
     return SceneTruth(positions, visible, part, rig)
+
+
+def blank_band(root: Path, names: list[str], frames: tuple[int, ...], *, half: int = 15, seed: int = 0) -> None:
+    """Blank a vertical band down the middle of every camera's image (flat grey under
+    noise) on ``frames``: the points seen only inside it lose every view there."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    for name in names:
+        for f in frames:
+            path = root / "images" / name / f"{f:06d}.png"
+            image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB).astype(float)
+            middle = image.shape[1] // 2
+            band = image[:, middle - half:middle + half]
+            image[:, middle - half:middle + half] = 110 + rng.normal(0, 2, band.shape)
+            save_image(path, np.clip(np.round(image), 0, 255).astype(np.uint8))

@@ -32,10 +32,23 @@ STEP_ITERATIONS = 8
 RESCUE_REACH = 3.0
 # A lost point is looked for again for this many frames after it was lost...
 REVIVE_FRAMES = 15
+# Its position is predicted by the rigid motion of its neighbours since it was lost
+# (REVIVE_RIGID) or by their median displacement. The rigid motion predicts better (seed
+# 0: attempts within 2 px-eq of the truth 8% -> 24%, revivals 75 -> 110) but the points it
+# brings back are lost again: through 33.46 -> 33.49%, kept 3-D beyond 5 px-eq 3.28 ->
+# 3.36% (benches/README.md, branch track9), so it is off.
+REVIVE_RIGID = False
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
-# position predicted from its neighbours' motion; the intersection must land as near the
-# prediction (pixel equivalents).
+# position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8
+# The revived intersection must land within this many pixel equivalents of the
+# prediction (the box above only has to find the start). A match that converged to a
+# nearby wrong place stays there for the point's whole life, its anchor holding it: on
+# seed 0, with the bound at REVIVE_RADIUS, the revivals within 4 px-eq of the prediction
+# were 8% beyond 5 px-eq on the revival frame and 2.5% after, those 4-8 px-eq away 21%
+# and 18%; with the bound at 4 the revived positions are 2.6% and 1.6% beyond (the others
+# 3.4%; benches/README.md, branch track9).
+REVIVE_REACH = 4.0
 # Largest reprojection residual of a revived point's views, pixels (with two views, the
 # distance from the epipolar line: a wrong match found far from the prediction).
 REVIVE_RESIDUAL = 1.5

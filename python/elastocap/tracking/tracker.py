@@ -124,13 +124,13 @@ def track_points(
         (they left two-camera visibility or all their views failed): their anchor patches
         are searched for around the projections of their position predicted from the
         motion of the points tracked around them, and they come back when two views
-        intersect near the prediction (:mod:`elastocap.tracking.revival`). Needs
-        ``anchor``. Off by default: on the textured capture it keeps 1% more points through
-        their visibility but its revived positions are less accurate (old anchors of a
-        surface that turned) for as long as they are tracked, not only on their first
-        frames: on seed 0, 12% of them lie beyond 5 px-equivalents against 4.6% of the
-        others, and withholding the first 3-6 frames after a revival does not change that
-        (benches/README.md, branches track4 and track7).
+        intersect within 4 pixel equivalents of the prediction
+        (:mod:`elastocap.tracking.revival`; ``settings.REVIVE_REACH``). Needs ``anchor``.
+        Off by default: on the textured capture it keeps 0.7-1.2 points more of the points
+        through their visibility, but the kept 3-D positions beyond 5 px-equivalents rise
+        by 0.1-0.3 point on the held-out seeds (seed 0: 3.28% against 3.31%) and a revived
+        point's image error stays higher (median 0.7-0.8 px against 0.5) (benches/README.md,
+        branch track9).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
