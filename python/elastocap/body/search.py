@@ -42,6 +42,10 @@ LEG_SWINGS = (-0.3, 0.3, 0.9)
 #: A result explaining this share of the observations is not restarted further, and the
 #: other facing is not refined beside it.
 WELL_EXPLAINED = 0.98
+#: Passes of the limb restarts over the best facing (the first pass over each facing), and
+#: the relative gain in score a pass must make for another to follow.
+RESTART_PASSES = 3
+PASS_GAIN = 0.02
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -150,20 +154,33 @@ def search_pose(
         state = fit(init, shape, 60, None)
         best: list[Any] = [score(state), state]
 
-        def attempt(trial: BodyState, best: list[Any] = best) -> None:
-            # Fitted 30 iterations in one go: scored after 10, restarts that became the
-            # best after 30 were up to 1.3 times the best's score, and a margin that kept
-            # every winner (1.5) would drop only 11-15 of 108 restarts (capsule seeds 2
-            # and 12, frame 0; branch body8).
-            refined = fit(trial, shape, 30, 1200)
-            s = score(refined)
-            if s[0] < best[0][0]:
-                best[:] = [s, refined]
-
-        _restart_limbs(model, best, attempt, set_angles)
+        _restart_limbs(model, best, lambda trial, best=best: _attempt(trial, best, fit, score, shape), set_angles)
         results.append(best)
-    state = min(results, key=lambda b: b[0][0])[1]
+    results.sort(key=lambda b: b[0][0])
+    best = results[0]
+    for _ in range(RESTART_PASSES - 1):
+        # Each restart moves one limb (or the legs) with the rest held where the previous
+        # restarts left them, so a limb restarted while another limb was still wrong may
+        # have a better valley once that one is right: another pass from the improved
+        # state, while a pass still improves the score.
+        before = best[0][0]
+        _restart_limbs(model, best, lambda trial, best=best: _attempt(trial, best, fit, score, shape), set_angles)
+        if best[0][0] > (1 - PASS_GAIN) * before:
+            break
+    state = best[1]
     return fit(state, None, 60, None) if fit_shape else state
+
+
+def _attempt(trial: BodyState, best: list[Any], fit: Fit, score: Score, shape: Any) -> None:
+    """One limb restart: ``trial`` fitted and kept in ``best`` (``[(score, explained),
+    state]``) when it scores better."""
+    # Fitted 30 iterations in one go: scored after 10, restarts that became the best after
+    # 30 were up to 1.3 times the best's score, and a margin that kept every winner (1.5)
+    # would drop only 11-15 of 108 restarts (capsule seeds 2 and 12, frame 0; branch body8).
+    refined = fit(trial, shape, 30, 1200)
+    s = score(refined)
+    if s[0] < best[0][0]:
+        best[:] = [s, refined]
 
 
 def _restart_limbs(model: BodyModel, best: list[Any], attempt: Callable[[BodyState], None], set_angles: Callable[..., BodyState]) -> None:
