@@ -160,7 +160,7 @@ def search_pose(
         state = fit(init, shape, 60, None)
         best: list[Any] = [score(state), state]
 
-        _restart_limbs(model, best, lambda trial, best=best: _attempt(trial, best, fit, score, shape), set_angles)
+        _restart_limbs(model, best, set_angles, fit, score, shape)
         results.append(best)
     results.sort(key=lambda b: b[0][0])
     best = results[0]
@@ -170,7 +170,7 @@ def search_pose(
         # have a better valley once that one is right: another pass from the improved
         # state, while a pass still improves the score.
         before = best[0][0]
-        _restart_limbs(model, best, lambda trial, best=best: _attempt(trial, best, fit, score, shape), set_angles)
+        _restart_limbs(model, best, set_angles, fit, score, shape)
         if best[0][0] > (1 - PASS_GAIN) * before:
             break
     state = best[1]
@@ -189,10 +189,14 @@ def _attempt(trial: BodyState, best: list[Any], fit: Fit, score: Score, shape: A
         best[:] = [s, refined]
 
 
-def _restart_limbs(model: BodyModel, best: list[Any], attempt: Callable[[BodyState], None], set_angles: Callable[..., BodyState]) -> None:
+def _restart_limbs(model: BodyModel, best: list[Any], set_angles: Callable[..., BodyState], fit: Fit, score: Score, shape: Any) -> None:
     """Stage 3 of :func:`search_pose`: ``best`` is ``[(score, explained), state]``, updated
-    by ``attempt``."""
+    by :func:`_attempt`."""
     names = model.motion_names
+
+    def attempt(trial: BodyState) -> None:
+        _attempt(trial, best, fit, score, shape)
+
     # Each limb alone: an arm twisted or swung the other way, a leg bent the wrong way.
     for side in ("l", "r"):
         for root, distal, swings in (("upperarm", "forearm", ARM_SWINGS), ("thigh", "shin", LEG_SWINGS)):
