@@ -111,3 +111,33 @@ def test_a_pose_the_global_starts_miss_is_found_from_a_given_start() -> None:
     assert score(found)[0] == 0.002
     alone = search_pose(MODEL, np.zeros(3), shape, fit, score, fit_shape=False, headings=8)
     assert score(alone)[0] == 0.01
+
+
+R_HIP = MODEL.motion_names.index("r_thigh.0")
+L_SHOULDER = MODEL.motion_names.index("l_upperarm.0")
+
+
+def test_the_limb_restarts_run_again_while_a_pass_improves() -> None:
+    """The left arm's restart explains more only once the right leg is right, and the right
+    leg is restarted after the left arm: one pass keeps the leg and not the arm; the next
+    pass, from the improved state, finds the arm (the capsule figure's seed 2, masks alone:
+    its restarts improved the score to the last one, from 14.1 to 10.6 mm)."""
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        return state
+
+    def score(state: BodyState) -> tuple[float, float]:
+        if _facing(float(state.motion[3])) > 0.3:
+            return 0.05, 0.5
+        leg = abs(state.motion[R_HIP] - 0.9) < 1e-9
+        arm = abs(state.motion[L_SHOULDER] - 1.0) < 1e-9
+        if leg and arm:
+            return 0.002, 0.95
+        if leg:
+            return 0.015, 0.85
+        # the arm alone, with the leg still wrong, explains less than without it
+        return (0.025, 0.75) if arm else (0.02, 0.8)
+
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=False, headings=8)
+    # one pass (before): 0.015, the leg found and the arm not
+    assert score(state)[0] == 0.002

@@ -67,6 +67,18 @@ LOST_MIN_RECENT = 4
 #: branch body7). Before, these frames were lost only 0.1 below their predecessors' median,
 #: which let a drift of 5 mm skin pass for three frames (branch body8).
 LOST_PRIOR_SPREAD = 0.01
+#: Observation distances are clipped at this (metres) in the search's score
+#: (:meth:`BodyTracker.score`): a limb far off its data costs as much as one just off it.
+SCORE_CLIP = 0.05
+#: A lost frame's search result replaces the tracked fit only when its score is lower by
+#: at least this share. The score does not resolve smaller differences: among the frame-0
+#: search's candidates on the capsule figure (tuning seeds 2 and 12, masks alone), of two
+#: states whose scores differ by less than 2%, the better-scored one had its joints more
+#: than 2 cm worse in 32-34% of pairs; 2-5%: 14-19%; 5-10%: 6-12% (branch body9). Before,
+#: the search's result replaced the tracked fit whenever it explained a larger share, a
+#: different measure than the one the search ranked by (seed 16, frame 18: the search's
+#: result, kept, was 33 mm from the true skin, the frames around it 20-23 mm; branch body8).
+REPLACE_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -284,8 +296,9 @@ class BodyTracker:
         fitted skin, or of which clearly less are explained than in the recent frames
         (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`; for the
         first tracked frames :data:`LOST_PRIOR_SPREAD` stands for the spread), is searched
-        for again, from the global starts and from the last frame the track held; the
-        search's result replaces the tracked fit when it explains more.
+        for again, from the global starts, the last frame the track held and the tracked
+        fit itself; the search's result replaces the tracked fit when it scores clearly
+        better (:data:`REPLACE_MARGIN`).
     refuse_distance : float, default 0.03, keyword-only
         The first frame is refused (``InvalidInputError``) when, after the search, the
         median distance exceeds this or less than half the observations are explained: the
@@ -440,14 +453,19 @@ class BodyTracker:
         def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> BodyState:
             return self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays).states[0]
 
-        def score(state: BodyState) -> tuple[float, float]:
-            d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
-            if len(d) == 0:
-                return 0.0, 1.0
-            return float(np.mean(np.minimum(d, 0.05))), float(np.mean(d <= EXPLAINED_DISTANCE))
-
-        state = search_pose(self.model, centre, shape, fit, score, fit_shape=fit_shape, headings=self.headings, starts=starts)
+        state = search_pose(
+            self.model, centre, shape, fit, lambda state: self.score(state, frame), fit_shape=fit_shape, headings=self.headings, starts=starts
+        )
         return state, self.quality(state, frame)
+
+    def score(self, state: BodyState, frame: _Frame) -> tuple[float, float]:
+        """The search's ranking of ``state`` on ``frame``: the mean distance of the
+        observations from the skin, each clipped at :data:`SCORE_CLIP` (lower is better),
+        and the explained share."""
+        d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
+        if len(d) == 0:
+            return 0.0, 1.0
+        return float(np.mean(np.minimum(d, SCORE_CLIP))), float(np.mean(d <= EXPLAINED_DISTANCE))
 
     def _held_start(self, frame: _Frame) -> list[BodyState]:
         """The last frame the track held (not lost), its root moved with the data's centre:
@@ -517,10 +535,12 @@ class BodyTracker:
         state, quality, searched = fit.states[0], self.quality(fit.states[0], frame), False
         held = True
         if self._lost(quality):
-            found, found_quality = self.search(frame, predicted.shape, fit_shape=False, starts=self._held_start(frame))
-            # By the explained share first: with silhouettes alone the median distance is
-            # 2-4 mm for a fit with a limb 10 cm off as for a good one.
-            if (-found_quality.explained, found_quality.median_distance) < (-quality.explained, quality.median_distance):
+            # The tracked fit is a start of the search too (its limb restarts may mend the
+            # one limb that drifted), and the search's result replaces it only when it
+            # scores clearly better by the search's own score: like with like, and not on
+            # a difference the score cannot resolve (:data:`REPLACE_MARGIN`).
+            found, found_quality = self.search(frame, predicted.shape, fit_shape=False, starts=[*self._held_start(frame), state])
+            if self.score(found, frame)[0] < (1 - REPLACE_MARGIN) * self.score(state, frame)[0]:
                 state, quality, searched = found, found_quality, True
             held = not self._lost(quality)
         self._append(frame, state, quality, searched=searched, observed=True, held=held)
