@@ -72,6 +72,14 @@ APPEARANCE_SIGMA = 1.5
 #: Pixels: the subject's colours are learned inside the fitted model's silhouette grown by
 #: this, so that clutter a mask holds away from the model does not teach them.
 APPEARANCE_TRUST = 2
+#: Pixels: the background's colours are learned only outside the fitted model's
+#: silhouette grown by this. Without it a part of the subject one frame's mask lost (the
+#: figure's red shoes, seed 15 views 1 and 3) lies in the colour model's background ring,
+#: teaches the background's histogram the shoe's colour, and is dropped again on every
+#: later frame (~650 px a view, share 0.52 -> 0.79 over frames 0-7 of seed 15 replayed
+#: offline; 2 px 0.77, 6 px 0.79; tuning seeds 20, 21 unchanged: ``benches/README.md``,
+#: branch sil8).
+APPEARANCE_BACKGROUND_TRUST = 4
 
 #: Options of :func:`~elastocap.silhouettes.learned_background.background_outline`, the
 #: outline test against each view's learned background: a band of 5 px (the dark strip a
@@ -279,10 +287,16 @@ class SilhouetteTracker:
         if self.appearance_options is None:
             return
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * APPEARANCE_TRUST + 1, 2 * APPEARANCE_TRUST + 1))
+        r = APPEARANCE_BACKGROUND_TRUST
+        outer = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         for n, mask in final.items():
             model = projected[n]
             if mask.any():
-                self.colour_models[n].update(images[n], mask, trusted=cv2.dilate(model.astype(np.uint8), kernel) if model.any() else None)
+                trusted = background = None
+                if model.any():
+                    trusted = cv2.dilate(model.astype(np.uint8), kernel)
+                    background = cv2.dilate(model.astype(np.uint8), outer) == 0
+                self.colour_models[n].update(images[n], mask, trusted=trusted, background_trusted=background)
 
     def _second_start(self, first: NDArray[np.bool_], model: NDArray[np.bool_]) -> NDArray[np.bool_]:
         import cv2
