@@ -217,3 +217,16 @@ def test_the_gain_field_at_a_quarter_resolution_follows_the_light_as_the_full_on
     assert (a != b).sum() <= 0.02 * fat.sum()
     with pytest.raises(InvalidInputError, match="gain_scale"):
         LearnedBackground(gain_scale=0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_channel_sums_equal_numpys_norm_and_sum_bit_for_bit(seed: int) -> None:
+    # The module's per-pixel colour distance and brightness skip numpy's strided reduction
+    # over the last axis; they must give the very values it gives (a test above compares
+    # models and distances for equality).
+    from elastocap.silhouettes.learned_background import _brightness, _norm
+
+    x = np.random.default_rng(seed).normal(0, 80, (17, 23, 3)).astype(np.float32)
+    np.testing.assert_array_equal(_norm(x), np.linalg.norm(x, axis=2).astype(np.float32))
+    np.testing.assert_array_equal(_brightness(x), x.sum(axis=2))
