@@ -78,6 +78,7 @@ def main() -> None:
     rows = []
     for f, fr in enumerate(frames):
         before = dict(tracker.timings)
+        before_cpu = dict(tracker.cpu_timings)
         t0 = time.perf_counter()
         ours = tracker.step(fr.images, disparity_masks=fr.disparity_masks, points=fr.points)
         step_s = time.perf_counter() - t0
@@ -89,6 +90,7 @@ def main() -> None:
         appearance_s = tracker.timings["appearance"] - before["appearance"]
         background_s = tracker.timings["background"] - before["background"]
         result: dict[str, object] = {"frame": f, "step_s": round(step_s, 3), "snakes_ms_per_view": round(1000 * snake_s / len(names), 1), "snakes_cpu_ms_per_view": round(1000 * snake_cpu / len(names), 1), "band_ms_per_view": round(1000 * band_s / len(names), 1), "consistency_ms_per_view": round(1000 * consistency_s / len(names), 1), "appearance_ms_per_view": round(1000 * appearance_s / len(names), 1), "background_ms_per_view": round(1000 * background_s / len(names), 1), "body_s": round(body_s, 3)}
+        result["cpu_ms_per_view"] = {k: round(1000 * (v - before_cpu[k]) / len(names), 1) for k, v in tracker.cpu_timings.items()}
         methods = {"ours": ours, "first_pass": tracker.first_pass, "model": tracker.model_masks}
         t0 = time.perf_counter()
         methods["grabcut"] = {n: grabcut(fr.images[n], tracker.model_masks[n]) for n in names}
@@ -120,6 +122,8 @@ def main() -> None:
     summary["consistency_ms_per_view_median"] = float(np.median([r["consistency_ms_per_view"] for r in rows]))
     summary["appearance_ms_per_view_median"] = float(np.median([r["appearance_ms_per_view"] for r in rows]))
     summary["background_ms_per_view_median"] = float(np.median([r["background_ms_per_view"] for r in rows]))
+    for stage in tracker.cpu_timings:
+        summary[f"{stage}_cpu_ms_per_view_median"] = float(np.median([r["cpu_ms_per_view"][stage] for r in rows]))  # type: ignore[index]
     summary["band_ms_per_view_median"] = float(np.median([r["band_ms_per_view"] for r in rows]))
     summary["body_s_median"] = float(np.median([r["body_s"] for r in rows]))
     summary["step_s_median"] = float(np.median([r["step_s"] for r in rows]))

@@ -123,3 +123,24 @@ def test_bad_input(scene_frame) -> None:
     empty = {n: np.zeros_like(m) for n, m in frame.masks.items()}
     out = consistent_silhouettes(scene.rig, empty)
     assert not any(m.any() for m in out.values())
+
+
+def test_the_rig_space_kept_between_frames_gives_the_same_support_and_follows_a_moved_camera(scene_frame) -> None:
+    # The coarse grid over the space every camera sees depends on the calibration only, so
+    # it is kept between frames; a support computed from it equals one computed afresh, and
+    # a rig whose camera moved gets its own.
+    from elastocap.silhouettes import consistency
+
+    scene, frame = scene_frame
+    consistency._SPACE_CACHE.clear()
+    fresh = view_support(scene.rig, frame.masks)
+    assert len(consistency._SPACE_CACHE) == 1
+    kept = view_support(scene.rig, frame.masks)
+    for name in scene.rig.names:
+        np.testing.assert_array_equal(kept[name], fresh[name])
+    moved = scene.rig.cameras[0]
+    rig = type(scene.rig)([moved.replace(t=np.asarray(moved.t) + [0.05, 0.0, 0.0]), *scene.rig.cameras[1:]])
+    consistency._coarse_space(rig)
+    assert len(consistency._SPACE_CACHE) == 2
+    consistency._coarse_space(scene.rig)
+    assert len(consistency._SPACE_CACHE) == 2

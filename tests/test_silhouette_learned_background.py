@@ -196,3 +196,37 @@ def test_a_gain_computed_once_gives_the_same_model_and_distance() -> None:
         b.update(image, support, gain=np.zeros((H, W)))
     with pytest.raises(InvalidInputError, match="gain"):
         b.distance(image, None, gain=np.ones((H, W + 1)))
+
+
+def test_the_gain_field_at_a_quarter_resolution_follows_the_light_as_the_full_one() -> None:
+    # The field is smooth (sigma 12 px): estimated on a 4x coarser grid (the default) it
+    # must follow the sweep and the dim as the full-resolution one does, across the
+    # figure's gap too (filled from around it), and give the same outline test.
+    model, images, truths = learned(frames=12)
+    full = LearnedBackground(gain_scale=1)
+    full.mean, full.count = model.mean, model.count
+    support = ~(cv2.dilate(truths[-1].astype(np.uint8), disk(10)) != 0)
+    coarse_gain, full_gain = model.gain(images[-1], support), full.gain(images[-1], support)
+    assert coarse_gain.shape == full_gain.shape == (H, W)
+    expected = np.broadcast_to(light(11, 12)[0, :, 0] / light(0, 12)[0, :, 0], (H, W))
+    assert np.median(np.abs(coarse_gain / expected - 1)) < 0.05
+    assert np.percentile(np.abs(coarse_gain / full_gain - 1), 95) < 0.02
+    fat = cv2.dilate(truths[-1].astype(np.uint8), disk(3)) != 0
+    a = background_outline(fat, model.distance(images[-1], None, gain=coarse_gain))
+    b = background_outline(fat, full.distance(images[-1], None, gain=full_gain))
+    assert (a != b).sum() <= 0.02 * fat.sum()
+    with pytest.raises(InvalidInputError, match="gain_scale"):
+        LearnedBackground(gain_scale=0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_channel_sums_equal_numpys_norm_and_sum_bit_for_bit(seed: int) -> None:
+    # The module's per-pixel colour distance and brightness skip numpy's strided reduction
+    # over the last axis; they must give the very values it gives (a test above compares
+    # models and distances for equality).
+    from elastocap.silhouettes.learned_background import _brightness, _norm
+
+    x = np.random.default_rng(seed).normal(0, 80, (17, 23, 3)).astype(np.float32)
+    np.testing.assert_array_equal(_norm(x), np.linalg.norm(x, axis=2).astype(np.float32))
+    np.testing.assert_array_equal(_brightness(x), x.sum(axis=2))

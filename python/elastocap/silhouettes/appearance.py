@@ -89,12 +89,16 @@ class ColourModel:
         q = (image >> (8 - self.bits)).astype(np.intp)
         return np.asarray((q[..., 0] << (2 * self.bits)) | (q[..., 1] << self.bits) | q[..., 2])
 
-    def update(self, image: Any, mask: Any, *, trusted: Any = None) -> None:
+    def update(self, image: Any, mask: Any, *, trusted: Any = None, background_trusted: Any = None) -> None:
         """Learn one frame: ``mask`` (non-zero = subject) of ``image`` ((H, W, 3) uint8).
 
         ``trusted`` (optional, (H, W)): the subject's colours are learned only inside it
         (e.g. the fitted model's silhouette, slightly grown), so that clutter the mask
         wrongly holds away from the model does not teach the subject's histogram.
+        ``background_trusted`` (optional, (H, W)): the background's colours are learned
+        only inside it (e.g. outside the fitted model's silhouette grown by a few pixels),
+        so that a part of the subject the mask lost (a shoe) does not teach the background's
+        histogram, which would drop it again on the next frames.
         """
         colour = _checked_image(image)
         m = _checked_mask("mask", mask, colour.shape[:2]).astype(np.uint8)
@@ -103,6 +107,8 @@ class ColourModel:
         if trusted is not None:
             subject &= _checked_mask("trusted", trusted, colour.shape[:2])
         background = (cv2.dilate(m, _disk(self.ring[1])) != 0) & ~(cv2.dilate(m, _disk(self.ring[0])) != 0 if self.ring[0] else m != 0)
+        if background_trusted is not None:
+            background &= _checked_mask("background_trusted", background_trusted, colour.shape[:2])
         n = len(self.subject)
         self.subject = self.decay * self.subject + np.bincount(codes[subject], minlength=n)
         self.background = self.decay * self.background + np.bincount(codes[background], minlength=n)
