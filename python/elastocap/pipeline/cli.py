@@ -145,7 +145,7 @@ def _batch(args: argparse.Namespace) -> int:
 def _silhouettes(args: argparse.Namespace) -> int:
     from elastocap.capture.folder import Capture
     from elastocap.pipeline.hull import parse_frames
-    from elastocap.silhouettes.model_based import run_silhouettes_stage
+    from elastocap.pipeline.silhouettes import run_silhouettes_stage
 
     capture = Capture.open(args.capture)
     written = run_silhouettes_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), progress=not args.quiet)
