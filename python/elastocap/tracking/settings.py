@@ -30,6 +30,9 @@ ANCHOR_REACH = 1.5
 STEP_ITERATIONS = 8
 # Largest distance of a rescued view from its linear prediction, pixels.
 RESCUE_REACH = 3.0
+# Views the rescue's match misses looked for by their anchor in a box of this half-side
+# (pixels) around the linear prediction (0: not).
+RESCUE_RADIUS = 0
 # A lost point is looked for again for this many frames after it was lost...
 REVIVE_FRAMES = 15
 # Its position is predicted by the rigid motion of its neighbours since it was lost
@@ -68,6 +71,14 @@ REACQUIRE_TOLERANCE = 1.5
 REACQUIRE_RADIUS = 0
 REACQUIRE_SEARCH_TOLERANCE = 3.0
 REACQUIRE_ITERATIONS = 20
+# Hand a tracked point over to another stereo pair predicted to see it
+# (:mod:`elastocap.tracking.handover`): the patch at its projection in the camera of that
+# pair facing it more, matched into its partner within HANDOVER_TOLERANCE pixels of the
+# projection there; kept when the new views intersect with the held ones. HANDOVER_FACING:
+# least cosine between the surface normal and both cameras' directions.
+HANDOVER = False
+HANDOVER_TOLERANCE = 3.0
+HANDOVER_FACING = 0.0
 # Re-acquired views of a tracked point kept only when they intersect with its held ones.
 CONFIRM_REACQUIRED = True
 # Start shapes of cross-camera matches from the plane of the neighbouring tracked points

@@ -25,6 +25,7 @@ from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.drift import drift_covariance, weakest_sd
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
@@ -151,6 +152,19 @@ class FrameTracker:
                     start = np.where(np.isfinite(self.uv_last), 2 * self.uv - self.uv_last, self.uv)
                     found, fcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
                                                       reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
+                    if settings.RESCUE_RADIUS:
+                        # The rescue's match started at the prediction diverges where the
+                        # view moved off its linear path: its anchor looked for in a box.
+                        missed = lost & ~np.isfinite(found[..., 0])
+                        sfound, scov = self.anchors.search(
+                            grey, start, missed, radius=settings.RESCUE_RADIUS, min_correlation=self.min_correlation,
+                            box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
+                            forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                            max_iterations=settings.STEP_ITERATIONS)
+                        with np.errstate(invalid="ignore"):
+                            near = np.linalg.norm(sfound - start, axis=2) <= settings.RESCUE_RADIUS
+                        found = np.where(near[..., None], sfound, found)
+                        fcov = np.where(near[..., None, None], scov, fcov)
                     back = np.isfinite(found[..., 0])
                     uv = np.where(back[..., None], found, uv)
                     cov2d = np.where(back[..., None, None], fcov, cov2d)
@@ -192,6 +206,10 @@ class FrameTracker:
 
         # Lost views re-acquired by spatial matching from the view of best correlation.
         reacquire(self, grey, masks, weights, uv, cov2d, corr, x, xcov, flags, tracked, single, anchor)
+        if settings.HANDOVER:
+            # The other stereo pairs that see a tracked point take it on before its pair
+            # loses it.
+            hand_over(self, grey, masks, weights, uv, cov2d, x, xcov, tracked & np.isfinite(x).all(axis=1))
         lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
         uv[lone & ~single] = np.nan
         # A single view that found no partner is given up.

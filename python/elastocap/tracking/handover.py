@@ -1,0 +1,117 @@
+"""Hand-over of a tracked point to another stereo pair while its own pair still holds it
+(issue 15, branch track10).
+
+Most points are held by one narrow stereo pair (10-20 degrees). When the limb turns, that
+pair loses the point while a pair 45-90 degrees away sees it; the re-acquisition's
+cross-camera match from the held patch into those cameras fails on nearly every try
+(the patch foreshortens and turns across the wide baseline; benches/README.md, branches
+track5, track6 and track10), so the point ends although two cameras see it: on the
+textured capture (seed 0) 132 of the 287 first losses of the points without a visibility
+gap. The hand-over never matches across the wide baseline: the point's position is
+projected into a camera of the other pair that is predicted to see it, the patch there is
+taken as the new view, and it is matched into that camera's partner across their narrow
+baseline, as seeding matches. Both new views are kept when they intersect with the held
+ones within the residual threshold (:func:`elastocap.tracking.views.confirm_views`), so
+the point then has four views and survives its first pair's loss under its id."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elastocap.tracking import settings
+from elastocap.tracking.seeding import _partners
+from elastocap.tracking.views import confirm_views, project_all, spatial_match
+from elastocap.tracking.visibility import predicted_visible
+
+if TYPE_CHECKING:
+    from elastocap.tracking.step import FrameTracker
+
+__all__ = ["handover_pairs", "hand_over"]
+
+
+def handover_pairs(held: NDArray[np.bool_], visible: NDArray[np.bool_], partner: NDArray[np.int64],
+                   facing: NDArray[np.float64]) -> NDArray[np.int64]:
+    """(N, C) per point and camera ``k``: the camera its patch is taken in (``k`` or its
+    ``partner[k]``, whichever faces the point more by ``facing`` (N, C), the cosine between
+    the normal and the direction to the camera), -1 where the pair of ``k`` and its partner
+    is not a candidate: both must be ``visible`` (N, C) and neither ``held`` (N, C). Each
+    pair is listed once, at the camera the patch is taken in."""
+    c = held.shape[1]
+    out = np.full(held.shape, -1, np.int64)
+    free = visible & ~held
+    for k in range(c):
+        p = int(partner[k])
+        both = free[:, k] & free[:, p]
+        # The template camera is the one facing the point more (ties: the lower index).
+        mine = both & ((facing[:, k] > facing[:, p]) | ((facing[:, k] == facing[:, p]) & (k < p)))
+        out[mine, k] = k
+    return out
+
+
+def hand_over(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
+              weights: list[NDArray[np.float32]] | None, uv: NDArray[np.float64], cov2d: NDArray[np.float64],
+              x: NDArray[np.float64], xcov: NDArray[np.float64], tracked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """New views of the points ``tracked`` at ``x`` (N, 3) in the other stereo pairs that
+    are predicted to see them: updates ``uv``, ``cov2d``, ``x`` and ``xcov`` in place and
+    returns the views added (N, C)."""
+    n, c = uv.shape[:2]
+    added = np.zeros((n, c), bool)
+    held = np.isfinite(uv[..., 0])
+    rows = np.flatnonzero(tracked & np.isfinite(x).all(axis=1) & (held.sum(axis=1) >= 2) & (held.sum(axis=1) < c))
+    if rows.size == 0 or c < 3:
+        return added
+    cameras = tracker.cameras
+    proj = project_all(cameras, x[rows], margin=tracker.size)
+    asked = np.isfinite(proj[..., 0]) & ~held[rows]
+    for k in range(c):
+        iu = np.clip(np.round(np.nan_to_num(proj[:, k, 0])).astype(int), 0, masks[k].shape[1] - 1)
+        iv = np.clip(np.round(np.nan_to_num(proj[:, k, 1])).astype(int), 0, masks[k].shape[0] - 1)
+        asked[:, k] &= masks[k][iv, iu]
+    if not asked.any():
+        return added
+    normals = tracker.normals(x[rows], x, held[rows])
+    visible = predicted_visible(cameras, masks, x[rows], normals, x, asked, facing=settings.HANDOVER_FACING)
+    facing = np.zeros((rows.size, c))
+    for k, cam in enumerate(cameras):
+        d = cam.center - x[rows]
+        facing[:, k] = np.einsum("ij,ij->i", d / np.linalg.norm(d, axis=1, keepdims=True), normals)
+    partner = _partners(cameras)[:, 0]
+    template = handover_pairs(held[rows], visible, partner, facing)
+    new_uv = np.full((rows.size, c, 2), np.nan)
+    new_cov = np.full((rows.size, c, 2, 2), np.nan)
+    for k in range(c):
+        sub = np.flatnonzero(template[:, k] == k)
+        if sub.size == 0:
+            continue
+        p = int(partner[k])
+        targets = np.full((sub.size, c, 2), np.nan)
+        targets[:, p] = proj[sub, p]
+        matched, mcov = spatial_match(grey, np.full(sub.size, k), proj[sub, k], targets, size=tracker.size,
+                                      min_correlation=tracker.min_correlation, tolerance=settings.HANDOVER_TOLERANCE,
+                                      min_texture=float(min(tracker.texture)), cameras=cameras, points=x[rows[sub]],
+                                      normals=normals[sub], weights=weights)
+        ok = np.isfinite(matched[:, p, 0])
+        # A point with two free pairs keeps the first that matched.
+        ok &= ~np.isfinite(new_uv[sub, :, 0]).any(axis=1)
+        got = sub[ok]
+        new_uv[got, k], new_uv[got, p] = proj[got, k], matched[ok, p]
+        # The template's view carries the match's uncertainty as well: it fixes the
+        # pair's disparity only up to it.
+        new_cov[got, k], new_cov[got, p] = mcov[ok, p], mcov[ok, p]
+    found = np.flatnonzero(np.isfinite(new_uv[..., 0]).any(axis=1))
+    if found.size == 0:
+        return added
+    pts = rows[found]
+    kept_uv, kept_cov, cx, ccov = confirm_views(cameras, uv[pts], cov2d[pts], new_uv[found], new_cov[found],
+                                                max_residual=tracker.o["max_residual"], floor=settings.FLOOR)
+    ok = np.isfinite(cx).all(axis=1)
+    pts, kept_uv, kept_cov, cx, ccov = pts[ok], kept_uv[ok], kept_cov[ok], cx[ok], ccov[ok]
+    new = np.isfinite(kept_uv[..., 0])
+    uv[pts] = np.where(new[..., None], kept_uv, uv[pts])
+    cov2d[pts] = np.where(new[..., None, None], kept_cov, cov2d[pts])
+    x[pts], xcov[pts] = cx, ccov
+    added[pts] = new
+    return added
