@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from elastocap.tracking import settings
 from elastocap.tracking.seeding import _partners
-from elastocap.tracking.views import confirm_views, project_all, spatial_match
+from elastocap.tracking.views import confirm_views, intersect_views, project_all, spatial_match
 from elastocap.tracking.visibility import predicted_visible
 
 if TYPE_CHECKING:
@@ -82,25 +82,56 @@ def hand_over(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: lis
     template = handover_pairs(held[rows], visible, partner, facing)
     new_uv = np.full((rows.size, c, 2), np.nan)
     new_cov = np.full((rows.size, c, 2, 2), np.nan)
+    # The held pair's image positions are right to a few tenths of a pixel but its depth
+    # is not (a narrow baseline): the point is looked for along the ray of its first held
+    # view, where that ray meets the surface the other pair sees.
+    first = np.argmax(held[rows], axis=1)
+    origin = np.zeros((rows.size, 3))
+    direction = np.zeros((rows.size, 3))
+    for r in range(c):
+        sel = np.flatnonzero(first == r)
+        if sel.size:
+            origin[sel], direction[sel] = cameras[r].rays(uv[rows[sel], r])
     for k in range(c):
         sub = np.flatnonzero(template[:, k] == k)
         if sub.size == 0:
             continue
         p = int(partner[k])
-        targets = np.full((sub.size, c, 2), np.nan)
-        targets[:, p] = proj[sub, p]
-        matched, mcov = spatial_match(grey, np.full(sub.size, k), proj[sub, k], targets, size=tracker.size,
-                                      min_correlation=tracker.min_correlation, tolerance=settings.HANDOVER_TOLERANCE,
-                                      min_texture=float(min(tracker.texture)), cameras=cameras, points=x[rows[sub]],
-                                      normals=normals[sub], weights=weights)
-        ok = np.isfinite(matched[:, p, 0])
+        point = x[rows[sub]].copy()
+        start = point.copy()
+        o, d, nrm = origin[sub], direction[sub], normals[sub]
+        alive = np.ones(sub.size, bool)
+        pair_uv = np.full((sub.size, c, 2), np.nan)
+        pair_cov = np.full((sub.size, c, 2, 2), np.nan)
+        for _ in range(settings.HANDOVER_ITERATIONS):
+            at_k = cameras[k].project(point)[0]
+            targets = np.full((sub.size, c, 2), np.nan)
+            targets[alive, p] = cameras[p].project(point[alive])[0]
+            matched, mcov = spatial_match(grey, np.full(sub.size, k), at_k, targets, size=tracker.size,
+                                          min_correlation=tracker.min_correlation, tolerance=settings.HANDOVER_TOLERANCE,
+                                          min_texture=float(min(tracker.texture)), cameras=cameras, points=point,
+                                          normals=nrm, weights=weights)
+            alive &= np.isfinite(matched[:, p, 0])
+            pair_uv[:] = np.nan
+            pair_uv[:, k], pair_uv[:, p] = at_k, matched[:, p]
+            pair_cov[:, k], pair_cov[:, p] = mcov[:, p], mcov[:, p]
+            surface, _, _, _ = intersect_views(cameras, np.where(alive[:, None, None], pair_uv, np.nan), pair_cov,
+                                               max_residual=tracker.o["max_residual"], floor=settings.FLOOR)
+            alive &= np.isfinite(surface).all(axis=1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cosine = np.einsum("ij,ij->i", d, nrm)
+                t = np.einsum("ij,ij->i", surface - o, nrm) / cosine
+            alive &= np.abs(cosine) > 0.2
+            point = np.where(alive[:, None], o + t[:, None] * d, point)
+        # The ray's move from the held position: the held pair's depth error, which a
+        # point on another surface (an arm in front, seen by the other pair) exceeds.
+        pixel = cameras[k].to_camera(start)[:, 2] / float(cameras[k].K[0, 0])
+        alive &= np.linalg.norm(point - start, axis=1) <= settings.HANDOVER_REACH * pixel
         # A point with two free pairs keeps the first that matched.
-        ok &= ~np.isfinite(new_uv[sub, :, 0]).any(axis=1)
-        got = sub[ok]
-        new_uv[got, k], new_uv[got, p] = proj[got, k], matched[ok, p]
-        # The template's view carries the match's uncertainty as well: it fixes the
-        # pair's disparity only up to it.
-        new_cov[got, k], new_cov[got, p] = mcov[ok, p], mcov[ok, p]
+        alive &= ~np.isfinite(new_uv[sub, :, 0]).any(axis=1)
+        got = sub[alive]
+        new_uv[got, k], new_uv[got, p] = pair_uv[alive, k], pair_uv[alive, p]
+        new_cov[got, k], new_cov[got, p] = pair_cov[alive, k], pair_cov[alive, p]
     found = np.flatnonzero(np.isfinite(new_uv[..., 0]).any(axis=1))
     if found.size == 0:
         return added

@@ -79,6 +79,8 @@ REACQUIRE_ITERATIONS = 20
 HANDOVER = False
 HANDOVER_TOLERANCE = 3.0
 HANDOVER_FACING = 0.0
+HANDOVER_ITERATIONS = 3
+HANDOVER_REACH = 6.0
 # Re-acquired views of a tracked point kept only when they intersect with its held ones.
 CONFIRM_REACQUIRED = True
 # Start shapes of cross-camera matches from the plane of the neighbouring tracked points
