@@ -79,7 +79,10 @@ def hand_over(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: lis
         d = cam.center - x[rows]
         facing[:, k] = np.einsum("ij,ij->i", d / np.linalg.norm(d, axis=1, keepdims=True), normals)
     partner = _partners(cameras)[:, 0]
-    template = handover_pairs(held[rows], visible, partner, facing)
+    # Only points whose own pair is losing them (a held view's surface turning away): a
+    # hand-over shows the held pair's depth error in the new cameras as an image error.
+    losing = np.where(held[rows], facing, np.inf).min(axis=1) < settings.HANDOVER_WHEN
+    template = handover_pairs(held[rows], visible & losing[:, None], partner, facing)
     new_uv = np.full((rows.size, c, 2), np.nan)
     new_cov = np.full((rows.size, c, 2, 2), np.nan)
     # The held pair's image positions are right to a few tenths of a pixel but its depth
