@@ -28,15 +28,19 @@ def _scene():
     return cams, images, points, tracker
 
 
-def test_a_point_held_by_one_pair_is_handed_over_to_the_pair_that_also_sees_it():
+def test_a_point_held_by_one_pair_is_handed_over_to_the_pair_that_also_sees_it(monkeypatch):
     # Every point is held by the first pair with its depth 2.5 pixel equivalents off along
     # camera 0's ray (a narrow pair's error: the views agree, the residual does not see it).
     # The hand-over finds it in the second pair where camera 0's ray meets the surface that
     # pair sees, within a few tenths of a pixel of the truth in both of its cameras, and the
     # point intersected with the four views lands near the truth. The cross-camera match
     # of the re-acquisition from camera 0's patch started at the projection does not.
+    from elastocap.tracking import settings
     from elastocap.tracking.views import intersect_views, spatial_match
 
+    # The plane faces the held pair at 26-40 degrees: not losing it, so the default
+    # trigger hands nothing over (checked below); every point is asked here.
+    monkeypatch.setattr(settings, "HANDOVER_WHEN", 2.0)
     cams, images, points, tracker = _scene()
     n = len(points)
     pixel = cams[0].to_camera(points)[:, 2] / cams[0].K[0, 0]
@@ -53,6 +57,10 @@ def test_a_point_held_by_one_pair_is_handed_over_to_the_pair_that_also_sees_it()
     masks = [np.ones((cam.height, cam.width), bool) for cam in cams]
 
     held_before = uv[:, :2].copy()
+    monkeypatch.setattr(settings, "HANDOVER_WHEN", 0.3)
+    untouched = (uv.copy(), cov.copy(), x.copy(), xcov.copy())
+    assert not hand_over(tracker, images, masks, None, *untouched, np.ones(n, bool)).any()
+    monkeypatch.setattr(settings, "HANDOVER_WHEN", 2.0)
     added = hand_over(tracker, images, masks, None, uv, cov, x, xcov, np.ones(n, bool))
     assert not added[:, :2].any() and added[:, 2].mean() >= 0.9 and (added[:, 2] == added[:, 3]).all()
     np.testing.assert_array_equal(uv[:, :2], held_before)
@@ -73,9 +81,12 @@ def test_a_point_held_by_one_pair_is_handed_over_to_the_pair_that_also_sees_it()
     assert near.mean() < 0.5
 
 
-def test_no_hand_over_where_the_other_pair_cannot_see_the_point():
+def test_no_hand_over_where_the_other_pair_cannot_see_the_point(monkeypatch):
     # The same points held right by the first pair; the second pair's camera 2 does not see
     # them (outside its silhouette): no view is added, nothing moves.
+    from elastocap.tracking import settings
+
+    monkeypatch.setattr(settings, "HANDOVER_WHEN", 2.0)
     cams, images, points, tracker = _scene()
     n = len(points)
     uv = np.full((n, 4, 2), np.nan)

@@ -82,8 +82,10 @@ REACQUIRE_ITERATIONS = 20
 # (benches/README.md, branch track10): through 32.8 -> 34.3%, kept 3-D beyond 5 px-eq
 # 3.31 -> 2.86%, median RMS 0.360 -> 0.385 px; handing over every point a free pair sees
 # (HANDOVER_WHEN above 1): 36.4%, 4.82%, 0.534 px (the held pair's depth error shows as an
-# image error in the new cameras).
-HANDOVER = True
+# image error in the new cameras). Off: the image figures rise with it (median RMS
+# +0.025 px, through and RMS <= 0.5 px 16.9 -> 15.3%, kept image beyond 5 px 0.71 ->
+# 1.10%), which the brief it was made for ruled out.
+HANDOVER = False
 HANDOVER_TOLERANCE = 3.0
 HANDOVER_FACING = 0.0
 HANDOVER_ITERATIONS = 3
