@@ -30,9 +30,6 @@ ANCHOR_REACH = 1.5
 STEP_ITERATIONS = 8
 # Largest distance of a rescued view from its linear prediction, pixels.
 RESCUE_REACH = 3.0
-# Views the rescue's match misses looked for by their anchor in a box of this half-side
-# (pixels) around the linear prediction (0: not).
-RESCUE_RADIUS = 0
 # A lost point is looked for again for this many frames after it was lost...
 REVIVE_FRAMES = 15
 # Its position is predicted by the rigid motion of its neighbours since it was lost

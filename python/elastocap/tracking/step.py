@@ -3,7 +3,8 @@ frame's work on it. Every camera's points tracked from the previous frame in one
 (prediction, NCC box search, temporal LSM, forward-backward check), corrected by their
 anchors and rescued from them, re-tied to one another across the cameras
 (:mod:`elastocap.tracking.retie`), intersected, filtered as trajectories;
-then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), lost points revived
+then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), optionally handed over
+to another stereo pair (:mod:`elastocap.tracking.handover`), lost points revived
 (:mod:`elastocap.tracking.revival`) and new points seeded (:mod:`elastocap.tracking.seeding`).
 The step returns the arrays that :func:`elastocap.tracking.tracks.write_frame` writes, with
 the 2-D state that :meth:`FrameTracker.resume` reads back."""
@@ -152,19 +153,6 @@ class FrameTracker:
                     start = np.where(np.isfinite(self.uv_last), 2 * self.uv - self.uv_last, self.uv)
                     found, fcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
                                                       reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
-                    if settings.RESCUE_RADIUS:
-                        # The rescue's match started at the prediction diverges where the
-                        # view moved off its linear path: its anchor looked for in a box.
-                        missed = lost & ~np.isfinite(found[..., 0])
-                        sfound, scov = self.anchors.search(
-                            grey, start, missed, radius=settings.RESCUE_RADIUS, min_correlation=self.min_correlation,
-                            box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
-                            forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
-                            max_iterations=settings.STEP_ITERATIONS)
-                        with np.errstate(invalid="ignore"):
-                            near = np.linalg.norm(sfound - start, axis=2) <= settings.RESCUE_RADIUS
-                        found = np.where(near[..., None], sfound, found)
-                        fcov = np.where(near[..., None, None], scov, fcov)
                     back = np.isfinite(found[..., 0])
                     uv = np.where(back[..., None], found, uv)
                     cov2d = np.where(back[..., None, None], fcov, cov2d)
