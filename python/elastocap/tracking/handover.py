@@ -1,11 +1,11 @@
 """Hand-over of a tracked point to another stereo pair while its own pair still holds it
 (issue 15, branch track10).
 
-Most points are held by one narrow stereo pair (10-20 degrees). When the limb turns, that
-pair loses the point while a pair 45-90 degrees away sees it; the re-acquisition's
-cross-camera match from the held patch into those cameras fails on nearly every try
-(the patch foreshortens and turns across the wide baseline; benches/README.md, branches
-track5, track6 and track10), so the point ends although two cameras see it: on the
+Most points are held by one narrow stereo pair. When the limb turns, that pair loses the
+point while another pair sees it (on the textured capture 80-90 degrees away); the
+re-acquisition's cross-camera match from the held patch into those cameras fails on
+nearly every try (the patch foreshortens and turns across the wide baseline;
+benches/README.md, branches track5, track6 and track10), so the point ends although two cameras see it: on the
 textured capture (seed 0) 132 of the 287 first losses of the points without a visibility
 gap. The hand-over never matches across the wide baseline: the point's position is
 projected into a camera of the other pair that is predicted to see it, the patch there is
@@ -14,9 +14,9 @@ baseline, as seeding matches. Both new views are kept when they intersect with t
 ones within the residual threshold (:func:`elastocap.tracking.views.confirm_views`), so
 the point then has four views and survives its first pair's loss under its id. The
 held pair's depth is off by a pixel equivalent or more (a narrow baseline), which the new
-cameras, 45-90 degrees away, see as an image error; so the new views are looked for where
-the ray of the first held view meets the surface the other pair sees (a few iterations of
-match, intersect, move along the ray), and only for points whose pair is losing them (a
+cameras, far from the held pair's direction, see as an image error; so the new views are
+looked for where the ray of the first held view meets the surface the other pair sees (a
+few iterations of match, intersect, move along the ray), and only for points whose pair is losing them (a
 held view's surface turned below ``settings.HANDOVER_WHEN``).
 
 Measured on the textured capture (benches/README.md, branch track10): seed 0 through
