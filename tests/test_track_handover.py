@@ -70,15 +70,16 @@ def test_a_point_held_by_one_pair_is_handed_over_to_the_pair_that_also_sees_it(m
     assert np.median(np.linalg.norm(x[moved] - points[moved], axis=1) / pixel[moved]) < 1.0
     assert np.isfinite(xcov[moved]).all()
 
-    # The re-acquisition's match from camera 0 across the 67 degrees, at the projection of
-    # the held position, mostly fails or lands off.
+    # The re-acquisition's match from camera 0 across the 67 degrees, started at the
+    # projection of the held position (about 2.3 px off the truth there), finds none of them
+    # within its tolerance.
     targets = np.full((n, 4, 2), np.nan)
     targets[:, 2] = cams[2].project(off)[0]
     matched, _ = spatial_match(images, np.zeros(n, np.int64), truth[:, 0], targets, size=15, min_correlation=0.75,
                                tolerance=1.5, min_texture=1.0, cameras=cams, points=off,
                                normals=tracker.normals(off, off, None))
     near = np.linalg.norm(matched[:, 2] - truth[:, 2], axis=1) < 0.5
-    assert near.mean() < 0.5
+    assert near.mean() < 0.2
 
 
 def test_no_hand_over_where_the_other_pair_cannot_see_the_point(monkeypatch):
