@@ -68,6 +68,26 @@ REACQUIRE_TOLERANCE = 1.5
 REACQUIRE_RADIUS = 0
 REACQUIRE_SEARCH_TOLERANCE = 3.0
 REACQUIRE_ITERATIONS = 20
+# Hand a tracked point over to another stereo pair predicted to see it
+# (:mod:`elastocap.tracking.handover`) once its own pair is losing it: a held view's
+# surface turned below HANDOVER_WHEN (cosine between the normal and the direction to the
+# camera). The patch at its projection in the camera of that pair facing it more is
+# matched into its partner (within HANDOVER_TOLERANCE pixels), the point moved along its
+# first held view's ray onto the surface that pair sees (HANDOVER_ITERATIONS times; at
+# most HANDOVER_REACH pixel equivalents), and the new views kept when they intersect with
+# the held ones. HANDOVER_FACING: least cosine of the new cameras. Seed 0
+# (benches/README.md, branch track10): through 32.8 -> 34.3%, kept 3-D beyond 5 px-eq
+# 3.31 -> 2.86%, median RMS 0.360 -> 0.385 px; handing over every point a free pair sees
+# (HANDOVER_WHEN above 1): 36.4%, 4.82%, 0.534 px (the held pair's depth error shows as an
+# image error in the new cameras). Off: the image figures rise with it (median RMS
+# +0.025 px, through and RMS <= 0.5 px 16.9 -> 15.3%, kept image beyond 5 px 0.71 ->
+# 1.10%), which the brief it was made for ruled out.
+HANDOVER = False
+HANDOVER_TOLERANCE = 3.0
+HANDOVER_FACING = 0.0
+HANDOVER_ITERATIONS = 3
+HANDOVER_REACH = 6.0
+HANDOVER_WHEN = 0.3
 # Re-acquired views of a tracked point kept only when they intersect with its held ones.
 CONFIRM_REACQUIRED = True
 # Start shapes of cross-camera matches from the plane of the neighbouring tracked points

@@ -3,7 +3,8 @@ frame's work on it. Every camera's points tracked from the previous frame in one
 (prediction, NCC box search, temporal LSM, forward-backward check), corrected by their
 anchors and rescued from them, re-tied to one another across the cameras
 (:mod:`elastocap.tracking.retie`), intersected, filtered as trajectories;
-then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), lost points revived
+then the lost views re-acquired (:mod:`elastocap.tracking.reacquire`), optionally handed over
+to another stereo pair (:mod:`elastocap.tracking.handover`), lost points revived
 (:mod:`elastocap.tracking.revival`) and new points seeded (:mod:`elastocap.tracking.seeding`).
 The step returns the arrays that :func:`elastocap.tracking.tracks.write_frame` writes, with
 the 2-D state that :meth:`FrameTracker.resume` reads back."""
@@ -25,6 +26,7 @@ from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.drift import drift_covariance, weakest_sd
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
@@ -192,6 +194,10 @@ class FrameTracker:
 
         # Lost views re-acquired by spatial matching from the view of best correlation.
         reacquire(self, grey, masks, weights, uv, cov2d, corr, x, xcov, flags, tracked, single, anchor)
+        if settings.HANDOVER:
+            # The other stereo pairs that see a tracked point take it on before its pair
+            # loses it.
+            hand_over(self, grey, masks, weights, uv, cov2d, x, xcov, tracked & np.isfinite(x).all(axis=1))
         lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
         uv[lone & ~single] = np.nan
         # A single view that found no partner is given up.
