@@ -13,7 +13,8 @@ from body_scenes import z_up_cameras
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, BodyState
 from elastocap.body.bvh import write_bvh
-from elastocap.body.track import LOST_DROP, LOST_PRIOR_SPREAD, BodyTracker, FrameQuality, limb_length_groups, lost_threshold, narrow_shape_family, track_body
+from elastocap.body.lost import LOST_DROP, LOST_PRIOR_SPREAD
+from elastocap.body.track import BodyTracker, FrameQuality, limb_length_groups, lost_threshold, narrow_shape_family, track_body
 from elastocap.render import render_silhouette
 from elastocap.synth.body import BodyFigure
 
