@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from elastocap.body.model import SHAPE_NAMES, BodyModel
 
-__all__ = ["SHAPE_PRIOR_SIGMA", "SHAPE_RANGE", "limb_length_groups", "narrow_shape_family"]
+__all__ = ["SHAPE_PRIOR_SIGMA", "SHAPE_PRIOR_SIGMA_MASKS", "SHAPE_RANGE", "limb_length_groups", "narrow_shape_family"]
 
 #: Default ``sigma_shape`` of :class:`BodyTracker`: the shape prior's standard deviation
 #: (``fit_body(sigma_shape=)``) when the fitted frames carry stereo points. Chosen on the
@@ -20,6 +20,16 @@ __all__ = ["SHAPE_PRIOR_SIGMA", "SHAPE_RANGE", "limb_length_groups", "narrow_sha
 #: took the skin from 8.6-11.4 mm (tie alone) to 5.9-7.8 mm and the joints from 21-29 to
 #: 16-27 mm RMS (neither: 38-43 mm, 8.3-8.7 mm; ``benches/README.md``, branch body6).
 SHAPE_PRIOR_SIGMA = 0.01
+#: Default ``sigma_shape_masks`` of :class:`BodyTracker`: the shape prior's standard
+#: deviation when the fitted frames carry silhouettes alone (the narrow family, limb
+#: lengths tied). The frame-0 shape fit of the capsule figure from the search's pose (8
+#: masks, tuning seeds 20 and 12; joints RMS / skin mean): free lengths, no prior 100.6 /
+#: 10.14 mm and 43.8 / 10.72 mm (knees 13-21 cm along the thighs); tied, no prior 27.1 /
+#: 10.79 and 22.6 / 10.91; tied with 0.2 / 0.1 / 0.05 / 0.02: 27.0 / 26.7 / **25.8** / 22.8
+#: mm joints, 10.75 / 10.52 / **10.47** / 10.74 mm skin on seed 20 and 22.6 / 22.3 /
+#: **21.7** mm, 10.52 / 10.48 / **10.41** mm on seed 12 (the prior alone, untied, 0.05:
+#: 77.5 and 21.8 mm: it does not hold seed 20's knees; ``benches/README.md``, branch body11).
+SHAPE_PRIOR_SIGMA_MASKS = 0.05
 #: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
 #: default ``shape_bounds``).
 SHAPE_RANGE = (0.5, 2.0)

@@ -28,7 +28,7 @@ from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_s
 from elastocap.body.lost import EXPLAINED_DISTANCE, LOST_RECENT, FrameQuality, lost_threshold, observation_distances
 from elastocap.body.model import BodyModel, BodyState
 from elastocap.body.search import search_pose
-from elastocap.body.shape_family import SHAPE_PRIOR_SIGMA, limb_length_groups, narrow_shape_family
+from elastocap.body.shape_family import SHAPE_PRIOR_SIGMA, SHAPE_PRIOR_SIGMA_MASKS, limb_length_groups, narrow_shape_family
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "lost_threshold", "narrow_shape_family", "observation_distances", "track_body"]
@@ -157,19 +157,26 @@ class BodyTracker:
     sigma_shape : float or None, default :data:`SHAPE_PRIOR_SIGMA`, keyword-only
         A Gaussian prior about 1 on each shape coefficient (``fit_body(sigma_shape=)``)
         in the fits of the full family (frames with stereo points); None: no prior.
-        Silhouettes alone fit the narrow family, without it. With thousands of points
-        the prior must be this tight to matter at all: the data pull the trunk's tapers
-        and widths to their bounds and the hands 1.6 times wider, into a fit both farther
-        from the skin and with the joints farther off than with the prior.
-    tie_limb_lengths : bool, optional, keyword-only
+        With thousands of points the prior must be this tight to matter at all: the data
+        pull the trunk's tapers and widths to their bounds and the hands 1.6 times wider,
+        into a fit both farther from the skin and with the joints farther off than with
+        the prior.
+    sigma_shape_masks : float or None, default :data:`SHAPE_PRIOR_SIGMA_MASKS`, keyword-only
+        The same prior in the fits of silhouettes alone (the narrow family); None: no
+        prior. Looser than with points: masks pin a shape less, and 0.02 already cost
+        seed 12's frame 0 2 mm of skin where 0.05 gained a little on both tuning seeds.
+    tie_limb_lengths : bool, default True, keyword-only
         Fit one length coefficient per limb (:func:`limb_length_groups`: upper arm,
-        forearm and hand; thigh and shin) instead of one per segment. Default (None): tied
-        when the fitted frames carry stereo points (the full family), free with
-        silhouettes alone (the narrow family). On the capsule figure with points, free
-        segment lengths put the wrists 4-7 cm and the knees up to 13 cm off along the
-        bone while the skin fitted within 8 mm (``benches/README.md``, branch body6).
-        Pass False for subjects whose segments do not keep one proportion (the synthetic
-        body figure, :mod:`elastocap.synth.body`, draws each segment's length apart).
+        forearm and hand; thigh and shin) instead of one per segment, with points or
+        silhouettes alone (None means the default). Along a limb that does not bend,
+        neither the skin nor an outline says where one segment ends and the next begins:
+        on the capsule figure with points, free segment lengths put the wrists 4-7 cm and
+        the knees up to 13 cm off along the bone while the skin fitted within 8 mm (branch
+        body6); with masks alone, the frame-0 shape fit slid the knees 13-21 cm down the
+        thighs (tuning seed 20: joints 51 mm RMS before the shape fit, 101 mm after it
+        with free lengths, 27 mm tied; ``benches/README.md``, branch body11). Pass False
+        for subjects whose segments do not keep one proportion (the synthetic body figure,
+        :mod:`elastocap.synth.body`, draws each segment's length apart).
     symmetric : bool, default False, keyword-only
         Fit one shape for each left part and its right twin
         (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
@@ -203,7 +210,8 @@ class BodyTracker:
         refuse_distance: float = 0.03,
         symmetric: bool = False,
         sigma_shape: float | None = SHAPE_PRIOR_SIGMA,
-        tie_limb_lengths: bool | None = None,
+        sigma_shape_masks: float | None = SHAPE_PRIOR_SIGMA_MASKS,
+        tie_limb_lengths: bool | None = True,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -218,7 +226,8 @@ class BodyTracker:
         self.refuse_distance = as_positive("refuse_distance", refuse_distance)
         self.symmetric = bool(symmetric)
         self.sigma_shape = None if sigma_shape is None else as_positive("sigma_shape", sigma_shape)
-        self.tie_limb_lengths = None if tie_limb_lengths is None else bool(tie_limb_lengths)
+        self.sigma_shape_masks = None if sigma_shape_masks is None else as_positive("sigma_shape_masks", sigma_shape_masks)
+        self.tie_limb_lengths = True if tie_limb_lengths is None else bool(tie_limb_lengths)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -269,12 +278,12 @@ class BodyTracker:
 
     def _fit(self, frames: list[_Frame], init: list[BodyState], *, shape: Any, iterations: int, rays: int | None = None) -> BodyFit:
         groups, bounds = None, None
+        thin = all(len(f.points) == 0 for f in frames)
         if shape is None:
             groups = self.model.mirrored_shape_groups() if self.symmetric else np.arange(self.model.n_shape)
-            thin = all(len(f.points) == 0 for f in frames)
             if thin:
                 groups, bounds = narrow_shape_family(self.model, groups)
-            if self.tie_limb_lengths or (self.tie_limb_lengths is None and not thin):
+            if self.tie_limb_lengths:
                 groups = limb_length_groups(self.model, groups)
             if bounds is None and np.array_equal(groups, np.arange(self.model.n_shape)):
                 groups = None
@@ -289,7 +298,7 @@ class BodyTracker:
             sigma_joint=self._sigmas["sigma_joint"],
             shape_groups=groups,
             shape_bounds=bounds,
-            sigma_shape=self.sigma_shape if shape is None and not all(len(f.points) == 0 for f in frames) else None,
+            sigma_shape=None if shape is not None else self.sigma_shape_masks if thin else self.sigma_shape,
         )
 
     def search(
