@@ -13,7 +13,8 @@ from body_scenes import z_up_cameras
 from elastocap import InvalidInputError
 from elastocap.body import BodyModel, BodyObservations, BodyState
 from elastocap.body.bvh import write_bvh
-from elastocap.body.track import LOST_DROP, LOST_PRIOR_SPREAD, BodyTracker, FrameQuality, limb_length_groups, lost_threshold, narrow_shape_family, track_body
+from elastocap.body.lost import LOST_DROP, LOST_PRIOR_SPREAD
+from elastocap.body.track import BodyTracker, FrameQuality, limb_length_groups, lost_threshold, narrow_shape_family, track_body
 from elastocap.render import render_silhouette
 from elastocap.synth.body import BodyFigure
 
@@ -104,6 +105,33 @@ def test_limb_length_groups_tie_each_limbs_segments_and_nothing_else(symmetric: 
         same = base_part[:, k][:, None] == base_part[:, k][None, :]
         assert np.array_equal(per_part[:, k][:, None] == per_part[:, k][None, :], same)
     assert groups.max() + 1 == base.max() + 1 - (3 if symmetric else 6)
+
+
+def test_with_masks_alone_the_shape_fit_keeps_the_knees_and_elbows_where_the_outline_puts_them() -> None:
+    """Masks alone, the shape fit ties each limb's segment lengths and holds the shape
+    near 1: a start whose knees and elbows sat 7-13 cm along straight limbs (thighs and
+    upper arms long, shins and forearms short, the outline nearly the same) comes back to
+    the true joints. With each segment's length free the outline does not say where one
+    segment ends and the next begins, and they stay ~3 cm off (the capsule figure's
+    frame-0 shape fit slid its knees 13-21 cm so, ``benches/README.md``, branch body11)."""
+    truth = MODEL.rest_state()
+    masks = [render_silhouette(MODEL.skin_mesh(truth, spacing=0.01), c) for c in CAMERAS]
+    names = MODEL.part_names
+    slid = truth.shape.copy().reshape(-1, 4)
+    for side in "lr":
+        for part, length in (("thigh", 1.3), ("shin", 0.75), ("upperarm", 1.25), ("forearm", 0.8)):
+            slid[names.index(f"{side}_{part}"), 0] = length
+    start = BodyState(slid.reshape(-1), truth.motion)
+    joints = [names.index(f"{side}_{part}") for side in "lr" for part in ("shin", "forearm")]
+
+    def shape_fit(**options: object) -> np.ndarray:
+        tracker = BodyTracker(MODEL, cameras=CAMERAS, window=1, **options)  # type: ignore[arg-type]
+        tracker.resume(BodyObservations(masks=masks), start)  # the window's shape fit on this frame
+        return np.linalg.norm(MODEL.pose(tracker.result().states[0])[1][joints] - MODEL.pose(truth)[1][joints], axis=1)
+
+    assert np.linalg.norm(MODEL.pose(start)[1][joints] - MODEL.pose(truth)[1][joints], axis=1).min() > 0.07
+    assert shape_fit().max() < 0.01
+    assert shape_fit(tie_limb_lengths=False, sigma_shape_masks=None).min() > 0.02
 
 
 @pytest.mark.parametrize("seed", [6, 8])

@@ -249,7 +249,7 @@ def fit_body(
         Lower and upper bound of each shape coefficient (default 0.5 and 2 for all); a
         tied group keeps within the tightest of its members' bounds. A group whose bounds
         meet is held exactly at that value (left out of the solve, not clamped after each
-        step; :func:`elastocap.body.track.narrow_shape_family` holds the tapers so).
+        step; :func:`elastocap.body.shape_family.narrow_shape_family` holds the tapers so).
     sigma_shape : float, optional, keyword-only
         A Gaussian prior on each shape coefficient about 1 (the part as described) with
         this standard deviation; default none. Where a limb does not bend in the fitted

@@ -8,6 +8,9 @@ is fitted once, jointly over the first ``window`` frames, and then shared by the
 the fitted skin) is searched for again, from the global starts and from the last frame the
 track held. A subject the model cannot explain (an animal, an
 object) is refused on the first frame.
+
+The lost test's measures are in :mod:`elastocap.body.lost`, the shape families fitted in
+:mod:`elastocap.body.shape_family` (both re-exported here).
 """
 
 from __future__ import annotations
@@ -22,54 +25,20 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_samples
-from elastocap.body.model import SHAPE_NAMES, SKIN_LEVEL, BodyModel, BodyState
+from elastocap.body.lost import EXPLAINED_DISTANCE, LOST_RECENT, FrameQuality, lost_threshold, observation_distances
+from elastocap.body.model import BodyModel, BodyState
 from elastocap.body.search import search_pose
+from elastocap.body.shape_family import SHAPE_PRIOR_SIGMA, SHAPE_PRIOR_SIGMA_MASKS, limb_length_groups, narrow_shape_family
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "lost_threshold", "narrow_shape_family", "observation_distances", "track_body"]
 
-#: Observations within this distance of the fitted skin (metres) count as explained.
-EXPLAINED_DISTANCE = 0.02
 #: The first frame is refused when less than this share of its observations is explained
 #: after the search: the body figure is explained at 0.9 or more (synth seeds 1-7, even
 #: where the search ended with the legs swapped), the capsule figure in clutter (its
 #: contours, 5% outlying points) at 0.73-0.77 (seeds 0, 1), a four-legged animal at 0.50
 #: (0.46 before the arms' restarts kept the raise: they now fit two of its legs).
 REFUSE_EXPLAINED = 0.6
-#: Default ``sigma_shape`` of :class:`BodyTracker`: the shape prior's standard deviation
-#: (``fit_body(sigma_shape=)``) when the fitted frames carry stereo points. Chosen on the
-#: capsule figure's tuning seeds 0-2 (3 frames): alone, 0.05-0.2 changed nothing
-#: measurable and 0.005 was worse than 0.01 (seed 0); with the limb lengths tied, 0.01
-#: took the skin from 8.6-11.4 mm (tie alone) to 5.9-7.8 mm and the joints from 21-29 to
-#: 16-27 mm RMS (neither: 38-43 mm, 8.3-8.7 mm; ``benches/README.md``, branch body6).
-SHAPE_PRIOR_SIGMA = 0.01
-#: Default bounds of every shape coefficient (the core's ``SHAPE_RANGE``, ``fit_body``'s
-#: default ``shape_bounds``).
-SHAPE_RANGE = (0.5, 2.0)
-#: A tracked frame is lost when its explained share falls below the upper quartile of the
-#: recent frames' (what the track explained while it held: a slow drift pulls their median
-#: down with it, tuning seed 2's frames 17-21) by more than this many times their spread
-#: (``1.4826`` times the median absolute deviation, so a Gaussian's standard deviation) ...
-LOST_SPREADS = 3.0
-#: ... and by at least this much. Masks alone, the share of a well-tracked frame moves by
-#: up to ~0.02 from frame to frame (spread ~0.005-0.01) and the median ray distance stays
-#: at 2-4 mm even when a limb has drifted 10 cm (the capsule figure, tuning seed 2: frame
-#: 10 fell 0.849 -> 0.809 with the skin from 16 to 23 mm, frame 11 to 0.67 and 36 mm; the
-#: fixed drop of 0.1 used before waited for frame 11; ``benches/README.md``, branch body7).
-LOST_DROP = 0.03
-#: Frames whose quality sets the reference of the lost test, and how many it needs before
-#: it trusts their spread (fewer: the spread is :data:`LOST_PRIOR_SPREAD`).
-LOST_RECENT = 10
-LOST_MIN_RECENT = 4
-#: The spread assumed for the first tracked frames, whose few predecessors do not measure
-#: one: the largest spread of a held masks-only track (1.4826 MAD of the explained share,
-#: 0.004-0.010 on the capsule figure's tuning seeds 2 and 12, ``benches/README.md``,
-#: branch body7). Before, these frames were lost only 0.1 below their predecessors' median,
-#: which let a drift of 5 mm skin pass for three frames (branch body8).
-LOST_PRIOR_SPREAD = 0.01
-#: Observation distances are clipped at this (metres) in the search's score
-#: (:meth:`BodyTracker.score`): a limb far off its data costs as much as one just off it.
-SCORE_CLIP = 0.05
 #: A lost frame's search result replaces the tracked fit only when its score is lower by
 #: at least this share. The score does not resolve smaller differences: among the frame-0
 #: search's candidates on the capsule figure (tuning seeds 2 and 12, masks alone), of two
@@ -79,25 +48,9 @@ SCORE_CLIP = 0.05
 #: different measure than the one the search ranked by (seed 16, frame 18: the search's
 #: result, kept, was 33 mm from the true skin, the frames around it 20-23 mm; branch body8).
 REPLACE_MARGIN = 0.05
-
-
-@dataclass(frozen=True)
-class FrameQuality:
-    """How well a state explains one frame's observations.
-
-    Attributes
-    ----------
-    median_distance : float
-        Median approximate distance ``|F - T| / |grad F|`` of the points and silhouette rays
-        from the skin, metres (rays: at their field maximum).
-    explained : float
-        Share of them within :data:`EXPLAINED_DISTANCE`.
-    observations : int
-    """
-
-    median_distance: float
-    explained: float
-    observations: int
+#: Observation distances are clipped at this (metres) in the search's score
+#: (:meth:`BodyTracker.score`): a limb far off its data costs as much as one just off it.
+SCORE_CLIP = 0.05
 
 
 @dataclass(frozen=True)
@@ -124,107 +77,6 @@ class BodyTrack:
     quality: list[FrameQuality]
     searched: list[bool]
     observed: list[bool]
-
-
-def observation_distances(
-    model: BodyModel, state: BodyState, points: Any, origins: Any, directions: Any, side: Any = None
-) -> NDArray[np.float64]:
-    """Approximate distances (metres) of points and silhouette rays from the skin of
-    ``state``: ``|F - T| / |grad F|`` at each point, and at each ray's field maximum (a ray
-    that misses the model: infinity; a one-sided ray, ``side`` +1 / -1, that is satisfied:
-    0). Points first, then rays."""
-    out = []
-    if len(points):
-        f, g, _ = model.field(points, state)
-        out.append(_distance(f, g))
-    if len(origins):
-        found = model.ray_maxima(origins, directions, state)
-        f, g, _ = model.field(found["points"], state)
-        d = _distance(f, g)
-        d[~found["hit"]] = np.inf
-        if side is not None:
-            side = np.asarray(side)
-            value = np.where(found["hit"], found["values"], 0.0)
-            d[((side > 0) & (value >= SKIN_LEVEL)) | ((side < 0) & (value <= SKIN_LEVEL))] = 0.0
-        out.append(d)
-    return np.concatenate(out) if out else np.zeros(0)
-
-
-def _distance(f: NDArray[np.float64], g: NDArray[np.float64]) -> NDArray[np.float64]:
-    norm = np.linalg.norm(g, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.abs(f - SKIN_LEVEL) / norm
-    d[(f < 1e-8) | ~np.isfinite(d)] = np.inf
-    return np.asarray(d)
-
-
-def narrow_shape_family(model: BodyModel, groups: Any) -> tuple[NDArray[np.int64], tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """The shape family for thin data: each part's depth tied to its width and its taper
-    held at 1 (SPEC 6's length and width), on top of ``groups`` (``fit_body``'s
-    ``shape_groups``). Returns ``(shape_groups, shape_bounds)`` for :func:`fit_body`; the
-    held tapers leave the normal equations (bounds lower = upper), so they stay exactly 1."""
-    groups = np.asarray(groups, dtype=np.int64).reshape(-1, len(SHAPE_NAMES)).copy()
-    width, depth, taper = (SHAPE_NAMES.index(k) for k in ("width", "depth", "taper"))
-    # depth joins width's group (the same merge for a mirrored twin's depth)
-    merged = {int(d): int(w) for d, w in zip(groups[:, depth], groups[:, width])}
-    groups[:, depth] = [merged[int(d)] for d in groups[:, depth]]
-    _, renumbered = np.unique(groups.reshape(-1), return_inverse=True)
-    lower = np.full(model.n_shape, SHAPE_RANGE[0])
-    upper = np.full(model.n_shape, SHAPE_RANGE[1])
-    lower.reshape(-1, len(SHAPE_NAMES))[:, taper] = 1.0
-    upper.reshape(-1, len(SHAPE_NAMES))[:, taper] = 1.0
-    return renumbered.astype(np.int64), (lower, upper)
-
-
-def limb_length_groups(model: BodyModel, groups: Any) -> NDArray[np.int64]:
-    """``groups`` (``fit_body``'s ``shape_groups``) with the length coefficients of each
-    limb's segments tied: a left or right part (``l_`` / ``r_``, as
-    :meth:`BodyModel.mirrored_shape_groups`) that continues its parent's bone (a left or
-    right part too, the child's offset along the parent's z axis, no rest turn: the
-    forearm and hand under the upper arm, the shin under the thigh, not the foot) shares
-    its parent's length, so a limb keeps the described proportions of its segments and
-    only its overall length is fitted.
-
-    Why: along a limb that does not bend in the fitted frames (the capsule figure's wrist
-    never does; its knees are straight for most of a 5-frame window) the skin does not
-    say where one segment ends and the next begins, and free lengths slide the joint along
-    the bone to wherever the model's flesh best matches the subject's profile: the capsule
-    figure's wrists 4-7 cm towards the elbow under a 1.6 times wider hand, its knees 13 cm
-    down a 1.28 times longer thigh (``benches/README.md``, branch body6)."""
-    table = np.asarray(groups, dtype=np.int64).reshape(-1, len(SHAPE_NAMES)).copy()
-    description = model.to_dict()["parts"]
-    length = SHAPE_NAMES.index("length")
-    limb = [p["name"][:2] in ("l_", "r_") for p in description]
-    index = {p["name"]: i for i, p in enumerate(description)}
-    for i, part in enumerate(description):
-        parent = index.get(part["parent"]) if part["parent"] is not None else None
-        if parent is None or not (limb[i] and limb[parent]):
-            continue
-        along = part["offset"][0] == 0.0 and part["offset"][1] == 0.0 and part["offset"][2] > 0.0
-        if along and np.array_equal(np.asarray(part["rest"]), np.eye(3)):
-            # parents come first, so the parent's group already holds its own parent's
-            old = table[i, length]
-            table[table == old] = table[parent, length]
-    _, renumbered = np.unique(table.reshape(-1), return_inverse=True)
-    return renumbered.astype(np.int64)
-
-
-def lost_threshold(recent: Sequence[float]) -> float:
-    """The explained share under which a tracked frame counts as lost, given the shares of
-    the recent observed frames (oldest first): their upper quartile less
-    :data:`LOST_SPREADS` times their spread (``1.4826`` times the median absolute deviation
-    from their median), and at least :data:`LOST_DROP` less; with fewer than
-    :data:`LOST_MIN_RECENT` frames, whose spread says little, the spread is
-    :data:`LOST_PRIOR_SPREAD`; with none, 0.9."""
-    shares = np.asarray(recent, dtype=np.float64)[-LOST_RECENT:]
-    if len(shares) == 0:
-        return 0.9
-    median = float(np.median(shares))
-    if len(shares) < LOST_MIN_RECENT:
-        spread = LOST_PRIOR_SPREAD
-    else:
-        spread = 1.4826 * float(np.median(np.abs(shares - median)))
-    return float(np.percentile(shares, 75)) - max(LOST_SPREADS * spread, LOST_DROP)
 
 
 @dataclass(frozen=True)
@@ -294,8 +146,7 @@ class BodyTracker:
     lost_distance : float, default 0.015, keyword-only
         A tracked frame whose observations lie farther than this (median, metres) from the
         fitted skin, or of which clearly less are explained than in the recent frames
-        (:data:`LOST_SPREADS` times their spread, at least :data:`LOST_DROP`; for the
-        first tracked frames :data:`LOST_PRIOR_SPREAD` stands for the spread), is searched
+        (:func:`~elastocap.body.lost.lost_threshold`), is searched
         for again, from the global starts, the last frame the track held and the tracked
         fit itself; the search's result replaces the tracked fit when it scores clearly
         better (:data:`REPLACE_MARGIN`).
@@ -306,19 +157,26 @@ class BodyTracker:
     sigma_shape : float or None, default :data:`SHAPE_PRIOR_SIGMA`, keyword-only
         A Gaussian prior about 1 on each shape coefficient (``fit_body(sigma_shape=)``)
         in the fits of the full family (frames with stereo points); None: no prior.
-        Silhouettes alone fit the narrow family, without it. With thousands of points
-        the prior must be this tight to matter at all: the data pull the trunk's tapers
-        and widths to their bounds and the hands 1.6 times wider, into a fit both farther
-        from the skin and with the joints farther off than with the prior.
-    tie_limb_lengths : bool, optional, keyword-only
+        With thousands of points the prior must be this tight to matter at all: the data
+        pull the trunk's tapers and widths to their bounds and the hands 1.6 times wider,
+        into a fit both farther from the skin and with the joints farther off than with
+        the prior.
+    sigma_shape_masks : float or None, default :data:`SHAPE_PRIOR_SIGMA_MASKS`, keyword-only
+        The same prior in the fits of silhouettes alone (the narrow family); None: no
+        prior. Looser than with points: masks pin a shape less, and 0.02 already cost
+        seed 12's frame 0 2 mm of skin where 0.05 gained a little on both tuning seeds.
+    tie_limb_lengths : bool, default True, keyword-only
         Fit one length coefficient per limb (:func:`limb_length_groups`: upper arm,
-        forearm and hand; thigh and shin) instead of one per segment. Default (None): tied
-        when the fitted frames carry stereo points (the full family), free with
-        silhouettes alone (the narrow family). On the capsule figure with points, free
-        segment lengths put the wrists 4-7 cm and the knees up to 13 cm off along the
-        bone while the skin fitted within 8 mm (``benches/README.md``, branch body6).
-        Pass False for subjects whose segments do not keep one proportion (the synthetic
-        body figure, :mod:`elastocap.synth.body`, draws each segment's length apart).
+        forearm and hand; thigh and shin) instead of one per segment, with points or
+        silhouettes alone (None means the default). Along a limb that does not bend,
+        neither the skin nor an outline says where one segment ends and the next begins:
+        on the capsule figure with points, free segment lengths put the wrists 4-7 cm and
+        the knees up to 13 cm off along the bone while the skin fitted within 8 mm (branch
+        body6); with masks alone, the frame-0 shape fit slid the knees 13-21 cm down the
+        thighs (tuning seed 20: joints 51 mm RMS before the shape fit, 101 mm after it
+        with free lengths, 27 mm tied; ``benches/README.md``, branch body11). Pass False
+        for subjects whose segments do not keep one proportion (the synthetic body figure,
+        :mod:`elastocap.synth.body`, draws each segment's length apart).
     symmetric : bool, default False, keyword-only
         Fit one shape for each left part and its right twin
         (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
@@ -352,7 +210,8 @@ class BodyTracker:
         refuse_distance: float = 0.03,
         symmetric: bool = False,
         sigma_shape: float | None = SHAPE_PRIOR_SIGMA,
-        tie_limb_lengths: bool | None = None,
+        sigma_shape_masks: float | None = SHAPE_PRIOR_SIGMA_MASKS,
+        tie_limb_lengths: bool | None = True,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -367,7 +226,8 @@ class BodyTracker:
         self.refuse_distance = as_positive("refuse_distance", refuse_distance)
         self.symmetric = bool(symmetric)
         self.sigma_shape = None if sigma_shape is None else as_positive("sigma_shape", sigma_shape)
-        self.tie_limb_lengths = None if tie_limb_lengths is None else bool(tie_limb_lengths)
+        self.sigma_shape_masks = None if sigma_shape_masks is None else as_positive("sigma_shape_masks", sigma_shape_masks)
+        self.tie_limb_lengths = True if tie_limb_lengths is None else bool(tie_limb_lengths)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -418,12 +278,12 @@ class BodyTracker:
 
     def _fit(self, frames: list[_Frame], init: list[BodyState], *, shape: Any, iterations: int, rays: int | None = None) -> BodyFit:
         groups, bounds = None, None
+        thin = all(len(f.points) == 0 for f in frames)
         if shape is None:
             groups = self.model.mirrored_shape_groups() if self.symmetric else np.arange(self.model.n_shape)
-            thin = all(len(f.points) == 0 for f in frames)
             if thin:
                 groups, bounds = narrow_shape_family(self.model, groups)
-            if self.tie_limb_lengths or (self.tie_limb_lengths is None and not thin):
+            if self.tie_limb_lengths:
                 groups = limb_length_groups(self.model, groups)
             if bounds is None and np.array_equal(groups, np.arange(self.model.n_shape)):
                 groups = None
@@ -438,7 +298,7 @@ class BodyTracker:
             sigma_joint=self._sigmas["sigma_joint"],
             shape_groups=groups,
             shape_bounds=bounds,
-            sigma_shape=self.sigma_shape if shape is None and not all(len(f.points) == 0 for f in frames) else None,
+            sigma_shape=None if shape is not None else self.sigma_shape_masks if thin else self.sigma_shape,
         )
 
     def search(
@@ -494,7 +354,7 @@ class BodyTracker:
         """Farther than ``lost_distance`` (median), or explaining clearly less than the
         frames before did: a subject the model fits only roughly explains less every
         frame, and a lost track falls from there. "Clearly" is measured against the recent
-        frames' own spread (:data:`LOST_SPREADS`, :data:`LOST_DROP`), not a fixed share:
+        frames' own spread (:func:`~elastocap.body.lost.lost_threshold`), not a fixed share:
         with silhouettes alone a limb that drifts off its data costs only a few percent of
         the rays, and the median distance does not move at all."""
         if quality.median_distance > self.lost_distance:
