@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
     parser.add_argument("--options", type=json.loads, default={}, help="fit_sequence options of the fit with tracks")
     parser.add_argument("--with-only", action="store_true", help="only the fit with tracks (no ratio)")
+    parser.add_argument("--without-only", action="store_true",
+                        help="only the fit without tracks (with --reuse-without: computed ahead of the runs with tracks)")
     parser.add_argument("--root", type=Path, default=None,
                         help="capture folder (default /tmp/elastocap_texfast_<seed>_<frames>_<width>)")
     parser.add_argument("--prepare-only", action="store_true", help="write the capture, hulls and tracks, fit nothing")
@@ -95,7 +97,7 @@ def main() -> None:
           f"capture + hulls + tracks {prepared:.0f} s")
     drifts: dict[bool, float] = {}
     curves: dict[bool, tuple] = {}
-    for with_tracks in (True,) if args.with_only else (False, True):
+    for with_tracks in (True,) if args.with_only else (False,) if args.without_only else (False, True):
         clock, cpu = time.perf_counter(), time.process_time()
         options = dict(args.options) if with_tracks else {}
         cache = out / f"without_{args.nodes}.npz"
@@ -124,9 +126,9 @@ def main() -> None:
         }))
         print("  drift %", " ".join(f"{v:.1f}" for v in drift))
         print("  lost % ", " ".join(f"{v:.1f}" for v in lost))
-    if not args.with_only:
+    if not (args.with_only or args.without_only):
         print(json.dumps({"seed": args.seed, "drift_ratio_with_over_without": round(drifts[True] / drifts[False], 3)}))
-    if args.diagnose and not args.with_only:
+    if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
 
 
