@@ -62,6 +62,13 @@ STAGED_STOP_FRACTION = 0.002
 # trackfit2): mean drift 7.01% of the diagonal at 0, 6.87% at 3, 7.05% at 5 (weight 1);
 # at weight 4: 7.28% at 0, 6.66% at 5. No frame lost at 5, weight 1.
 TRACK_RELAY = 5
+# The tracks' corrections carried along the surface (elastic/track_spread.py): the most a
+# node is pulled, in tracks, and the frames over which a track's trust falls by e. Textured
+# fast capture, tuning seed 1 (benches/README.md, trackfit3; drift without tracks 9.71%):
+# with tracks 7.20% without the spread, 6.29% at 1 / 5 frames (one frame lost), 6.38% at
+# 2 / 5 (one lost), 6.27% at 4 / 10, 6.03% at 1 / 15, 6.36% at 1 / 30; none lost at x / 10+.
+TRACK_SPREAD = 1.0
+TRACK_SPREAD_AGE = 15.0
 
 
 @dataclass(frozen=True)
@@ -207,8 +214,8 @@ def fit_sequence(
     track_scale: float = 10.0,
     track_relay: int = TRACK_RELAY,
     track_relay_radius: float | None = None,
-    track_spread: float = 0.0,
-    track_spread_age: float = 5.0,
+    track_spread: float = TRACK_SPREAD,
+    track_spread_age: float = TRACK_SPREAD_AGE,
     track_spread_radius: float | None = None,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
@@ -345,9 +352,11 @@ def fit_sequence(
         The tracks' corrections (tracked position minus where the frame's start puts the
         material point) carried along the surface to the nodes around them, each pulled
         along the surface to its start moved by them, at most this share of one track's
-        weight (:mod:`elastocap.elastic.track_spread`; 0 turns it off, the default).
+        weight (:mod:`elastocap.elastic.track_spread`; 0 turns it off; default 1).
+        Textured fast capture, tuning seed 1: mean drift 7.20% -> 6.03% of the diagonal.
     track_spread_age : float
-        Frames from its anchor over which a track's trust in the spread falls by e.
+        Frames from its anchor over which a track's trust in the spread falls by e
+        (default 15).
     track_spread_radius : float, optional
         A track's reach in the spread, geodesic on the surface at the start, world units
         (default 4 mean node spacings).
