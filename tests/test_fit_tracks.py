@@ -130,7 +130,7 @@ def test_a_tracks_correction_is_spread_along_its_own_surface_and_only_along_it()
     sigma = 0.005
     arrays = (neighbours, phi, placed + u, np.eye(3)[None] / sigma**2)
     nodes, weights, targets, precisions = spread_pulls(arrays, np.zeros(1), start, surface, faces,
-                                                       share=0.5, age=5.0, radius=0.05, sigma=sigma)
+                                                       share=0.5, age=5.0, radius=0.05, sigma=sigma, scale=1e6)
     np.testing.assert_array_equal(nodes[:1], neighbours)
     pulled = nodes[1:, 0]
     assert len(pulled) > 20
@@ -162,7 +162,7 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
     precision = np.eye(3)[None] / sigma**2
     arrays = (neighbours, phi, point + u, np.repeat(precision, 2, axis=0))
     nodes, _, targets, precisions = spread_pulls(arrays, np.array([0.0, 10.0]), start, surface, faces,
-                                                 share=1.0, age=5.0, radius=0.03, sigma=sigma)
+                                                 share=1.0, age=5.0, radius=0.03, sigma=sigma, scale=1e6)
     at = np.flatnonzero(nodes[2:, 0] == 0) + 2
     assert len(at) == 2
     trust = np.einsum("tii->t", precisions[at]) * sigma**2 / 2
@@ -171,7 +171,7 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
     np.testing.assert_allclose(young + old, 1.0, rtol=1e-9)
     wide = (neighbours[:1], phi[:1], point[:1] + u[:1], np.linalg.inv(9 * sigma**2 * np.eye(3) + sigma**2 * np.eye(3))[None])
     nodes, _, _, precisions = spread_pulls(wide, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
-                                           sigma=sigma)
+                                           sigma=sigma, scale=1e6)
     trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
     np.testing.assert_allclose(trust, 0.1, rtol=1e-9)
 
