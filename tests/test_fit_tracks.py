@@ -152,7 +152,7 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
     """Two tracks on the same node with opposite corrections, one 0 and one 10 frames from
     its anchor (age 5): the node's pulls are weighted by exp(-age / 5), and together
     ``share`` (their trust adds to over 1); a covariance 3 sigma wide weighs a track
-    by sigma^2 tr(P) / 3 = 1/10."""
+    by sigma^2 tr(P) / 3 = 1/10; a track gone astray by its Cauchy weight."""
     start, faces, first = _two_spheres()
     surface = np.arange(len(start))
     point = np.repeat(start[:1], 2, axis=0)
@@ -174,6 +174,13 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
                                            sigma=sigma, scale=1e6)
     trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
     np.testing.assert_allclose(trust, 0.1, rtol=1e-9)
+    # A track 1 m off (Mahalanobis 200 at sigma 5 mm) under the track term's Cauchy scale 10
+    # is weighed by 1 / (1 + 200^2 / 10^2): it hardly spreads.
+    astray = (neighbours[:1], phi[:1], point[:1] + [1.0, 0, 0], precision)
+    nodes, _, _, precisions = spread_pulls(astray, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
+                                           sigma=sigma, scale=10.0)
+    trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
+    np.testing.assert_allclose(trust, 1 / (1 + 200.0**2 / 10**2), rtol=1e-9)
 
 
 @pytest.fixture(scope="module")
