@@ -130,7 +130,7 @@ def test_a_tracks_correction_is_spread_along_its_own_surface_and_only_along_it()
     sigma = 0.005
     arrays = (neighbours, phi, placed + u, np.eye(3)[None] / sigma**2)
     nodes, weights, targets, precisions = spread_pulls(arrays, np.zeros(1), start, surface, faces,
-                                                       share=0.5, age=5.0, radius=0.05, sigma=sigma, scale=1e6)
+                                                       share=0.5, age=5.0, radius=0.05, sigma=sigma)
     np.testing.assert_array_equal(nodes[:1], neighbours)
     pulled = nodes[1:, 0]
     assert len(pulled) > 20
@@ -152,17 +152,18 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
     """Two tracks on the same node with opposite corrections, one 0 and one 10 frames from
     its anchor (age 5): the node's pulls are weighted by exp(-age / 5), and together
     ``share`` (their trust adds to over 1); a covariance 3 sigma wide weighs a track
-    by sigma^2 tr(P) / 3 = 1/10; a track gone astray by its Cauchy weight."""
+    by sigma^2 tr(P) / 3 = 1/10 (each damped by its correction against the reach); a track
+    gone astray hardly spreads."""
     start, faces, first = _two_spheres()
     surface = np.arange(len(start))
     point = np.repeat(start[:1], 2, axis=0)
     neighbours, phi = material_weights(point, start, 20)
-    u = np.array([[0.0, 0.01, 0.0], [0.0, -0.01, 0.0]])
+    u = np.array([[0.0, 0.001, 0.0], [0.0, -0.001, 0.0]])  # small against the reach: hardly damped
     sigma = 0.005
     precision = np.eye(3)[None] / sigma**2
     arrays = (neighbours, phi, point + u, np.repeat(precision, 2, axis=0))
     nodes, _, targets, precisions = spread_pulls(arrays, np.array([0.0, 10.0]), start, surface, faces,
-                                                 share=1.0, age=5.0, radius=0.03, sigma=sigma, scale=1e6)
+                                                 share=1.0, age=5.0, radius=0.03, sigma=sigma)
     at = np.flatnonzero(nodes[2:, 0] == 0) + 2
     assert len(at) == 2
     trust = np.einsum("tii->t", precisions[at]) * sigma**2 / 2
@@ -171,16 +172,16 @@ def test_an_old_track_is_trusted_less_in_the_spread() -> None:
     np.testing.assert_allclose(young + old, 1.0, rtol=1e-9)
     wide = (neighbours[:1], phi[:1], point[:1] + u[:1], np.linalg.inv(9 * sigma**2 * np.eye(3) + sigma**2 * np.eye(3))[None])
     nodes, _, _, precisions = spread_pulls(wide, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
-                                           sigma=sigma, scale=1e6)
+                                           sigma=sigma)
     trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
-    np.testing.assert_allclose(trust, 0.1, rtol=1e-9)
-    # A track 1 m off (Mahalanobis 200 at sigma 5 mm) under the track term's Cauchy scale 10
-    # is weighed by 1 / (1 + 200^2 / 10^2): it hardly spreads.
+    np.testing.assert_allclose(trust, 0.1 / (1 + (0.001 / 0.015) ** 2), rtol=1e-9)
+    # A track 1 m off, with a reach of 3 cm, is weighed by 1 / (1 + 1^2 / 0.015^2): it
+    # hardly spreads.
     astray = (neighbours[:1], phi[:1], point[:1] + [1.0, 0, 0], precision)
     nodes, _, _, precisions = spread_pulls(astray, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
-                                           sigma=sigma, scale=10.0)
+                                           sigma=sigma)
     trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
-    np.testing.assert_allclose(trust, 1 / (1 + 200.0**2 / 10**2), rtol=1e-9)
+    np.testing.assert_allclose(trust, 1 / (1 + 1 / 0.015**2), rtol=1e-9)
 
 
 @pytest.fixture(scope="module")

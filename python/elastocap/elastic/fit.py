@@ -464,7 +464,7 @@ def fit_sequence(
         if pulling is not None and track_spread > 0:
             pulling = spread_pulls(pulling, attachments.frame_ages(frame), start, model.surface_nodes,
                                    model.surface_faces, share=float(track_spread), age=float(track_spread_age),
-                                   radius=spread_radius, sigma=sigma, scale=track_scale)
+                                   radius=spread_radius, sigma=sigma)
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
                        stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,

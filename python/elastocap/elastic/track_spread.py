@@ -19,11 +19,13 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   ``a`` frames from its anchor is trusted ``exp(-a / age)``.
 - **Its covariance**: ``sigma^2 tr(P) / 3`` with the track term's precision ``P = (Sigma +
   sigma^2 I)^-1`` (1 for a track known to better than ``sigma``).
-- **Not a track gone astray**: a track's spread is weighed by the track term's own Cauchy
-  weight of its correction at the start, ``1 / (1 + m / c^2)`` (``m`` its Mahalanobis
-  distance under ``P``): the pairs' metrics are a share of a track's, so their own Cauchy
-  loss would hardly damp a track 1 m off (a sphere's test: such a track moved the surface
-  5 cm through the spread, under 2 cm through the track term alone).
+- **Not a track gone astray**: a track's spread is weighed by ``1 / (1 + |d|^2 / (R /
+  2)^2)`` of its correction ``d`` against the reach ``R``: the pairs' metrics are a share of
+  a track's, so their own Cauchy loss hardly damps a track 1 m off (a sphere's test: such a
+  track moved the surface 5 cm through the spread, under 2 cm through the track term
+  alone). The track term's own Cauchy weight of ``d`` (scale 10 sigma_0, a quarter of the
+  reach) damped the fast limbs' good tracks too: drift 6.03 -> 6.04% and 0 -> 2 frames
+  lost on the tuning seed (benches/README.md, trackfit3).
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
@@ -74,7 +76,7 @@ def surface_geodesics(positions: NDArray[np.float64], surface_nodes: NDArray[np.
 
 def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[np.float64],
                  surface_nodes: NDArray[np.int64], surface_faces: NDArray[np.int64], *, share: float, age: float,
-                 radius: float, sigma: float, scale: float) -> TrackArrays:
+                 radius: float, sigma: float) -> TrackArrays:
     """The track term's arrays of a frame (:meth:`TrackAttachments.frame_arrays`) with the
     tracks' corrections spread over the surface (module docs) appended as one-node rows.
 
@@ -96,10 +98,8 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         Geodesic reach of a track, world units (> 0).
     sigma : float
         The track term's sigma_0, world units.
-    scale : float
-        The track term's Cauchy scale c, in standard deviations.
     """
-    for name, value in (("share", share), ("age", age), ("radius", radius), ("sigma", sigma), ("scale", scale)):
+    for name, value in (("share", share), ("age", age), ("radius", radius), ("sigma", sigma)):
         if not (np.isfinite(value) and value > 0):
             raise InvalidInputError(f"track spread: {name} must be a finite positive number, got {value}")
     nodes, phi, targets, precisions = arrays
@@ -110,7 +110,7 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
     placed = np.einsum("tk,tkd->td", phi, start[nodes])
     correction = targets - placed
     trust = np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
-    trust /= 1 + np.einsum("ti,tij,tj->t", correction, precisions, correction) / scale**2
+    trust /= 1 + np.einsum("ti,ti->t", correction, correction) / (0.5 * radius) ** 2
     # A track's source on the surface graph: the surface node among its own MLS nodes
     # nearest its material point (the globally nearest one may be on a limb touching it).
     local = np.full(len(start), -1, np.int64)
