@@ -19,13 +19,14 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   ``a`` frames from its anchor is trusted ``exp(-a / age)``.
 - **Its covariance**: ``sigma^2 tr(P) / 3`` with the track term's precision ``P = (Sigma +
   sigma^2 I)^-1`` (1 for a track known to better than ``sigma``).
-- **Not a track gone astray**: a track's spread is weighed by ``1 / (1 + |d|^2 / (R /
-  2)^2)`` of its correction ``d`` against the reach ``R``: the pairs' metrics are a share of
-  a track's, so their own Cauchy loss hardly damps a track 1 m off (a sphere's test: such a
-  track moved the surface 5 cm through the spread, under 2 cm through the track term
-  alone). The track term's own Cauchy weight of ``d`` (scale 10 sigma_0, a quarter of the
-  reach) damped the fast limbs' good tracks too: drift 6.03 -> 6.04% and 0 -> 2 frames
-  lost on the tuning seed (benches/README.md, trackfit3).
+- **Not a track gone astray**: a track's spread is weighed by Tukey's biweight ``(1 -
+  |d|^2 / (G R)^2)^2`` of its correction ``d`` against ``G`` reaches ``R`` (none past
+  them): the pairs' metrics are a share of a track's, so their own Cauchy loss hardly
+  damps a track 1 m off (a sphere's test: such a track moved the surface 5 cm through the
+  spread, under 2 cm through the track term alone). Damping moderate corrections, as the
+  track term's own Cauchy weight of ``d`` does (half at 10 sigma_0, a quarter of the
+  reach), also damped the fast limbs' good tracks: frames lost on the tuning seed 0 -> 2
+  (benches/README.md, trackfit3).
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
@@ -47,6 +48,10 @@ from scipy.spatial import cKDTree
 from elastocap._core import InvalidInputError
 
 __all__ = ["spread_pulls", "surface_geodesics"]
+
+# A track whose correction is this many reaches or more does not spread (Tukey's biweight of
+# the correction's length).
+GUARD = 2.0
 
 TrackArrays = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 
@@ -110,7 +115,7 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
     placed = np.einsum("tk,tkd->td", phi, start[nodes])
     correction = targets - placed
     trust = np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
-    trust /= 1 + np.einsum("ti,ti->t", correction, correction) / (0.5 * radius) ** 2
+    trust *= np.clip(1 - np.einsum("ti,ti->t", correction, correction) / (GUARD * radius) ** 2, 0, None) ** 2
     # A track's source on the surface graph: the surface node among its own MLS nodes
     # nearest its material point (the globally nearest one may be on a limb touching it).
     local = np.full(len(start), -1, np.int64)
