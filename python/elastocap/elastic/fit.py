@@ -64,9 +64,11 @@ STAGED_STOP_FRACTION = 0.002
 TRACK_RELAY = 5
 # The tracks' corrections carried along the surface (elastic/track_spread.py): the most a
 # node is pulled, in tracks, and the frames over which a track's trust falls by e. Textured
-# fast capture, tuning seed 1 (benches/README.md, trackfit3; drift without tracks 9.71%):
-# with tracks 7.20% without the spread, 6.29% at 1 / 5 frames (one frame lost), 6.38% at
-# 2 / 5 (one lost), 6.27% at 4 / 10, 6.03% at 1 / 15, 6.36% at 1 / 30; none lost at x / 10+.
+# fast capture, tuning seed 1 (benches/README.md, trackfit3; drift without tracks 9.71%,
+# with tracks and no spread 7.20%): before the guard against tracks gone astray, 6.29% at
+# 1 / 5 frames (one frame lost), 6.38% at 2 / 5 (one lost), 6.27% at 4 / 10, 6.03% at
+# 1 / 15, 6.36% at 1 / 30; with the final guard 6.33% at 1 / 15, none lost (held out:
+# seeds 2 and 3 5.58 -> 4.66%, 4.91 -> 4.49%).
 TRACK_SPREAD = 1.0
 TRACK_SPREAD_AGE = 15.0
 
