@@ -12,8 +12,13 @@ truth) against the same fit without tracks, and the lost-limb measure of every f
   surface distances, % of the diagonal; a limb is lost at 5%.
 
 Run: ``python benches/eval_tracks_fit.py SEED [--frames 60] [--nodes 2500]
-[--resolution 128] [--size 640 480] [--options '{"track_weight": 1.0}']``. The capture,
-hulls and tracks are kept in ``/tmp/elastocap_texfast_<seed>_<frames>_<width>`` and reused.
+[--resolution 128] [--size 640 480] [--options '{"track_weight": 1.0}']
+[--track-options '{"spacing": 7}' --tracks-out DIR] [--reuse-without]``. The capture,
+hulls and tracks are kept in ``/tmp/elastocap_texfast_<seed>_<frames>_<width>`` and reused
+(tracks of other ``track_points`` options go to their own ``--tracks-out``, else they would
+be read back as the default's). ``--reuse-without`` keeps the fit without tracks in
+``OUT/without_<nodes>.npz`` and reads it back on the next run (it does not depend on the
+tracks or the fit's track options).
 Prints one JSON line per fit (``"tracks": false`` and ``true``) and their drift ratio.
 """
 
@@ -44,9 +49,17 @@ def main() -> None:
     parser.add_argument("--size", type=int, nargs=2, default=(640, 480))
     parser.add_argument("--options", type=json.loads, default={}, help="fit_sequence options of the fit with tracks")
     parser.add_argument("--with-only", action="store_true", help="only the fit with tracks (no ratio)")
+    parser.add_argument("--without-only", action="store_true",
+                        help="only the fit without tracks (with --reuse-without: computed ahead of the runs with tracks)")
     parser.add_argument("--root", type=Path, default=None,
                         help="capture folder (default /tmp/elastocap_texfast_<seed>_<frames>_<width>)")
     parser.add_argument("--prepare-only", action="store_true", help="write the capture, hulls and tracks, fit nothing")
+    parser.add_argument("--track-options", type=json.loads, default={},
+                        help="track_points options (e.g. the seeding density '{\"spacing\": 7}')")
+    parser.add_argument("--tracks-out", type=Path, default=None,
+                        help="where the tracks go (OUT/tracks; default ROOT/out)")
+    parser.add_argument("--reuse-without", action="store_true",
+                        help="read the fit without tracks back from OUT/without_<nodes>.npz when there, else write it")
     parser.add_argument("--diagnose", action="store_true",
                         help="per frame: drift without / with, tracks pulling, their mean age, drifted points near a track")
     args = parser.parse_args()
@@ -61,10 +74,11 @@ def main() -> None:
     run_hull_stage(root, out, resolution=args.resolution, progress=False)
     stages["hulls"], cpu = time.process_time() - cpu, time.process_time()
     capture = Capture.open(root)
-    if not (out / "tracks" / f"{args.frames - 1:06d}.npz").exists():
-        track_points(capture, out=out)
+    tracks_out = args.tracks_out or out
+    if not (tracks_out / "tracks" / f"{args.frames - 1:06d}.npz").exists():
+        track_points(capture, out=tracks_out, **args.track_options)
     stages["tracks"] = time.process_time() - cpu
-    tracks = load_tracks(out)
+    tracks = load_tracks(tracks_out)
     prepared = time.perf_counter() - clock
     # CPU seconds of this process only (a stage found done on disk costs ~0).
     print(json.dumps({"seed": args.seed, "prepare_cpu_seconds": {k: round(v, 1) for k, v in stages.items()},
@@ -83,18 +97,27 @@ def main() -> None:
           f"capture + hulls + tracks {prepared:.0f} s")
     drifts: dict[bool, float] = {}
     curves: dict[bool, tuple] = {}
-    for with_tracks in (True,) if args.with_only else (False, True):
+    for with_tracks in (True,) if args.with_only else (False,) if args.without_only else (False, True):
         clock, cpu = time.perf_counter(), time.process_time()
         options = dict(args.options) if with_tracks else {}
-        fit = fit_sequence(model, hulls, tracks=tracks if with_tracks else None, **options)
-        seconds, cpu = (time.perf_counter() - clock) / args.frames, (time.process_time() - cpu) / args.frames
-        vertices = [fit.surface(f).vertices for f in frames]
+        cache = out / f"without_{args.nodes}.npz"
+        if not with_tracks and args.reuse_without and cache.exists():
+            saved = np.load(cache)
+            positions, seconds, cpu = saved["positions"], float(saved["seconds"]), float(saved["cpu"])
+        else:
+            fit = fit_sequence(model, hulls, tracks=tracks if with_tracks else None, **options)
+            seconds, cpu = (time.perf_counter() - clock) / args.frames, (time.process_time() - cpu) / args.frames
+            positions = np.stack([fit.fits[f].positions for f in frames])
+            if not with_tracks and args.reuse_without:
+                np.savez(cache, positions=positions, seconds=seconds, cpu=cpu)
+        vertices = [model.surface_at(positions[f]).vertices for f in frames]
         ties = cKDTree(vertices[0]).query(truth.positions[0])[1]
         drift = [100 * float(np.linalg.norm(vertices[f][ties] - truth.positions[f], axis=1).mean()) / diagonal for f in frames]
-        lost = [100 * surface_error(fit.surface(f), meshes[f]).lost_limb_fraction for f in frames]
+        lost = [100 * surface_error(model.surface_at(positions[f]), meshes[f]).lost_limb_fraction for f in frames]
         drifts[with_tracks] = float(np.mean(drift))
-        curves[with_tracks] = (drift, lost, [fit.fits[f].metrics.get("tracks", 0) for f in frames],
-                               [fit.fits[f].metrics.get("tracks_attached", 0) for f in frames], vertices, ties)
+        metrics = [fit.fits[f].metrics for f in frames] if with_tracks else [{} for f in frames]
+        curves[with_tracks] = (drift, lost, [m.get("tracks", 0) for m in metrics],
+                               [m.get("tracks_attached", 0) for m in metrics], vertices, ties)
         print(json.dumps({
             "seed": args.seed, "tracks": with_tracks, "options": options,
             "drift_pct_mean": round(float(np.mean(drift)), 3), "drift_pct_max": round(max(drift), 3),
@@ -103,9 +126,9 @@ def main() -> None:
         }))
         print("  drift %", " ".join(f"{v:.1f}" for v in drift))
         print("  lost % ", " ".join(f"{v:.1f}" for v in lost))
-    if not args.with_only:
+    if not (args.with_only or args.without_only):
         print(json.dumps({"seed": args.seed, "drift_ratio_with_over_without": round(drifts[True] / drifts[False], 3)}))
-    if args.diagnose and not args.with_only:
+    if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
 
 

@@ -17,6 +17,7 @@ import pytest
 
 from elastocap import ElasticModel, InvalidInputError, Tracks, fit_sequence
 from elastocap.elastic.measures import LOST_LIMB_FRACTION, surface_error
+from elastocap.elastic.track_spread import GUARD, spread_pulls
 from elastocap.elastic.tracks import TrackAttachments, material_weights
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.synth import CapsuleFigure
@@ -102,6 +103,83 @@ def test_a_new_track_is_attached_through_the_older_tracks_not_the_drifted_fit(re
         np.testing.assert_allclose(material, new, atol=1e-9)
     else:
         np.testing.assert_allclose(material, new - d, atol=1e-9)
+
+
+def _two_spheres() -> tuple:
+    """Two spheres of radius 0.1 whose surfaces pass 5 mm from each other: (positions,
+    faces, vertices of the first)."""
+    import trimesh
+
+    a = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    b = trimesh.creation.icosphere(subdivisions=3, radius=0.1).apply_translation((0.205, 0, 0))
+    return np.concatenate([a.vertices, b.vertices]), np.concatenate([a.faces, b.faces + len(a.vertices)]), len(a.vertices)
+
+
+def test_a_tracks_correction_is_spread_along_its_own_surface_and_only_along_it() -> None:
+    """A track on the first of two spheres 5 mm apart, tracked 1 cm along its surface from
+    where the start puts it: the nodes of its own sphere within the geodesic reach are
+    pulled to their start moved by that correction, along their surface only (the metric
+    has no normal part) and at most ``share`` of a track; none of the other sphere's nodes
+    is pulled, though the nearest lie 5 mm away (a Euclidean radius would take them)."""
+    start, faces, first = _two_spheres()
+    surface = np.arange(len(start))
+    point = np.array([[0.1, 0.0, 0.0]])  # on the first sphere, facing the second
+    neighbours, phi = material_weights(point, start, 20)
+    placed = np.einsum("tk,tkd->td", phi, start[neighbours])
+    u = np.array([0.0, 0.01, 0.0])
+    sigma = 0.005
+    arrays = (neighbours, phi, placed + u, np.eye(3)[None] / sigma**2)
+    nodes, weights, targets, precisions = spread_pulls(arrays, np.zeros(1), start, surface, faces,
+                                                       share=0.5, age=5.0, radius=0.05, sigma=sigma)
+    np.testing.assert_array_equal(nodes[:1], neighbours)
+    pulled = nodes[1:, 0]
+    assert len(pulled) > 20
+    assert pulled.max() < first  # none on the second sphere
+    assert np.linalg.norm(start[first:] - point, axis=1).min() < 0.01
+    np.testing.assert_allclose(targets[1:], start[pulled] + u, atol=1e-12)
+    assert np.all(weights[1:, 0] == 1) and np.all(weights[1:, 1:] == 0)
+    normal = start[pulled] / np.linalg.norm(start[pulled], axis=1, keepdims=True)
+    # (the mesh's vertex normals: within a degree of the sphere's)
+    np.testing.assert_allclose(np.einsum("tij,tj->ti", precisions[1:], normal), 0, atol=0.01 / sigma**2)
+    share = sigma**2 * np.einsum("tii->t", precisions[1:]) / 2  # trace of I - n n^T is 2
+    assert share.max() <= 0.5 + 1e-9 and share.max() > 0.4  # the node under the track: kernel ~1
+    # Reach: geodesic distance from the track's node, under 0.05 along the sphere.
+    angle = np.arccos(np.clip(normal @ np.array([1.0, 0, 0]), -1, 1))
+    assert (0.1 * angle).max() < 0.05 + 0.02
+
+
+def test_an_old_track_is_trusted_less_in_the_spread() -> None:
+    """Two tracks on the same node with opposite corrections, one 0 and one 10 frames from
+    its anchor (age 5): the node's pulls are weighted by exp(-age / 5), and together
+    ``share`` (their trust adds to over 1); a covariance 3 sigma wide weighs a track
+    by sigma^2 tr(P) / 3 = 1/10 (each damped by its correction against the reach); a track
+    gone astray (its correction past ``GUARD`` reaches) not at all."""
+    start, faces, first = _two_spheres()
+    surface = np.arange(len(start))
+    point = np.repeat(start[:1], 2, axis=0)
+    neighbours, phi = material_weights(point, start, 20)
+    u = np.array([[0.0, 0.001, 0.0], [0.0, -0.001, 0.0]])  # small against the reach: hardly damped
+    sigma = 0.005
+    precision = np.eye(3)[None] / sigma**2
+    arrays = (neighbours, phi, point + u, np.repeat(precision, 2, axis=0))
+    nodes, _, targets, precisions = spread_pulls(arrays, np.array([0.0, 10.0]), start, surface, faces,
+                                                 share=1.0, age=5.0, radius=0.03, sigma=sigma)
+    at = np.flatnonzero(nodes[2:, 0] == 0) + 2
+    assert len(at) == 2
+    trust = np.einsum("tii->t", precisions[at]) * sigma**2 / 2
+    young, old = trust[np.argmax(targets[at, 1])], trust[np.argmin(targets[at, 1])]
+    np.testing.assert_allclose(old / young, np.exp(-2.0), rtol=1e-9)
+    np.testing.assert_allclose(young + old, 1.0, rtol=1e-9)
+    wide = (neighbours[:1], phi[:1], point[:1] + u[:1], np.linalg.inv(9 * sigma**2 * np.eye(3) + sigma**2 * np.eye(3))[None])
+    nodes, _, _, precisions = spread_pulls(wide, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
+                                           sigma=sigma)
+    trust = np.einsum("tii->t", precisions[1:][nodes[1:, 0] == 0]) * sigma**2 / 2
+    np.testing.assert_allclose(trust, 0.1 * (1 - (0.001 / (GUARD * 0.03)) ** 2) ** 2, rtol=1e-9)
+    # A track 1 m off, with a reach of 3 cm, does not spread at all.
+    astray = (neighbours[:1], phi[:1], point[:1] + [1.0, 0, 0], precision)
+    nodes, _, _, precisions = spread_pulls(astray, np.zeros(1), start, surface, faces, share=1.0, age=5.0, radius=0.03,
+                                           sigma=sigma)
+    assert len(nodes) == 1
 
 
 @pytest.fixture(scope="module")
@@ -198,3 +276,6 @@ def test_bad_tracks_are_clear_errors(small: tuple) -> None:
             fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay=relay)
     with pytest.raises(InvalidInputError, match="track_relay_radius"):
         fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay_radius=0.0)
+    for name, value in (("track_spread", -0.5), ("track_spread_age", 0.0), ("track_spread_radius", float("nan"))):
+        with pytest.raises(InvalidInputError, match=name):
+            fit_sequence(model, targets, tracks=_tracks(good.copy()), **{name: value})

@@ -212,6 +212,14 @@ class TrackAttachments:
         offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
         return offsets
 
+    def frame_ages(self, frame: int) -> NDArray[np.float64]:
+        """Frames between each track of :meth:`frame_arrays` (same order) and its anchor."""
+        row = self._row(frame)
+        if row is None:
+            return np.zeros(0)
+        use = self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row)
+        return np.abs(self.tracks.frames[row] - self.tracks.frames[self.anchor[use]]).astype(np.float64)
+
     def frame_arrays(
         self, frame: int, sigma: float
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
