@@ -13,7 +13,7 @@ object) is refused on the first frame.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -24,6 +24,7 @@ from elastocap._validate import as_count, as_positive
 from elastocap.body.fit import BodyFit, BodyObservations, fit_body, silhouette_samples
 from elastocap.body.model import SHAPE_NAMES, SKIN_LEVEL, BodyModel, BodyState
 from elastocap.body.search import search_pose
+from elastocap.body.starts import body_volume
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "lost_threshold", "narrow_shape_family", "observation_distances", "track_body"]
@@ -238,6 +239,9 @@ class _Frame:
     side: NDArray[np.int8]
     joints: Mapping[str, Any]
     anchored: Any = None
+    #: The masks, kept only while the frame is fitted (the search's volume is carved
+    #: from them); dropped when the frame is stored.
+    masks: tuple[Any, ...] | None = None
 
     @property
     def empty(self) -> bool:
@@ -406,7 +410,7 @@ class BodyTracker:
                 directions.append(d)
                 sides.append(s)
         return _Frame(points, sigma, np.concatenate(origins), np.concatenate(directions), np.concatenate(sides), dict(obs.joints),
-                      obs.anchored)
+                      obs.anchored, None if obs.masks is None else tuple(obs.masks))
 
     def quality(self, state: BodyState, frame: _Frame) -> FrameQuality:
         d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
@@ -453,8 +457,10 @@ class BodyTracker:
         def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> BodyState:
             return self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays).states[0]
 
+        volume = body_volume(centre, points=frame.points, masks=frame.masks, cameras=self.cameras)
         state = search_pose(
-            self.model, centre, shape, fit, lambda state: self.score(state, frame), fit_shape=fit_shape, headings=self.headings, starts=starts
+            self.model, centre, shape, fit, lambda state: self.score(state, frame), fit_shape=fit_shape, headings=self.headings, starts=starts,
+            volume=volume,
         )
         return state, self.quality(state, frame)
 
@@ -561,7 +567,7 @@ class BodyTracker:
         # held: the frame passed the lost test (its own fit, or the search's); by default
         # every observed frame (the first, a resumed one)
         self._held.append(observed if held is None else held)
-        self._frames.append(frame)
+        self._frames.append(replace(frame, masks=None))
         self._states.append(state)
         self._quality.append(quality)
         self._searched.append(searched)
