@@ -52,8 +52,9 @@ MIN_REACH = 0.25
 MAX_FAR_POINTS = 6
 #: A far point within this height (metres) of the volume's lowest voxel is a foot.
 FOOT_HEIGHT = 0.4
-#: Stereo points per voxel for the voxel to count (isolated outliers do not).
-POINTS_PER_VOXEL = 2
+#: A voxel holding stereo points counts when more than this many of its 26 neighbours hold
+#: points too (the skin is a sheet; outliers in the air are alone).
+MIN_NEIGHBOURS = 3
 
 _ARM = ("upperarm", "forearm", "hand")
 _LEG = ("thigh", "shin", "foot")
@@ -87,8 +88,8 @@ def body_volume(
 ) -> BodyVolume | None:
     """The body's volume about ``centre`` (metres, the body's z-up frame): the visual hull
     of ``masks`` seen by ``cameras`` when given (a camera whose mask is None carves
-    nothing), else the voxels holding at least :data:`POINTS_PER_VOXEL` of ``points`` (N,
-    3), closed and filled (points lie on the skin only). Only the connected piece nearest
+    nothing), else the voxels holding ``points`` (N, 3) among neighbours that do
+    (:data:`MIN_NEIGHBOURS`), closed and filled (points lie on the skin only). Only the connected piece nearest
     ``centre`` is kept. None when nothing is left.
 
     Raises
@@ -108,11 +109,17 @@ def body_volume(
     elif points is not None and len(points) > 0:
         cells = np.floor((np.asarray(points, dtype=np.float64).reshape(-1, 3) - (origin - spacing / 2)) / spacing).astype(np.int64)
         inside = ((cells >= 0) & (cells < shape)).all(axis=1)
-        counts = np.zeros(shape, dtype=np.int64)
-        np.add.at(counts, tuple(cells[inside].T), 1)
-        occupancy = counts >= POINTS_PER_VOXEL
-        # the skin's voxels closed over the gaps between points, then the inside filled
-        occupancy = ndimage.binary_fill_holes(ndimage.binary_closing(occupancy, iterations=2))
+        hit = np.zeros(shape, dtype=bool)
+        hit[tuple(cells[inside].T)] = True
+        # a voxel of the skin has hit neighbours; an outlier in the air has none
+        neighbours = ndimage.convolve(hit.astype(np.int16), np.ones((3, 3, 3), dtype=np.int16), mode="constant")
+        skin = hit & (neighbours > MIN_NEIGHBOURS)
+        # The skin's voxels grown until the sheet has no gaps (3000 points on a person are
+        # ~2.5 cm apart), the inside filled, then shrunk back. Closing before filling left
+        # the trunk hollow: a gap its erosion reopens lets the filling leak out.
+        cube = np.ones((3, 3, 3))
+        grown = ndimage.binary_fill_holes(ndimage.binary_dilation(skin, structure=cube, iterations=2))
+        occupancy = ndimage.binary_erosion(grown, structure=cube, iterations=2, border_value=1)
     else:
         return None
     labels, count = ndimage.label(occupancy, structure=np.ones((3, 3, 3)))
@@ -272,7 +279,8 @@ def data_starts(model: BodyModel, shape: Any, volume: BodyVolume | None) -> list
     The trunk (the deepest part of the volume) gives the root's place and the heading up to
     a half turn (its cross-section's long axis runs from shoulder to shoulder); the far
     points the hands and feet: the first two near the floor are feet (:data:`FOOT_HEIGHT`),
-    the highest one left above the trunk near its axis is the head, the others are hands.
+    the highest one left above the trunk near its axis is the head, those whose paths
+    reach the trunk from above its centroid are hands.
     For both headings, the hands and the feet each assigned left and right by their side of
     the trunk and swapped: 8 starts, the limbs' angles solved from the joints on their
     paths, the trunk upright. Empty when the volume says nothing (no volume, no trunk, a
@@ -300,7 +308,10 @@ def data_starts(model: BodyModel, shape: Any, volume: BodyVolume | None) -> list
     rest = [p for p in paths if not any(p is f for f in feet)]
     heads = [p for p in rest if p[0, 2] > reading.centroid[2] + MIN_REACH and np.linalg.norm(p[0, :2] - reading.centroid[:2]) < 0.2]
     head = max(heads, key=lambda p: p[0, 2]) if heads else None
-    hands = [p for p in rest if p is not head][:2]
+    # A hand's path reaches the trunk from above its centroid (at the shoulder); a far
+    # point left on a leg (a bent knee, a heel) reaches it from below, at the hips. A hand
+    # hanging against the hip is no far point at all: its arm stays at rest.
+    hands = [p for p in rest if p is not head and p[-1, 2] > reading.centroid[2]][:2]
     starts = []
     for heading in (reading.axis_angle - model_axis, reading.axis_angle - model_axis + np.pi):
         turn = np.array([[np.cos(heading), -np.sin(heading), 0.0], [np.sin(heading), np.cos(heading), 0.0], [0.0, 0.0, 1.0]])
