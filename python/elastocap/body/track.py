@@ -567,7 +567,8 @@ class BodyTracker:
         # held: the frame passed the lost test (its own fit, or the search's); by default
         # every observed frame (the first, a resumed one)
         self._held.append(observed if held is None else held)
-        self._frames.append(replace(frame, masks=None))
+        # the masks are not kept past the frame's fit (8 x 800x800 a frame over a take)
+        self._frames.append(frame if getattr(frame, "masks", None) is None else replace(frame, masks=None))
         self._states.append(state)
         self._quality.append(quality)
         self._searched.append(searched)
