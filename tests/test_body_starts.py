@@ -108,3 +108,30 @@ def test_the_search_finds_from_the_data_a_heading_its_fixed_starts_miss() -> Non
     found = search_pose(MODEL, centre, shape, fit, score, fit_shape=False, headings=8, volume=volume)
     assert score(found)[0] == 0.002
     assert _rms(found, truth) < 0.06
+
+
+def test_the_tracker_searches_with_the_volume_of_the_frames_masks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The tracker's search is given the visual hull of the frame's masks (which holds the
+    body's joints), and the stored frame keeps no masks."""
+    from body_scenes import z_up_cameras
+
+    from elastocap.body import track
+    from elastocap.body.starts import BodyVolume
+
+    truth = _walking()
+    cameras = z_up_cameras(6, width=240, height=180)
+    masks = [MODEL.silhouette(truth, c) for c in cameras]
+    given: dict[str, object] = {}
+
+    def search(model, centre, shape, fit, score, **options):
+        given.update(options)
+        return truth
+
+    monkeypatch.setattr(track, "search_pose", search)
+    tracker = track.BodyTracker(MODEL, cameras=cameras)
+    tracker.update({"masks": masks})
+    volume = given["volume"]
+    assert isinstance(volume, BodyVolume)
+    cells = np.round((_joints(truth) - volume.origin) / volume.spacing).astype(int)
+    assert volume.occupancy[tuple(cells.T)].all()
+    assert tracker._frames[0].masks is None
