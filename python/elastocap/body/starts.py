@@ -246,18 +246,16 @@ def _solve_limb(model: BodyModel, state: BodyState, side: str, chain: tuple[str,
         _, origins = model.pose(state.replace(motion=motion))
         return np.concatenate([(origins[parts] - targets).ravel(), 0.02 * (angles - start)])
 
-    best = None
     # from the rest angles and from the middle joint half bent (a two-bone chain has two
     # solutions for a reachable end; the limits keep one, the start decides between near
     # ties)
+    found = []
     for bend in (0.0, 0.5):
         x0 = start.copy()
         x0[3] = np.clip((1 - bend) * x0[3] + bend * (lower[3] if abs(lower[3]) > abs(upper[3]) else upper[3]), lower[3], upper[3])
-        found = optimize.least_squares(residual, x0, bounds=(lower, upper + 1e-12), max_nfev=60, x_scale=1.0)
-        if best is None or found.cost < best.cost:
-            best = found
+        found.append(optimize.least_squares(residual, x0, bounds=(lower, upper + 1e-12), max_nfev=60, x_scale=1.0))
     motion = state.motion.copy()
-    motion[columns] = best.x
+    motion[columns] = min(found, key=lambda f: float(f.cost)).x
     return state.replace(motion=motion)
 
 
