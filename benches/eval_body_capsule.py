@@ -121,6 +121,7 @@ def main() -> None:
     parser.add_argument("--sigma-shape", default="default", help="BodyTracker(sigma_shape=...): a number, 'none', or 'default' (the tracker's)")
     parser.add_argument("--sigma-shape-masks", default="default", help="BodyTracker(sigma_shape_masks=...): a number, 'none', or 'default'")
     parser.add_argument("--free-lengths", action="store_true", help="BodyTracker(tie_limb_lengths=False): each segment's length free")
+    parser.add_argument("--data-starts", action="store_true", help="BodyTracker(data_starts=True): the search also starts from the body's volume")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     scene = ClutterScene(args.seed, cameras=args.cameras, size=(width, height))
@@ -130,11 +131,13 @@ def main() -> None:
         options["sigma_shape"] = None if args.sigma_shape == "none" else float(args.sigma_shape)
     if args.sigma_shape_masks != "default":
         options["sigma_shape_masks"] = None if args.sigma_shape_masks == "none" else float(args.sigma_shape_masks)
+    if args.data_starts:
+        options["data_starts"] = True
     if args.free_lengths:
         options["tie_limb_lengths"] = False
     for mode in modes:
         frames = args.frames or (10 if mode == "stereo" else 30)
-        print(json.dumps(run(mode, scene, frames, args.start, args.stride, options) | {"sigma_shape": args.sigma_shape, "sigma_shape_masks": args.sigma_shape_masks, "free_lengths": args.free_lengths}), flush=True)
+        print(json.dumps(run(mode, scene, frames, args.start, args.stride, options) | {"sigma_shape": args.sigma_shape, "sigma_shape_masks": args.sigma_shape_masks, "free_lengths": args.free_lengths, "data_starts": args.data_starts}), flush=True)
 
 
 if __name__ == "__main__":

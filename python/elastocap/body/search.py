@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap.body.model import BodyModel, BodyState
+from elastocap.body.starts import BodyVolume, data_starts
 
 __all__ = ["ARM_STARTS", "LEG_STARTS", "search_pose"]
 
@@ -70,6 +71,7 @@ def search_pose(
     fit_shape: bool,
     headings: int,
     starts: Sequence[BodyState] = (),
+    volume: BodyVolume | None = None,
 ) -> BodyState:
     """The state that best explains one frame, from a global search.
 
@@ -96,6 +98,13 @@ def search_pose(
     stage 2 beside the carried ones (not turned): a pose the coarse grid does not reach (an
     arm raised high, the legs far apart) is found from a frame where it was already
     right.
+
+    ``volume`` (:func:`~elastocap.body.starts.body_volume`: the visual hull, or the points'
+    voxels) adds the starts read from the data (:func:`~elastocap.body.starts.data_starts`:
+    the heading from the trunk, the limbs from the volume's far points, assigned both
+    ways), fitted in stage 2 like ``starts``: poses the fixed starts do not reach (a
+    heading between two of the grid's, an arm twisted and raised) are started where the
+    data put them, and the best score still decides.
     4. With ``fit_shape``, the shape is fitted last, from the pose found.
 
     Every pose stage holds ``shape``: a shape fitted while the pose is still wrong explains
@@ -139,7 +148,7 @@ def search_pose(
         for init in (found, start(found.motion[3] + np.pi, found.motion)):
             state = fit(init, shape, 30, 1200)
             middle.append((score(state), state))
-    for init in starts:
+    for init in [*starts, *data_starts(model, shape, volume)]:
         state = fit(init.replace(shape=shape), shape, 30, 1200)
         middle.append((score(state), state))
     middle.sort(key=lambda m: m[0][0])

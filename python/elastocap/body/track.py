@@ -16,7 +16,7 @@ The lost test's measures are in :mod:`elastocap.body.lost`, the shape families f
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,7 @@ from elastocap.body.lost import EXPLAINED_DISTANCE, LOST_RECENT, FrameQuality, l
 from elastocap.body.model import BodyModel, BodyState
 from elastocap.body.search import search_pose
 from elastocap.body.shape_family import SHAPE_PRIOR_SIGMA, SHAPE_PRIOR_SIGMA_MASKS, limb_length_groups, narrow_shape_family
+from elastocap.body.starts import body_volume
 from elastocap.cameras.camera import Camera
 
 __all__ = ["BodyTrack", "BodyTracker", "FrameQuality", "limb_length_groups", "lost_threshold", "narrow_shape_family", "observation_distances", "track_body"]
@@ -90,6 +91,9 @@ class _Frame:
     side: NDArray[np.int8]
     joints: Mapping[str, Any]
     anchored: Any = None
+    #: The masks, kept only while the frame is fitted (the search's volume is carved
+    #: from them); dropped when the frame is stored.
+    masks: tuple[Any, ...] | None = None
 
     @property
     def empty(self) -> bool:
@@ -177,6 +181,16 @@ class BodyTracker:
         with free lengths, 27 mm tied; ``benches/README.md``, branch body11). Pass False
         for subjects whose segments do not keep one proportion (the synthetic body figure,
         :mod:`elastocap.synth.body`, draws each segment's length apart).
+    data_starts : bool, default False, keyword-only
+        Start the global search also from the body's volume (the frame's visual hull, or
+        its points' voxels; :func:`~elastocap.body.starts.data_starts`: the heading from
+        the trunk, the limbs from the volume's far points). Off by default: it found the
+        wrong starts of three tuning seeds of the capsule figure (frame-0 joints 92-155 ->
+        39-70 mm with masks alone) and the demo's arms (14.6 -> 0.6 degrees RMS), but on
+        held-out seeds it made frame 0 worse more often than better (seed 5 with points
+        18.7 -> 80.0 mm, seed 10 masks alone 13.6 -> 36.0 mm, seed 16 skin 26 -> 39 mm;
+        seed 8 200 -> 179 mm): the score ranks a wrong pose the data starts reach above the
+        right one (``benches/README.md``, branch body10 and session 15's lead).
     symmetric : bool, default False, keyword-only
         Fit one shape for each left part and its right twin
         (:meth:`BodyModel.mirrored_shape_groups`): a shape free on each side lets one
@@ -212,6 +226,7 @@ class BodyTracker:
         sigma_shape: float | None = SHAPE_PRIOR_SIGMA,
         sigma_shape_masks: float | None = SHAPE_PRIOR_SIGMA_MASKS,
         tie_limb_lengths: bool | None = True,
+        data_starts: bool = False,
     ) -> None:
         if not isinstance(model, BodyModel):
             raise InvalidInputError(f"model must be a BodyModel, got {type(model).__name__}")
@@ -228,6 +243,7 @@ class BodyTracker:
         self.sigma_shape = None if sigma_shape is None else as_positive("sigma_shape", sigma_shape)
         self.sigma_shape_masks = None if sigma_shape_masks is None else as_positive("sigma_shape_masks", sigma_shape_masks)
         self.tie_limb_lengths = True if tie_limb_lengths is None else bool(tie_limb_lengths)
+        self.data_starts = bool(data_starts)
         self._sigmas = {
             "sigma_point": as_positive("sigma_point", sigma_point),
             "sigma_ray": as_positive("sigma_ray", sigma_ray),
@@ -266,7 +282,7 @@ class BodyTracker:
                 directions.append(d)
                 sides.append(s)
         return _Frame(points, sigma, np.concatenate(origins), np.concatenate(directions), np.concatenate(sides), dict(obs.joints),
-                      obs.anchored)
+                      obs.anchored, None if obs.masks is None else tuple(obs.masks))
 
     def quality(self, state: BodyState, frame: _Frame) -> FrameQuality:
         d = observation_distances(self.model, state, frame.points, frame.origins, frame.directions, frame.side)
@@ -313,8 +329,10 @@ class BodyTracker:
         def fit(init: BodyState, fixed: Any, iterations: int, rays: int | None) -> BodyState:
             return self._fit([frame], [init], shape=fixed, iterations=iterations, rays=rays).states[0]
 
+        volume = body_volume(centre, points=frame.points, masks=frame.masks, cameras=self.cameras) if self.data_starts else None
         state = search_pose(
-            self.model, centre, shape, fit, lambda state: self.score(state, frame), fit_shape=fit_shape, headings=self.headings, starts=starts
+            self.model, centre, shape, fit, lambda state: self.score(state, frame), fit_shape=fit_shape, headings=self.headings, starts=starts,
+            volume=volume,
         )
         return state, self.quality(state, frame)
 
@@ -421,7 +439,8 @@ class BodyTracker:
         # held: the frame passed the lost test (its own fit, or the search's); by default
         # every observed frame (the first, a resumed one)
         self._held.append(observed if held is None else held)
-        self._frames.append(frame)
+        # the masks are not kept past the frame's fit (8 x 800x800 a frame over a take)
+        self._frames.append(frame if getattr(frame, "masks", None) is None else replace(frame, masks=None))
         self._states.append(state)
         self._quality.append(quality)
         self._searched.append(searched)
