@@ -133,6 +133,16 @@ HIDDEN_SET_ASIDE = False
 DRIFT = True
 DRIFT_SCALE = (0.06, 1.0)
 DRIFT_VARIANCE = (0.07, 0.22)
+# The reported positions fused with the prediction of their RIGID_NEIGHBOURS nearest
+# tracked points' rigid motion since the point was seeded, isotropic with RIGID_SIGMA
+# pixels at the point (:mod:`elastocap.tracking.rigidity`; with DRIFT: the intersection's
+# weight is the drift covariance). Output only: the tracker's state and the views are the
+# intersection's. Seed 0 against the true surface point (benches/README.md, branch
+# track11): kept 3-D positions beyond 5 px-eq 3.21 -> 2.11% (offline on the same tracks:
+# sigma 1: 3.12%, 2: 2.11%, 3: 2.20%; 12 neighbours 2.36%, 20: 3.26%), through unchanged.
+RIGID = True
+RIGID_NEIGHBOURS = 8
+RIGID_SIGMA = 2.0
 # Positions whose standard deviation along the weakest direction of that covariance
 # exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
 # tracker follows them on, but a run resumed from its files restarts their trajectory
