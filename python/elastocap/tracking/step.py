@@ -99,12 +99,14 @@ class FrameTracker:
         n = len(last["ids"])
         self.uv = last["uv"].astype(float)
         self.uv_last = np.full_like(self.uv, np.nan)
-        self.x_last = last["positions"].astype(float)
+        # The state is the intersections (the reported positions are fused and may be
+        # withheld); files written before they were recorded hold only the positions.
+        self.x_last = _intersections(last)
         self.x_before = np.full((n, 3), np.nan)
         if before is not None:
             m = len(before["ids"])
             self.uv_last[:m] = before["uv"]
-            self.x_before[:m] = before["positions"]
+            self.x_before[:m] = _intersections(before)
         self.point_flags = last["flags"].astype(np.uint8)
         self.seeded_at = np.full(n, -1, np.int64)
         for frame in chosen[:done]:
@@ -112,10 +114,10 @@ class FrameTracker:
             new = np.flatnonzero((written["flags"] == TrackFlag.TRACKED) & (self.seeded_at[: len(written["flags"])] < 0))
             if new.size:
                 self.seeded_at[new] = frame
-                self.history[frame] = written["positions"].astype(float)
+                self.history[frame] = _intersections(written)
         if self.lost is not None:
             first = max(0, done - 1 - settings.REVIVE_FRAMES - 1)
-            history = {chosen[j]: read_frame(frame_file(out, chosen[j]))["positions"] for j in range(first, done)}
+            history = {chosen[j]: _intersections(read_frame(frame_file(out, chosen[j]))) for j in range(first, done)}
             self.lost.restore(last, history)
         self.grey, masks = self._read(chosen[done - 1])
         self.weights = self._weights(masks)
@@ -128,6 +130,10 @@ class FrameTracker:
                     grey, source_masks = self._read(int(source))
                     weights = self._weights(source_masks)
                 self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
+            if "anchor_cuts" in last:
+                # The cuts again drive the drift covariance, which weighs the fusion.
+                self.anchors.grow(len(where_frames))
+                self.anchors.cuts[: len(where_frames)] = last["anchor_cuts"]
         self._forget()
         return done
     def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
@@ -265,13 +271,16 @@ class FrameTracker:
         self.seeded_at = np.concatenate([self.seeded_at, np.full(total - len(self.seeded_at), -1, np.int64)])
         new = (self.seeded_at < 0) & np.isfinite(x).all(axis=1)
         self.seeded_at[new] = frame
-        x_out, xcov, flags_out = self._reported(uv, x, xcov, flags)
         if new.any():
-            self.history[frame] = x_out.copy()
+            # The intersections, not the fused positions: what the neighbours' motion is
+            # measured from then does not depend on the fusion or on withheld positions.
+            self.history[frame] = x.copy()
+        x_out, xcov, flags_out = self._reported(uv, x, xcov, flags)
         self._forget()
         return {
             "ids": np.arange(total, dtype=np.int64),
             "positions": x_out,
+            "intersections": x,
             "covariances": xcov,
             "flags": flags_out,
             "uv": uv,
@@ -280,6 +289,7 @@ class FrameTracker:
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
                 "anchor_uv": self.anchors.uv[:total],
+                "anchor_cuts": self.anchors.cuts[:total],
             }),
         }
 
@@ -320,6 +330,11 @@ class FrameTracker:
         """Surface normals at ``points`` for the start shape of wide-baseline matches."""
         towards = facing_normals(self.cameras, points, seen)
         return surface_normals(points, cloud, towards) if settings.FITTED_NORMALS else towards
+
+
+def _intersections(record: dict[str, NDArray[np.generic]]) -> NDArray[np.float64]:
+    """A frame file's intersected positions (its positions, in files without them)."""
+    return np.asarray(record["intersections"] if "intersections" in record else record["positions"], dtype=np.float64)
 
 
 def point_flags(flags2d: NDArray[np.uint8], previous: NDArray[np.float64], traj: NDArray[np.uint8],
