@@ -112,6 +112,9 @@ def test_files_resume_and_load(scene, tracked, tmp_path):
     loaded = load_tracks(out)
     np.testing.assert_array_equal(loaded.flags, resumed.flags)
     np.testing.assert_allclose(loaded.positions, whole.positions, equal_nan=True)
+    # The anchors' cuts again are restored too: the drift covariance (and the fusion it
+    # weighs) continue as in one run.
+    np.testing.assert_allclose(loaded.covariances, whole.covariances, equal_nan=True)
     np.testing.assert_array_equal(loaded.flags, whole.flags)
     assert len(first.frames) == 4
 

@@ -31,6 +31,7 @@ from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
+from elastocap.tracking.rigidity import rigid_fusion
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import frame_file, read_frame
 from elastocap.tracking.views import facing_normals, intersect_views, surface_normals
@@ -65,6 +66,10 @@ class FrameTracker:
         self.lost = Lost(settings.REVIVE_FRAMES) if options["revive"] else None
         # Per point and camera: consecutive frames its held view was predicted hidden.
         self.hidden = np.zeros((0, c), np.int64)
+        # Per point: the frame it was first tracked on (-1: not yet), and the positions
+        # reported on such frames, for the neighbours' rigid motion since (settings.RIGID).
+        self.seeded_at = np.zeros(0, np.int64)
+        self.history: dict[int, NDArray[np.float64]] = {}
         self.texture: list[float] = []
         self.keep_texture = 0.0
 
@@ -94,16 +99,25 @@ class FrameTracker:
         n = len(last["ids"])
         self.uv = last["uv"].astype(float)
         self.uv_last = np.full_like(self.uv, np.nan)
-        self.x_last = last["positions"].astype(float)
+        # The state is the intersections (the reported positions are fused and may be
+        # withheld); files written before they were recorded hold only the positions.
+        self.x_last = _intersections(last)
         self.x_before = np.full((n, 3), np.nan)
         if before is not None:
             m = len(before["ids"])
             self.uv_last[:m] = before["uv"]
-            self.x_before[:m] = before["positions"]
+            self.x_before[:m] = _intersections(before)
         self.point_flags = last["flags"].astype(np.uint8)
+        self.seeded_at = np.full(n, -1, np.int64)
+        for frame in chosen[:done]:
+            written = read_frame(frame_file(out, frame))
+            new = np.flatnonzero((written["flags"] == TrackFlag.TRACKED) & (self.seeded_at[: len(written["flags"])] < 0))
+            if new.size:
+                self.seeded_at[new] = frame
+                self.history[frame] = _intersections(written)
         if self.lost is not None:
             first = max(0, done - 1 - settings.REVIVE_FRAMES - 1)
-            history = {chosen[j]: read_frame(frame_file(out, chosen[j]))["positions"] for j in range(first, done)}
+            history = {chosen[j]: _intersections(read_frame(frame_file(out, chosen[j]))) for j in range(first, done)}
             self.lost.restore(last, history)
         self.grey, masks = self._read(chosen[done - 1])
         self.weights = self._weights(masks)
@@ -116,6 +130,11 @@ class FrameTracker:
                     grey, source_masks = self._read(int(source))
                     weights = self._weights(source_masks)
                 self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
+            if "anchor_cuts" in last:
+                # The cuts again drive the drift covariance, which weighs the fusion.
+                self.anchors.grow(len(where_frames))
+                self.anchors.cuts[: len(where_frames)] = last["anchor_cuts"]
+        self._forget()
         return done
     def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
         grey, masks = self._read(frame)
@@ -249,10 +268,19 @@ class FrameTracker:
             self.lost.remember(frame, x)
         self.grey = grey
         self.weights = weights
+        self.seeded_at = np.concatenate([self.seeded_at, np.full(total - len(self.seeded_at), -1, np.int64)])
+        new = (self.seeded_at < 0) & np.isfinite(x).all(axis=1)
+        self.seeded_at[new] = frame
+        if new.any():
+            # The intersections, not the fused positions: what the neighbours' motion is
+            # measured from then does not depend on the fusion or on withheld positions.
+            self.history[frame] = x.copy()
         x_out, xcov, flags_out = self._reported(uv, x, xcov, flags)
+        self._forget()
         return {
             "ids": np.arange(total, dtype=np.int64),
             "positions": x_out,
+            "intersections": x,
             "covariances": xcov,
             "flags": flags_out,
             "uv": uv,
@@ -261,6 +289,7 @@ class FrameTracker:
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),
                 "anchor_uv": self.anchors.uv[:total],
+                "anchor_cuts": self.anchors.cuts[:total],
             }),
         }
 
@@ -275,6 +304,9 @@ class FrameTracker:
         recuts = self.anchors.recuts(views) if self.anchors is not None else np.zeros(len(x), np.int64)
         pixel = pixel_size(self.cameras, x, views)
         xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
+        if settings.RIGID:
+            x, xcov = rigid_fusion(x, xcov, pixel, self.seeded_at, self.history, neighbours=settings.RIGID_NEIGHBOURS,
+                                   sigma=settings.RIGID_SIGMA)
         if not np.isfinite(settings.UNCERTAIN_SD):
             return x, xcov, flags
         with np.errstate(invalid="ignore"):
@@ -283,11 +315,26 @@ class FrameTracker:
         x[unsure], xcov[unsure], flags[unsure] = np.nan, np.nan, TrackFlag.UNCERTAIN
         return x, xcov, flags
 
+    def _forget(self) -> None:
+        """Drops the reported positions of seeding frames no live point was seeded on."""
+        live = np.isfinite(self.uv).all(axis=2).any(axis=1)
+        if self.lost is not None:
+            since = self.lost.since[: len(live)]
+            live[: len(since)] |= since >= 0
+        keep = set(np.unique(self.seeded_at[: len(live)][live]).tolist())
+        for key in [k for k in self.history if k not in keep]:
+            del self.history[key]
+
     def normals(self, points: NDArray[np.float64], cloud: NDArray[np.float64],
                  seen: NDArray[np.bool_]) -> NDArray[np.float64]:
         """Surface normals at ``points`` for the start shape of wide-baseline matches."""
         towards = facing_normals(self.cameras, points, seen)
         return surface_normals(points, cloud, towards) if settings.FITTED_NORMALS else towards
+
+
+def _intersections(record: dict[str, NDArray[np.generic]]) -> NDArray[np.float64]:
+    """A frame file's intersected positions (its positions, in files without them)."""
+    return np.asarray(record["intersections"] if "intersections" in record else record["positions"], dtype=np.float64)
 
 
 def point_flags(flags2d: NDArray[np.uint8], previous: NDArray[np.float64], traj: NDArray[np.uint8],

@@ -29,11 +29,13 @@ class Tracks:
     ids : (N,) int64
         Track identifiers (stable across frames and runs).
     positions : (F, N, 3) float64
-        World positions (world units); NaN where the point is not tracked.
+        World positions (world units); NaN where the point is not tracked. The forward
+        intersection of the views, fused with the rigid motion of the neighbouring points
+        since the point was seeded (:mod:`elastocap.tracking.rigidity`).
     covariances : (F, N, 3, 3) float64
         Covariance of ``positions`` (world units squared): the forward intersection's,
-        with the drift of the views' anchors (:mod:`elastocap.tracking.drift`); NaN where
-        not tracked.
+        with the drift of the views' anchors (:mod:`elastocap.tracking.drift`), after the
+        fusion; NaN where not tracked.
     flags : (F, N) uint8
         :class:`TrackFlag` codes: 0 where tracked, else why not.
     views : (F, N, C, 2) float64, optional

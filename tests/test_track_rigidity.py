@@ -1,0 +1,90 @@
+"""Reported positions pinned by their neighbours' rigid motion (:mod:`elastocap.tracking.rigidity`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings as hsettings, strategies as st
+from scipy.spatial.transform import Rotation
+
+from elastocap.tracking.rigidity import rigid_fusion, rigid_motions
+
+PIXEL = 0.003  # world units per pixel at the points (3 m, f = 1000 px)
+
+
+def _limb(rng: np.random.Generator, m: int) -> np.ndarray:
+    """``m`` points on the front half of a cylinder of radius 5 cm, 30 cm long."""
+    angle = rng.uniform(-1.2, 1.2, m)
+    return np.column_stack([0.05 * np.sin(angle), rng.uniform(0.0, 0.3, m), 0.05 * np.cos(angle)])
+
+
+@given(st.integers(0, 2**32 - 1))
+@hsettings(max_examples=25, deadline=None)
+def test_rigid_motions_recover_a_rotation_exactly(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(4, 6, 3))
+    rot = Rotation.random(4, random_state=seed)
+    t = rng.normal(size=(4, 3))
+    b = np.einsum("nij,nkj->nki", rot.as_matrix(), a) + t[:, None]
+    r, tr = rigid_motions(a, b)
+    np.testing.assert_allclose(r, rot.as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(tr, t, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0)
+
+
+def test_a_point_drifted_along_its_rays_is_pulled_back_by_its_neighbours():
+    rng = np.random.default_rng(3)
+    m = 80
+    before = _limb(rng, m)
+    rot = Rotation.from_euler("xyz", [20, -35, 10], degrees=True).as_matrix()
+    now = before @ rot.T + np.array([0.1, -0.05, 0.2])
+    # The views of a narrow stereo pair: sd 0.3 px across the rays, 3 px-eq along them (z).
+    ray = np.array([0.0, 0.0, 1.0])
+    cov = np.tile((0.3 * PIXEL) ** 2 * np.eye(3) + ((3.0 * PIXEL) ** 2 - (0.3 * PIXEL) ** 2) * np.outer(ray, ray), (m, 1, 1))
+    x = now + rng.normal(0, 0.1 * PIXEL, now.shape)
+    bad = [5, 40]
+    x[bad] += 6.0 * PIXEL * ray  # drifted 6 px-eq in depth
+    seeded = np.zeros(m, np.int64)
+    seeded[-3:] = 7  # seeded on this frame: no history yet
+    x[-3:] = now[-3:]
+    pixel = np.full(m, PIXEL)
+    fused, fcov = rigid_fusion(x, cov, pixel, seeded, {0: before}, neighbours=8, sigma=2.0)
+    error = np.linalg.norm(fused - now, axis=1) / PIXEL
+    # From 6 px-eq to what the Gaussians leave: 6 sigma^2 / (sigma^2 + 3^2) = 1.85 px-eq.
+    np.testing.assert_allclose(error[bad], 6.0 * 4 / 13, atol=0.3)
+    others = np.setdiff1d(np.arange(m), bad)
+    assert np.median(error[others]) < 0.3
+    # Across the rays the views decide: the fused point moves (almost) only along z.
+    shift = fused[bad] - x[bad]
+    assert (np.abs(shift[:, :2]) < 0.1 * np.abs(shift[:, 2:])).all()
+    # The covariance shrinks along the rays and stays symmetric positive definite.
+    assert (np.einsum("i,nij,j->n", ray, fcov, ray) < 0.5 * np.einsum("i,nij,j->n", ray, cov, ray))[:-3].all()
+    np.testing.assert_allclose(fcov, fcov.transpose(0, 2, 1), atol=1e-18)
+    assert (np.linalg.eigvalsh(fcov) > 0).all()
+    # Points without a history frame are reported as intersected.
+    np.testing.assert_array_equal(fused[-3:], x[-3:])
+    np.testing.assert_array_equal(fcov[-3:], cov[-3:])
+    # Neither a point nor its neighbours untracked then or now breaks it: NaN stays NaN.
+    x[10] = np.nan
+    history = before.copy()
+    history[20] = np.nan
+    fused2, _ = rigid_fusion(x, cov, pixel, seeded, {0: history}, neighbours=8, sigma=2.0)
+    assert np.isnan(fused2[10]).all() and np.isfinite(np.delete(fused2, 10, axis=0)).all()
+    np.testing.assert_array_equal(fused2[20], x[20])  # no position on its seeding frame: as it is
+    assert np.linalg.norm(fused2[bad] - now[bad], axis=1).max() / PIXEL < 2.2
+
+
+def test_the_prediction_weighs_less_where_the_intersection_is_sure():
+    rng = np.random.default_rng(4)
+    m = 40
+    before = _limb(rng, m)
+    now = before + np.array([0.0, 0.0, 0.05])
+    x = now.copy()
+    x[0] += 2.0 * PIXEL * np.array([0.0, 0.0, 1.0])
+    pixel = np.full(m, PIXEL)
+    seeded = np.zeros(m, np.int64)
+    sure = np.tile((0.1 * PIXEL) ** 2 * np.eye(3), (m, 1, 1))
+    loose = np.tile((5.0 * PIXEL) ** 2 * np.eye(3), (m, 1, 1))
+    a, _ = rigid_fusion(x, sure, pixel, seeded, {0: before}, neighbours=8, sigma=2.0)
+    b, _ = rigid_fusion(x, loose, pixel, seeded, {0: before}, neighbours=8, sigma=2.0)
+    assert np.linalg.norm(a[0] - x[0]) < 0.01 * PIXEL
+    assert np.linalg.norm(b[0] - now[0]) < 0.4 * PIXEL
