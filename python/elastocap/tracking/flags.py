@@ -43,8 +43,9 @@ class TrackFlag(IntEnum):
         only: the Rust core's step does not set it).
     UNCERTAIN : 12
         Tracked, but its predicted standard deviation (the covariance with the drift of
-        its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents: withheld (the
-        tracker follows it on).
+        its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents, or its
+        intersection's covariance is not positive definite (rays too near parallel for
+        the inverse to mean anything): withheld (the tracker follows it on).
     """
 
     TRACKED = 0

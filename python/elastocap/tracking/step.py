@@ -24,7 +24,7 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size, trajectory_flags
-from elastocap.tracking.drift import drift_covariance, weakest_sd
+from elastocap.tracking.drift import drift_covariance, not_positive_definite, weakest_sd
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
@@ -297,7 +297,12 @@ class FrameTracker:
                   flags: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
         """The positions, covariances and flags written out: the covariance with the drift
         of the views (``settings.DRIFT``), and the positions it says are too uncertain
-        withheld (``settings.UNCERTAIN_SD``; the state the next frame starts from keeps them)."""
+        withheld (``settings.UNCERTAIN_SD``; the state the next frame starts from keeps them),
+        as are positions whose intersection's covariance is not positive definite."""
+        broken = np.isfinite(x).all(axis=1) & not_positive_definite(xcov)
+        if broken.any():
+            x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
+            x[broken], xcov[broken], flags[broken] = np.nan, np.nan, TrackFlag.UNCERTAIN
         if not settings.DRIFT:
             return x, xcov, flags
         views = np.isfinite(uv[..., 0])
