@@ -61,7 +61,10 @@ def main() -> None:
     parser.add_argument("--reuse-without", action="store_true",
                         help="read the fit without tracks back from OUT/without_<nodes>.npz when there, else write it")
     parser.add_argument("--diagnose", action="store_true",
-                        help="per frame: drift without / with, tracks pulling, their mean age, drifted points near a track")
+                        help="per frame: drift without / with, tracks pulling, their mean age, drifted points near a track; "
+                        "per frame at or near the lost-limb line: the body parts the worst distances are on")
+    parser.add_argument("--save-with", type=Path, default=None,
+                        help="write the fit with tracks' node positions (F, N, 3) to this .npz")
     args = parser.parse_args()
     root = args.root or Path(f"/tmp/elastocap_texfast_{args.seed}_{args.frames}_{args.size[0]}")
     clock = time.perf_counter()
@@ -110,6 +113,8 @@ def main() -> None:
             positions = np.stack([fit.fits[f].positions for f in frames])
             if not with_tracks and args.reuse_without:
                 np.savez(cache, positions=positions, seconds=seconds, cpu=cpu)
+            if with_tracks and args.save_with is not None:
+                np.savez(args.save_with, positions=positions, seconds=seconds, cpu=cpu)
         vertices = [model.surface_at(positions[f]).vertices for f in frames]
         ties = cKDTree(vertices[0]).query(truth.positions[0])[1]
         drift = [100 * float(np.linalg.norm(vertices[f][ties] - truth.positions[f], axis=1).mean()) / diagonal for f in frames]
@@ -117,7 +122,7 @@ def main() -> None:
         drifts[with_tracks] = float(np.mean(drift))
         metrics = [fit.fits[f].metrics for f in frames] if with_tracks else [{} for f in frames]
         curves[with_tracks] = (drift, lost, [m.get("tracks", 0) for m in metrics],
-                               [m.get("tracks_attached", 0) for m in metrics], vertices, ties)
+                               [m.get("tracks_attached", 0) for m in metrics], vertices, ties, positions)
         print(json.dumps({
             "seed": args.seed, "tracks": with_tracks, "options": options,
             "drift_pct_mean": round(float(np.mean(drift)), 3), "drift_pct_max": round(max(drift), 3),
@@ -130,6 +135,7 @@ def main() -> None:
         print(json.dumps({"seed": args.seed, "drift_ratio_with_over_without": round(drifts[True] / drifts[False], 3)}))
     if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
+        lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
 
 
 def diagnose(truth, tracks, frames, diagonal, curves) -> None:
@@ -156,6 +162,57 @@ def diagnose(truth, tracks, frames, diagonal, curves) -> None:
                 near = float(np.mean(d < 0.02))
         print(f"{f:3d} {curves[False][0][i]:6.2f} {curves[True][0][i]:6.2f} {curves[True][2][i]:5d} {curves[True][3][i]:5d} "
               f"{count:5d} {age:5.1f} {drifted:6d} {near:5.2f}")
+
+
+# Frames whose lost-limb measure reaches this (% of the diagonal) in either fit are broken
+# down by body part: the line (5%) and frames just under it, which flip with small changes.
+_NEAR_LOST = 4.8
+
+
+def lost_parts(model, truth, tracks, meshes, frames, diagonal, curves) -> None:
+    """Which limb a frame loses: for each frame at or near the lost-limb line in either fit,
+    the body parts (``synth.skeleton.PARTS``) of the distances above the frame's 99th
+    percentile in each fit (fitted vertex to the true surface, true vertex to the fitted
+    one; a fitted vertex attributed to the part of the ground-truth point nearest it at
+    frame 0, a true vertex to the part nearest it in the frame), and per part
+    the tracks tracked in the frame that lie on it (tracked position within 2% of the
+    diagonal of one of the part's true points)."""
+    from elastocap.geometry._distance import distance_to_mesh
+    from elastocap.synth.skeleton import PARTS
+
+    tracked = tracks.flags == 0
+    rest_parts = cKDTree(truth.positions[0])
+    near = [i for i, f in enumerate(frames) if max(curves[False][1][i], curves[True][1][i]) >= _NEAR_LOST]
+    for i in near:
+        f = frames[i]
+        parts_of = cKDTree(truth.positions[f])
+        line = []
+        for with_tracks in (False, True):
+            surface = model.surface_at(curves[with_tracks][6][f])
+            used = np.unique(np.asarray(surface.faces).ravel())
+            fitted = np.asarray(surface.vertices)[used]
+            true = np.asarray(meshes[f].vertices)[np.unique(np.asarray(meshes[f].faces).ravel())]
+            both = np.concatenate([distance_to_mesh(fitted, meshes[f]), distance_to_mesh(true, surface)])
+            # A fitted vertex belongs to the part its material sits on at frame 0 (where it
+            # went astray says nothing); a true vertex to the part nearest it in the frame.
+            part = np.concatenate([truth.part[rest_parts.query(curves[with_tracks][4][frames[0]][used])[1]],
+                                   truth.part[parts_of.query(true)[1]]])
+            worst = both >= np.percentile(both, 99.0)
+            part = part[worst]
+            counts = np.bincount(part, minlength=len(PARTS))
+            top = np.argsort(-counts)[:3]
+            line.append(("with" if with_tracks else "without") + f" {curves[with_tracks][1][i]:.2f}%: "
+                        + ", ".join(f"{PARTS[p]} {counts[p] / worst.sum():.0%}" for p in top if counts[p]))
+        row = np.flatnonzero(tracks.frames == f)
+        on = ""
+        if len(row):
+            live = np.flatnonzero(tracked[row[0]])
+            if len(live):
+                gap, nearest = cKDTree(truth.positions[f]).query(tracks.positions[row[0], live])
+                part = truth.part[nearest]
+                counts = np.bincount(part[gap < 0.02 * diagonal], minlength=len(PARTS))
+                on = "; tracks on " + ", ".join(f"{PARTS[p]} {counts[p]}" for p in np.flatnonzero(counts))
+        print(f"frame {f}: " + " | ".join(line) + on)
 
 
 if __name__ == "__main__":
