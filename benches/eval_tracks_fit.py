@@ -159,8 +159,8 @@ def main() -> None:
 
 def figure_lost(model, positions, meshes, frames) -> list[float]:
     """The lost-limb measure (% of the diagonal) of the model's part that is the figure: the
-    carved hull that the model is built from holds phantom components away from the figure
-    where the cameras' cones meet (seeds 1-5: 0.1-31% of the hull's vertices outside its
+    carved hull that the model is built from holds phantom components away from the figure,
+    volume that no camera's mask carves away (seeds 1-5: 0.1-31% of the hull's vertices outside its
     largest component; on seed 4 some lie a metre from the figure, and every frame's measure
     is 50-70% with and without tracks). Fitted vertices farther than the lost-limb line from
     the true surface at frame 0 (the rest frame, fitted to its own hull) are not the figure
