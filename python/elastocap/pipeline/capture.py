@@ -2,8 +2,8 @@
 the figures, the report and the animation files, in one command.
 
 Stages: silhouettes (the capture's masks, its background plates or a dark background) ->
-visual hulls -> tracked surface points (``tracks = true``) -> elastic fit -> body fit (``body = true``) -> ``metrics.json``,
-``report.html`` -> ``OUT/export/<take>.*``. Each stage resumes per frame, so a rerun after
+visual hulls -> tracked surface points (``tracks = true``) -> elastic fit -> body fit
+(``body = true``) -> ``metrics.json``, ``report.html`` -> ``OUT/export/<take>.*``. Each stage resumes per frame, so a rerun after
 an interruption redoes only what was not finished; every file is written atomically. The
 options used are written to ``OUT/capture.toml``, which is also a valid ``--config``.
 """
@@ -32,11 +32,11 @@ from elastocap.pipeline.export import FrameRateWarning, export_settings, export_
 from elastocap.pipeline.export.settings import DEFAULT_FPS
 from elastocap.pipeline.fit import run_fit_stage
 from elastocap.pipeline.hull import run_hull_stage
-from elastocap.pipeline.track import run_track_stage
 from elastocap.pipeline.masks import choose_silhouettes, masked_capture, run_masks_stage
 from elastocap.pipeline.options import CaptureOptions
 from elastocap.pipeline.pictures import contact_sheet, mesh_over_image, save_png
 from elastocap.pipeline.report import write_fit_report
+from elastocap.pipeline.track import run_track_stage
 
 __all__ = ["CaptureRun", "run_capture", "video_frame_rate"]
 

@@ -245,8 +245,8 @@ def _parser() -> argparse.ArgumentParser:
     track.add_argument("--out", required=True, help="output folder")
     track.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     track.add_argument("--spacing", type=int, default=None, help="one seed per spacing x spacing pixels of mask (default: 5, the "
-                       "elastic fit's: ~4x the tracks of 10 px for ~2.3x the tracking time, drift with / without tracks "
-                       "0.47-0.62 against 0.51-0.65 at 10 px on the textured fast capture, benches/README.md, trackfit4)")
+                       "elastic fit's: ~4x the tracks of 10 px for ~2.3x the tracking time; drift with / without tracks on the "
+                       "textured fast capture 0.59 / 0.64 against 0.63 / 0.71 at 10 px, held-out seeds, benches/README.md, trackfit4)")
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.set_defaults(run=_track)
     fit = commands.add_parser(

@@ -23,7 +23,8 @@ __all__ = ["FIT_SPACING", "run_track_stage", "trajectory_picture", "strip_pictur
 # elastic fit's (``elastocap fit`` reads OUT/tracks). Textured fast capture, the fit with
 # the spread, drift with / without tracks on seeds 1, 2, 3 (benches/README.md, trackfit4):
 # 0.651 / 0.532 / 0.513 at 10 px (seed 3: 2 frames lose a limb), 0.622 / 0.472 / 0.467 at
-# 5 px (none), for 2.0-2.3x the tracking CPU. ``track_points``' own default (10) stays the
+# 5 px (none), for 2.0-2.3x the tracking CPU; held-out seeds 4 and 5: 0.632 / 0.705 (seed 5:
+# one frame lost) at 10 px, 0.591 / 0.641 (none) at 5 px. ``track_points``' own default (10) stays the
 # tracker's (its speed line at 1,000 points).
 FIT_SPACING = 5
 
