@@ -155,6 +155,7 @@ def main() -> None:
     if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
         lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
+        anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6])
 
 
 def figure_lost(model, positions, meshes, frames) -> list[float]:
@@ -206,6 +207,39 @@ def diagnose(truth, tracks, frames, diagonal, curves) -> None:
                 near = float(np.mean(d < 0.02))
         print(f"{f:3d} {curves[False][0][i]:6.2f} {curves[True][0][i]:6.2f} {curves[True][2][i]:5d} {curves[True][3][i]:5d} "
               f"{count:5d} {age:5.1f} {drifted:6d} {near:5.2f}")
+
+
+def anchor_errors(model, truth, tracks, frames, diagonal, positions) -> None:
+    """Where the tracks are attached, by anchor frame: the distance between a track's
+    material point at rest (its MLS weights over the fit's frame-0 nodes) and the true rest
+    position of the surface point it was tracked on (the ground-truth point nearest its
+    tracked position at its anchor frame, within 1% of the diagonal), median % of the
+    diagonal; attached as the fit does (relay 5) and without the relay, on the same fit."""
+    from elastocap.elastic.fit import TRACK_RELAY
+    from elastocap.elastic.tracks import TrackAttachments
+
+    spacing = float(np.mean(model.volumes) ** (1 / 3))
+    bins = [(0, 1)] + [(lo, min(lo + 10, len(frames))) for lo in range(1, len(frames), 10)]
+    rows = {}
+    for relay in (TRACK_RELAY, 0):
+        attachments = TrackAttachments.build(tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing)
+        for f in frames:
+            attachments.attach(f, positions[f])
+        n = np.flatnonzero(attachments.attached)
+        anchor = attachments.anchor[n]
+        error = np.full(len(n), np.nan)
+        for row in np.unique(anchor):
+            pick = anchor == row
+            f = int(tracks.frames[row])
+            gap, nearest = cKDTree(truth.positions[f]).query(tracks.positions[row, n[pick]])
+            rest = np.einsum("tk,tkd->td", attachments.phi[n[pick]], positions[frames[0]][attachments.neighbours[n[pick]]])
+            e = 100 * np.linalg.norm(rest - truth.positions[frames[0]][nearest], axis=1) / diagonal
+            error[pick] = np.where(gap <= 0.01 * diagonal, e, np.nan)
+        rows[relay] = [(np.nanmedian(error[(anchor >= lo) & (anchor < hi)]) if ((anchor >= lo) & (anchor < hi)).any() else np.nan,
+                        int(((anchor >= lo) & (anchor < hi) & np.isfinite(error)).sum())) for lo, hi in bins]
+    print(f"anchor frames: median attachment error % of the diagonal (tracks), relay {TRACK_RELAY} / 0")
+    for (lo, hi), a, b in zip(bins, rows[TRACK_RELAY], rows[0]):
+        print(f"  {lo:3d}-{hi - 1:3d}: {a[0]:5.2f} / {b[0]:5.2f} ({a[1]})")
 
 
 # Frames whose lost-limb measure reaches this (% of the diagonal) in either fit are broken
