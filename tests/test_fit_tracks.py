@@ -239,6 +239,27 @@ def test_tracks_turn_a_sphere_that_the_target_cannot_see_turn(sphere: tuple) -> 
     assert shift.max() < 0.02, shift.max()
 
 
+def test_a_track_that_cannot_be_placed_on_the_model_is_left_out(sphere: tuple) -> None:
+    model, targets = sphere
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(30, 3))
+    points *= 0.5 / np.linalg.norm(points, axis=1, keepdims=True)
+    moved = points + (0.01, 0, 0)
+    # A track far off the model: its nearest nodes all lie in one direction, so they do not
+    # span space around it (no MLS weights; before, the whole fit failed on it).
+    far = np.array([[[1000.0, 0, 0]], [[1000.0, 0, 0]]])
+    with pytest.raises(InvalidInputError, match="do not span space"):
+        material_weights(far[0], model.nodes, model.neighbors.shape[1])
+    fit = fit_sequence(model, targets, tracks=_tracks(np.concatenate([np.stack([points, moved]), far], axis=1)))
+    assert (fit.fits[0].metrics["tracks_attached"], fit.fits[0].metrics["tracks_unplaced"]) == (30, 1)
+    assert fit.fits[1].metrics["tracks"] == 30
+    # Left out entirely: the fit is the fit with the other tracks alone, to the bit.
+    alone = fit_sequence(model, targets, tracks=_tracks(np.stack([points, moved])))
+    assert alone.fits[0].metrics["tracks_unplaced"] == 0
+    for f in (0, 1):
+        np.testing.assert_array_equal(fit.fits[f].positions, alone.fits[f].positions)
+
+
 @pytest.fixture(scope="module")
 def sphere() -> tuple:
     import trimesh

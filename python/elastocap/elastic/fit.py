@@ -93,8 +93,9 @@ class FrameFit:
         of the coverage term) and ``unexplained`` (those no fitted surface node explains at
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
-        (anchored at it) and ``track_mahalanobis`` (their mean Mahalanobis distance at the
-        end, when any pulled).
+        (anchored at it), ``tracks_unplaced`` (anchored at it where the model's nodes around
+        the tracked point do not span space: left out) and ``track_mahalanobis`` (their
+        mean Mahalanobis distance at the end, when any pulled).
     """
 
     frame: int
@@ -509,7 +510,9 @@ def fit_sequence(
         if attachments is not None:
             # Tracks pulling this frame, and tracks attached at it (anchored here).
             metrics["tracks"] = pulling_tracks
+            unplaced = int(attachments.unplaced.sum())
             metrics["tracks_attached"] = int(attachments.attach(frame, positions))
+            metrics["tracks_unplaced"] = int(attachments.unplaced.sum()) - unplaced
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
         fit = FrameFit(frame, positions, dict(metrics))

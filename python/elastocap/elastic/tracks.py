@@ -35,7 +35,7 @@ from elastocap._core import InvalidInputError
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
-__all__ = ["TrackAttachments", "check_tracks", "material_weights", "select_frames"]
+__all__ = ["TrackAttachments", "check_tracks", "material_weights", "placeable_weights", "select_frames"]
 
 # MLS support: c times the distance to the farthest of the k nodes (SPEC 4.1's c = 1.1),
 # enlarged by 1.25 where the moment matrix is ill-conditioned (as rust/mls.rs repairs).
@@ -95,6 +95,9 @@ def _spline(r: NDArray[np.float64]) -> NDArray[np.float64]:
 def material_weights(points: NDArray[np.float64], nodes: NDArray[np.float64], k: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """MLS shape functions of ``nodes`` evaluated at ``points`` (SPEC 4.2, linear basis).
 
+    Raises :class:`InvalidInputError` when the nodes around a point do not span space
+    (:func:`placeable_weights` leaves such points out instead).
+
     Parameters
     ----------
     points : (T, 3) float64
@@ -111,6 +114,21 @@ def material_weights(points: NDArray[np.float64], nodes: NDArray[np.float64], k:
         ``phi @ nodes[neighbours]`` reproduces ``points`` (linear reproduction) and rows sum
         to 1.
     """
+    neighbours, phi, ok = _mls(points, nodes, k)
+    if not ok.all():
+        raise InvalidInputError(f"tracks: the nodes around {int((~ok).sum())} tracked points do not span space (MLS weights undefined)")
+    return neighbours, phi
+
+
+def placeable_weights(points: NDArray[np.float64], nodes: NDArray[np.float64],
+                      k: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+    """:func:`material_weights` of the points whose nodes span space, and which points
+    those are (``(T,) bool``; the others' rows of ``phi`` are zero) instead of an error."""
+    return _mls(points, nodes, k)
+
+
+def _mls(points: NDArray[np.float64], nodes: NDArray[np.float64],
+         k: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
     k = min(k, len(nodes))
     distance, neighbours = cKDTree(nodes).query(points, k=k)
     neighbours = np.asarray(neighbours, np.int64).reshape(len(points), k)
@@ -136,9 +154,9 @@ def material_weights(points: NDArray[np.float64], nodes: NDArray[np.float64], k:
         if len(todo) == 0:
             break
         support[todo] *= _ENLARGEMENT
-    if len(todo):
-        raise InvalidInputError(f"tracks: the nodes around {len(todo)} tracked points do not span space (MLS weights undefined)")
-    return neighbours, phi
+    placed = np.ones(len(points), bool)
+    placed[todo] = False
+    return neighbours, phi, placed
 
 
 @dataclass
@@ -147,7 +165,8 @@ class TrackAttachments:
 
     ``anchor[n]`` is the index (into ``tracks.frames``) of track n's frame nearest the rest
     frame (-1 without any position); ``neighbours`` / ``phi`` hold its attachment once that
-    frame is fitted (``attached[n]``).
+    frame is fitted (``attached[n]``); ``unplaced[n]``: its anchor frame was fitted but no
+    material point could be placed there (never attached).
     """
 
     tracks: Tracks
@@ -158,6 +177,7 @@ class TrackAttachments:
     neighbours: NDArray[np.int64] = field(init=False)
     phi: NDArray[np.float64] = field(init=False)
     attached: NDArray[np.bool_] = field(init=False)
+    unplaced: NDArray[np.bool_] = field(init=False)
 
     @classmethod
     def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0) -> TrackAttachments:
@@ -174,6 +194,7 @@ class TrackAttachments:
         self.neighbours = np.zeros((n, k), np.int64)
         self.phi = np.zeros((n, k))
         self.attached = np.zeros(n, bool)
+        self.unplaced = np.zeros(n, bool)
         return self
 
     def _row(self, frame: int) -> int | None:
@@ -189,7 +210,13 @@ class TrackAttachments:
         which = np.flatnonzero(self.anchor == row)
         if len(which):
             points = self.tracks.positions[row, which] - self._offsets(row, which, positions)
-            self.neighbours[which], self.phi[which] = material_weights(points, positions, self.k)
+            # A point whose nearest nodes do not span space (a track far off the model, its
+            # nodes all on one side; held-out seed 5 at 5 px, benches/README.md, trackfit4)
+            # has no material point: it stays unattached instead of failing the fit.
+            neighbours, phi, placed = placeable_weights(points, positions, self.k)
+            self.unplaced[which[~placed]] = True
+            which = which[placed]
+            self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
         return len(which)
 

@@ -2,8 +2,8 @@
 the figures, the report and the animation files, in one command.
 
 Stages: silhouettes (the capture's masks, its background plates or a dark background) ->
-visual hulls -> elastic fit -> body fit (``body = true``) -> ``metrics.json``,
-``report.html`` -> ``OUT/export/<take>.*``. Each stage resumes per frame, so a rerun after
+visual hulls -> tracked surface points (``tracks = true``) -> elastic fit -> body fit
+(``body = true``) -> ``metrics.json``, ``report.html`` -> ``OUT/export/<take>.*``. Each stage resumes per frame, so a rerun after
 an interruption redoes only what was not finished; every file is written atomically. The
 options used are written to ``OUT/capture.toml``, which is also a valid ``--config``.
 """
@@ -36,6 +36,7 @@ from elastocap.pipeline.masks import choose_silhouettes, masked_capture, run_mas
 from elastocap.pipeline.options import CaptureOptions
 from elastocap.pipeline.pictures import contact_sheet, mesh_over_image, save_png
 from elastocap.pipeline.report import write_fit_report
+from elastocap.pipeline.track import run_track_stage
 
 __all__ = ["CaptureRun", "run_capture", "video_frame_rate"]
 
@@ -159,6 +160,9 @@ def run_capture(
         run_hull_stage(masked["capture"], out, resolution=options.resolution, tolerance=options.tolerance, progress=progress)
 
     stages.append(("hull", hull))
+    if options.tracks:
+        stages.append(("tracks", lambda: run_track_stage(masked["capture"], out, spacing=options.track_spacing,
+                                                         progress=progress)))
     stages.append(("fit", lambda: run_fit_stage(
         masked["capture"], out, rest_frame=options.rest_frame, n_nodes=options.nodes, rotation=options.rotation,
         stiffness=options.stiffness, resolution=options.resolution, progress=progress)))

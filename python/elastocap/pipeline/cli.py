@@ -57,11 +57,12 @@ def _hull(args: argparse.Namespace) -> int:
 def _track(args: argparse.Namespace) -> int:
     from elastocap.capture.folder import Capture
     from elastocap.pipeline.hull import parse_frames
-    from elastocap.pipeline.track import run_track_stage
+    from elastocap.pipeline.track import FIT_SPACING, run_track_stage
 
     capture = Capture.open(args.capture)
+    spacing = FIT_SPACING if args.spacing is None else args.spacing
     tracks = run_track_stage(capture, Path(args.out), frames=parse_frames(args.frames, capture.frames),
-                             progress=not args.quiet, spacing=args.spacing)
+                             progress=not args.quiet, spacing=spacing)
     tracked = int((tracks.flags == 0).any(axis=0).sum())
     print(f"tracked {tracked} of {len(tracks.ids)} points through {len(tracks.frames)} frames into {Path(args.out) / 'tracks'}")
     return 0
@@ -243,8 +244,9 @@ def _parser() -> argparse.ArgumentParser:
     track.add_argument("capture", metavar="CAPTURE", help="capture folder (calibration, images/, masks/)")
     track.add_argument("--out", required=True, help="output folder")
     track.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
-    track.add_argument("--spacing", type=int, default=10, help="one seed per spacing x spacing pixels of mask (default: 10; 5 seeds ~4x the "
-                       "tracks for ~2.3x the tracking time, measured for the elastic fit in benches/README.md, trackfit3)")
+    track.add_argument("--spacing", type=int, default=None, help="one seed per spacing x spacing pixels of mask (default: 5, the "
+                       "elastic fit's: ~4x the tracks of 10 px for ~2.3x the tracking time; drift with / without tracks on the "
+                       "textured fast capture 0.59 / 0.64 against 0.63 / 0.71 at 10 px, held-out seeds, benches/README.md, trackfit4)")
     track.add_argument("--quiet", action="store_true", help="no progress bar")
     track.set_defaults(run=_track)
     fit = commands.add_parser(

@@ -17,7 +17,16 @@ from elastocap.capture.folder import Capture
 from elastocap.tracking import Tracks, track_points
 from elastocap.tracking.flags import TrackFlag
 
-__all__ = ["run_track_stage", "trajectory_picture", "strip_picture"]
+__all__ = ["FIT_SPACING", "run_track_stage", "trajectory_picture", "strip_picture"]
+
+# The seeding density (pixels per seed) of the tracks the pipeline makes, which are the
+# elastic fit's (``elastocap fit`` reads OUT/tracks). Textured fast capture, the fit with
+# the spread, drift with / without tracks on seeds 1, 2, 3 (benches/README.md, trackfit4):
+# 0.651 / 0.532 / 0.513 at 10 px (seed 3: 2 frames lose a limb), 0.622 / 0.472 / 0.467 at
+# 5 px (none), for 2.0-2.3x the tracking CPU; held-out seeds 4 and 5: 0.632 / 0.705 (seed 5:
+# one frame lost) at 10 px, 0.591 / 0.641 (none) at 5 px. ``track_points``' own default (10) stays the
+# tracker's (its speed line at 1,000 points).
+FIT_SPACING = 5
 
 # Colours of the strip per flag (RGB): tracked green, not seeded dark, failures warm.
 _FLAG_COLOURS = np.array([
@@ -64,9 +73,10 @@ def strip_picture(tracks: Tracks, *, height: int = 600) -> NDArray[np.uint8]:
 
 
 def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | None = None, progress: bool = True,
-                    **options: object) -> Tracks:
+                    spacing: int = FIT_SPACING, **options: object) -> Tracks:
     """Track the capture's surface points into ``OUT/tracks/`` (resuming), then draw the
-    pictures. ``options`` go to :func:`elastocap.track_points`."""
+    pictures. ``spacing`` is the seeding density for the elastic fit (:data:`FIT_SPACING`,
+    not ``track_points``' own default); ``options`` go to :func:`elastocap.track_points`."""
     chosen = list(capture.frames) if frames is None else frames
     bar = tqdm(total=len(chosen), desc="track", unit="frame", disable=not progress)
     done = {"n": 0}
@@ -76,7 +86,7 @@ def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | No
         bar.update(1)
 
     try:
-        tracks = track_points(capture, frames=chosen, out=out, progress=tick, **options)  # type: ignore[arg-type]
+        tracks = track_points(capture, frames=chosen, out=out, progress=tick, spacing=spacing, **options)  # type: ignore[arg-type]
     finally:
         bar.close()
     root = Path(out)
