@@ -186,3 +186,22 @@ def test_the_search_ranks_its_candidates_again_at_the_fitted_shape(monkeypatch: 
     state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
     assert _facing(float(state.motion[3])) > np.pi - 0.2
     assert len(shaped) == 1
+
+
+def test_a_well_explained_winner_is_shape_fitted_alone() -> None:
+    """The winner explains nearly every observation at the held shape (the demo's body
+    figure, the model itself): no other candidate's shape is fitted."""
+    shaped: list[float] = []
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        if shape is None:
+            shaped.append(_facing(float(state.motion[3])))
+        return state
+
+    def score(state: BodyState) -> tuple[float, float]:
+        heading = _facing(float(state.motion[3]))
+        return ((0.002, 0.99) if heading < 0.2 else (0.01, 0.8)) if not np.any(state.motion[6:]) else (0.05, 0.5)
+
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
+    assert _facing(float(state.motion[3])) < 0.2
+    assert shaped == [pytest.approx(0.0, abs=0.2)]

@@ -64,7 +64,7 @@ SHAPED_CANDIDATES = 4
 #: Two candidates are distinct when some part's origin (a joint) lies farther than this
 #: (metres) from where the other puts it: a limb on another valley, not the same pose
 #: refined a little differently.
-DISTINCT_POSE = 0.1
+DISTINCT_POSE = 0.05
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -120,8 +120,9 @@ def search_pose(
     4. With ``fit_shape``, the shape is fitted last: from each of the
        :data:`SHAPED_CANDIDATES` best distinct candidates the search scored (a part's
        origin :data:`DISTINCT_POSE` apart), and the best-scored after its shape fit is
-       returned. The held shape is not the subject's, and a wrong pose can score better
-       than the right one at it and worse once each has the subject's shape.
+       returned (the best alone when it explains :data:`WELL_EXPLAINED`). The held shape
+       is not the subject's, and a wrong pose can score better than the right one at it
+       and worse once each has the subject's shape.
 
     Every pose stage holds ``shape``: a shape fitted while the pose is still wrong explains
     the pose's error (on the capsule figure, seed 1: a shin stretched to twice its length
@@ -132,10 +133,9 @@ def search_pose(
     names = model.motion_names
     # Every candidate the search scores, kept for the ranking at the fitted shape (step 4).
     scored: list[tuple[float, BodyState]] = []
-    plain_score = score
 
-    def score(state: BodyState) -> tuple[float, float]:
-        s = plain_score(state)
+    def ranked(state: BodyState) -> tuple[float, float]:
+        s = score(state)
         scored.append((s[0], state))
         return s
 
@@ -158,7 +158,7 @@ def search_pose(
         for arms, legs in COARSE_STARTS:
             init = set_angles(start(h), {"l_upperarm.0": arms[0], "r_upperarm.0": arms[1], "l_thigh.0": legs[0], "r_thigh.0": legs[1]})
             found = fit(init, shape, 25, 1000)
-            coarse.append((score(found)[0], found))
+            coarse.append((ranked(found)[0], found))
     coarse.sort(key=lambda c: c[0])
     carried: list[BodyState] = []
     for _, found in coarse:
@@ -171,10 +171,10 @@ def search_pose(
     for found in carried:
         for init in (found, start(found.motion[3] + np.pi, found.motion)):
             state = fit(init, shape, 30, 1200)
-            middle.append((score(state), state))
+            middle.append((ranked(state), state))
     for init in [*starts, *data_starts(model, shape, volume)]:
         state = fit(init.replace(shape=shape), shape, 30, 1200)
-        middle.append((score(state), state))
+        middle.append((ranked(state), state))
     middle.sort(key=lambda m: m[0][0])
     # Front and back: the best of the middle stage and the best facing the other way are
     # both refined fully, limb restarts included, and the one that then explains the
@@ -194,9 +194,9 @@ def search_pose(
             # other facing's 0.81, whose 54 restarts cost 9 of the search's 24 CPU s).
             break
         state = fit(init, shape, 60, None)
-        best: list[Any] = [score(state), state]
+        best: list[Any] = [ranked(state), state]
 
-        _restart_limbs(model, best, set_angles, fit, score, shape)
+        _restart_limbs(model, best, set_angles, fit, ranked, shape)
         results.append(best)
     results.sort(key=lambda b: b[0][0])
     best = results[0]
@@ -206,12 +206,16 @@ def search_pose(
         # have a better valley once that one is right: another pass from the improved
         # state, while a pass still improves the score.
         before = best[0][0]
-        _restart_limbs(model, best, set_angles, fit, score, shape)
+        _restart_limbs(model, best, set_angles, fit, ranked, shape)
         if best[0][0] > (1 - PASS_GAIN) * before:
             break
     if not fit_shape:
         return best[1]
-    return _best_with_shape(model, scored, fit, plain_score)
+    if best[0][1] >= WELL_EXPLAINED:
+        # nearly every observation explained at the held shape: no other valley to rank
+        # (the demo's body figure, which is the model itself)
+        return fit(best[1], None, 60, None)
+    return _best_with_shape(model, scored, fit, score)
 
 
 def _best_with_shape(model: BodyModel, scored: list[tuple[float, BodyState]], fit: Fit, score: Score) -> BodyState:
