@@ -65,6 +65,9 @@ SHAPED_CANDIDATES = 4
 #: (metres) from where the other puts it: a limb on another valley, not the same pose
 #: refined a little differently.
 DISTINCT_POSE = 0.05
+#: With ``fit_shape``: fit the shape to the middle stage's best, keep the trunk's
+#: coefficients of it (the limbs' held) and run stages 1 and 2 again at that shape.
+TRUNK_SHAPE_FIRST = False
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -153,29 +156,18 @@ def search_pose(
                 motion[names.index(name)] = angle
         return state.replace(motion=motion)
 
-    coarse = []
-    for h in np.linspace(-np.pi, np.pi, headings, endpoint=False):
-        for arms, legs in COARSE_STARTS:
-            init = set_angles(start(h), {"l_upperarm.0": arms[0], "r_upperarm.0": arms[1], "l_thigh.0": legs[0], "r_thigh.0": legs[1]})
-            found = fit(init, shape, 25, 1000)
-            coarse.append((ranked(found)[0], found))
-    coarse.sort(key=lambda c: c[0])
-    carried: list[BodyState] = []
-    for _, found in coarse:
-        # distinct headings: the best few of one valley would crowd out the others
-        if all(abs(_turn(found.motion[3] - c.motion[3])) > DISTINCT_HEADING for c in carried):
-            carried.append(found)
-        if len(carried) == CARRIED:
-            break
-    middle = []
-    for found in carried:
-        for init in (found, start(found.motion[3] + np.pi, found.motion)):
-            state = fit(init, shape, 30, 1200)
-            middle.append((ranked(state), state))
-    for init in [*starts, *data_starts(model, shape, volume)]:
-        state = fit(init.replace(shape=shape), shape, 30, 1200)
-        middle.append((ranked(state), state))
-    middle.sort(key=lambda m: m[0][0])
+    def first_stages() -> list[tuple[tuple[float, float], BodyState]]:
+        """Stages 1 and 2 at ``shape``: the middle stage's results, best first."""
+        return _first_stages(model, shape, fit, ranked, start, set_angles, headings, [*starts, *data_starts(model, shape, volume)])
+
+    middle = first_stages()
+    if fit_shape and TRUNK_SHAPE_FIRST:
+        # The trunk's shape from the middle stage's best, the limbs' held, and stages 1
+        # and 2 again at it: a wrong pose's fitted shape is wrong in the limbs that
+        # explain its error, not in the trunk, which the heading and the root place.
+        fitted = fit(middle[0][1], None, 60, None).shape
+        shape = np.where(_trunk_coefficients(model), fitted, shape)
+        middle = first_stages()
     # Front and back: the best of the middle stage and the best facing the other way are
     # both refined fully, limb restarts included, and the one that then explains the
     # observations better is kept. A figure seen with its limbs nearly straight explains
@@ -216,6 +208,45 @@ def search_pose(
         # (the demo's body figure, which is the model itself)
         return fit(best[1], None, 60, None)
     return _best_with_shape(model, scored, fit, score)
+
+
+def _first_stages(
+    model: BodyModel, shape: Any, fit: Fit, score: Score, start: Callable[..., BodyState], set_angles: Callable[..., BodyState], headings: int,
+    starts: Sequence[BodyState],
+) -> list[tuple[tuple[float, float], BodyState]]:
+    """Stages 1 and 2 of :func:`search_pose` at ``shape``: the middle stage's results
+    ``((score, explained), state)``, best first."""
+    coarse = []
+    for h in np.linspace(-np.pi, np.pi, headings, endpoint=False):
+        for arms, legs in COARSE_STARTS:
+            init = set_angles(start(h), {"l_upperarm.0": arms[0], "r_upperarm.0": arms[1], "l_thigh.0": legs[0], "r_thigh.0": legs[1]})
+            found = fit(init, shape, 25, 1000)
+            coarse.append((score(found)[0], found))
+    coarse.sort(key=lambda c: c[0])
+    carried: list[BodyState] = []
+    for _, found in coarse:
+        # distinct headings: the best few of one valley would crowd out the others
+        if all(abs(_turn(found.motion[3] - c.motion[3])) > DISTINCT_HEADING for c in carried):
+            carried.append(found)
+        if len(carried) == CARRIED:
+            break
+    middle = []
+    for found in carried:
+        for init in (found, start(found.motion[3] + np.pi, found.motion)):
+            state = fit(init, shape, 30, 1200)
+            middle.append((score(state), state))
+    for init in starts:
+        state = fit(init.replace(shape=shape), shape, 30, 1200)
+        middle.append((score(state), state))
+    middle.sort(key=lambda m: m[0][0])
+    return middle
+
+
+def _trunk_coefficients(model: BodyModel) -> NDArray[np.bool_]:
+    """Which shape coefficients belong to the trunk and head (the parts not of a left or
+    right limb)."""
+    trunk = np.array([name[:2] not in ("l_", "r_") for name in model.part_names])
+    return np.repeat(trunk, model.n_shape // len(model.part_names))
 
 
 def _best_with_shape(model: BodyModel, scored: list[tuple[float, BodyState]], fit: Fit, score: Score) -> BodyState:
