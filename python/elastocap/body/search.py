@@ -161,7 +161,7 @@ def search_pose(
         return _first_stages(model, shape, fit, ranked, start, set_angles, headings, [*starts, *data_starts(model, shape, volume)])
 
     middle = first_stages()
-    if fit_shape and TRUNK_SHAPE_FIRST:
+    if fit_shape and TRUNK_SHAPE_FIRST and middle[0][0][1] < WELL_EXPLAINED:
         # The trunk's shape from the middle stage's best, the limbs' held, and stages 1
         # and 2 again at it: a wrong pose's fitted shape is wrong in the limbs that
         # explain its error, not in the trunk, which the heading and the root place.
