@@ -66,8 +66,16 @@ SHAPED_CANDIDATES = 4
 #: refined a little differently.
 DISTINCT_POSE = 0.05
 #: With ``fit_shape``: fit the shape to the middle stage's best, keep the trunk's
-#: coefficients of it (the limbs' held) and run stages 1 and 2 again at that shape.
-TRUNK_SHAPE_FIRST = False
+#: coefficients of it (the limbs' held) and run stages 1 and 2 again at that shape. At the
+#: subject's shape the search finds the true pose where at the model's own it walks into
+#: wrong valleys (the capsule figure, searched at the true valley's fitted shape: seed 16
+#: masks alone 109 -> 20 mm joints RMS, seed 5 89 -> 19 mm, seed 8 with points 193 -> 15
+#: mm); a wrong pose's fitted shape is wrong in the limbs that absorb its error (searched
+#: at it, seed 16: 126 mm) and right in the trunk, which the heading and the root place
+#: (at its trunk alone: 21 mm). Frame 0 with it, after the ranking at the fitted shape:
+#: masks alone seed 16 94 -> 41 mm, 13 45 -> 19 mm, 5 82 -> 19 mm; with points seed 8
+#: 18.7 -> 14.4 mm; +25-35% CPU (``benches/README.md``, branch body12).
+TRUNK_SHAPE_FIRST = True
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -108,6 +116,10 @@ def search_pose(
        up to :data:`RESTART_PASSES` in all, while a pass lowers the score by
        :data:`PASS_GAIN`: a limb restarted while another was still wrong can find its
        valley once that one is right.
+
+    With ``fit_shape`` and :data:`TRUNK_SHAPE_FIRST`, stages 1 and 2 run twice: at
+    ``shape``, then at the trunk's coefficients of the shape fitted to the middle stage's
+    best (the limbs' from ``shape``); stages 3 and 4 follow from the second.
 
     ``starts`` are further states (the tracker passes the last frame it held) fitted in
     stage 2 beside the carried ones (not turned): a pose the coarse grid does not reach (an
