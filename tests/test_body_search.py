@@ -246,3 +246,27 @@ def test_the_first_stages_run_again_at_the_trunk_shape_of_the_middle_stage_best(
     monkeypatch.setattr(search, "TRUNK_SHAPE_FIRST", False)
     state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
     assert _facing(float(state.motion[3])) > np.pi - 0.2
+
+
+@pytest.mark.parametrize(("trunk_value", "passes"), [(1.05, 1), (1.3, 2)])
+def test_the_trunk_pass_runs_only_when_the_trunk_shape_moved(trunk_value: float, passes: int) -> None:
+    """A trunk shape fitted within :data:`TRUNK_SHAPE_CHANGE` of the held one (the demo's
+    body figure, the model itself: 0.98-1.02) would only search again at nearly the same
+    shape: the coarse stage runs once; a trunk 30% off runs it again."""
+    trunk = search._trunk_coefficients(MODEL)
+    coarse = []
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        if shape is None:
+            return state.replace(shape=np.where(trunk, trunk_value, 1.0))
+        if iterations == 25:
+            coarse.append(float(shape[0]))
+        return state.replace(shape=shape)
+
+    def score(state: BodyState) -> tuple[float, float]:
+        return (0.01, 0.9) if _facing(float(state.motion[3])) < 0.2 else (0.05, 0.5)
+
+    assert search.TRUNK_SHAPE_FIRST
+    search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
+    assert len(coarse) == passes * 8 * len(search.COARSE_STARTS)
+    assert coarse[-1] == pytest.approx(1.0 if passes == 1 else trunk_value)

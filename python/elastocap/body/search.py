@@ -76,6 +76,10 @@ DISTINCT_POSE = 0.05
 #: masks alone seed 16 94 -> 41 mm, 13 45 -> 19 mm, 5 82 -> 19 mm; with points seed 8
 #: 18.7 -> 14.4 mm; +25-35% CPU (``benches/README.md``, branch body12).
 TRUNK_SHAPE_FIRST = True
+#: ... when some trunk coefficient moved by more than this: else the second pass would
+#: search at nearly the same shape (the demo's body figure, the model itself: 0.98-1.02,
+#: 11 more CPU s; the capsule figure's trunk: 0.56-0.89 at the true pose).
+TRUNK_SHAPE_CHANGE = 0.1
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -177,9 +181,11 @@ def search_pose(
         # The trunk's shape from the middle stage's best, the limbs' held, and stages 1
         # and 2 again at it: a wrong pose's fitted shape is wrong in the limbs that
         # explain its error, not in the trunk, which the heading and the root place.
+        trunk = _trunk_coefficients(model)
         fitted = fit(middle[0][1], None, 60, None).shape
-        shape = np.where(_trunk_coefficients(model), fitted, shape)
-        middle = first_stages()
+        if np.max(np.abs(fitted - shape)[trunk]) > TRUNK_SHAPE_CHANGE:
+            shape = np.where(trunk, fitted, shape)
+            middle = first_stages()
     # Front and back: the best of the middle stage and the best facing the other way are
     # both refined fully, limb restarts included, and the one that then explains the
     # observations better is kept. A figure seen with its limbs nearly straight explains
