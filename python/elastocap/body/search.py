@@ -58,8 +58,10 @@ PASS_GAIN = 0.02
 #: returned. The held shape (the model's own, on a first frame) is not the subject's, and
 #: the ranking at it can be wrong where the ranking at the subject's shape is right: the
 #: capsule figure's seed 17 with points, the true pose's valley scored 14.6 mm at the unit
-#: shape against the winner's 13.0, and 6.6 against 8.5 once each had its shape fitted
-#: (``benches/README.md``, branch body12).
+#: shape against the winner's 13.0, and 6.6 against 8.5 once each had its shape fitted;
+#: with 4 candidates 5 cm apart its frame 0 came out at 8.9 mm joints RMS (main: 63 mm;
+#: 10 cm apart: 54 mm), and seed 8's at 18.7 mm (main: 182 mm), for 4 shape fits (+13-19%
+#: CPU of the search; ``benches/README.md``, branch body12).
 SHAPED_CANDIDATES = 4
 #: Two candidates are distinct when some part's origin (a joint) lies farther than this
 #: (metres) from where the other puts it: a limb on another valley, not the same pose
