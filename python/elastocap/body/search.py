@@ -53,6 +53,35 @@ WELL_EXPLAINED = 0.98
 #: default; set 3 to search further.
 RESTART_PASSES = 1
 PASS_GAIN = 0.02
+#: With ``fit_shape``, this many of the search's best distinct candidates (by the score at
+#: the held shape) are each fitted with the shape free, and the best-scored after that is
+#: returned. The held shape (the model's own, on a first frame) is not the subject's, and
+#: the ranking at it can be wrong where the ranking at the subject's shape is right: the
+#: capsule figure's seed 17 with points, the true pose's valley scored 14.6 mm at the unit
+#: shape against the winner's 13.0, and 6.6 against 8.5 once each had its shape fitted;
+#: with 4 candidates 5 cm apart its frame 0 came out at 8.9 mm joints RMS (main: 63 mm;
+#: 10 cm apart: 54 mm), and seed 8's at 18.7 mm (main: 182 mm), for 4 shape fits (+13-19%
+#: CPU of the search; ``benches/README.md``, branch body12).
+SHAPED_CANDIDATES = 4
+#: Two candidates are distinct when some part's origin (a joint) lies farther than this
+#: (metres) from where the other puts it: a limb on another valley, not the same pose
+#: refined a little differently.
+DISTINCT_POSE = 0.05
+#: With ``fit_shape``: fit the shape to the middle stage's best, keep the trunk's
+#: coefficients of it (the limbs' held) and run stages 1 and 2 again at that shape. At the
+#: subject's shape the search finds the true pose where at the model's own it walks into
+#: wrong valleys (the capsule figure, searched at the true valley's fitted shape: seed 16
+#: masks alone 109 -> 20 mm joints RMS, seed 5 89 -> 19 mm, seed 8 with points 193 -> 15
+#: mm); a wrong pose's fitted shape is wrong in the limbs that absorb its error (searched
+#: at it, seed 16: 126 mm) and right in the trunk, which the heading and the root place
+#: (at its trunk alone: 21 mm). Frame 0 with it, after the ranking at the fitted shape:
+#: masks alone seed 16 94 -> 41 mm, 13 45 -> 19 mm, 5 82 -> 19 mm; with points seed 8
+#: 18.7 -> 14.4 mm; +25-35% CPU (``benches/README.md``, branch body12).
+TRUNK_SHAPE_FIRST = True
+#: ... when some trunk coefficient moved by more than this: else the second pass would
+#: search at nearly the same shape (the demo's body figure, the model itself: 0.98-1.02,
+#: 11 more CPU s; the capsule figure's trunk: 0.56-0.89 at the true pose).
+TRUNK_SHAPE_CHANGE = 0.1
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -94,6 +123,10 @@ def search_pose(
        :data:`PASS_GAIN`: a limb restarted while another was still wrong can find its
        valley once that one is right.
 
+    With ``fit_shape`` and :data:`TRUNK_SHAPE_FIRST`, stages 1 and 2 run twice: at
+    ``shape``, then at the trunk's coefficients of the shape fitted to the middle stage's
+    best (the limbs' from ``shape``); stages 3 and 4 follow from the second.
+
     ``starts`` are further states (the tracker passes the last frame it held) fitted in
     stage 2 beside the carried ones (not turned): a pose the coarse grid does not reach (an
     arm raised high, the legs far apart) is found from a frame where it was already
@@ -105,7 +138,12 @@ def search_pose(
     ways), fitted in stage 2 like ``starts``: poses the fixed starts do not reach (a
     heading between two of the grid's, an arm twisted and raised) are started where the
     data put them, and the best score still decides.
-    4. With ``fit_shape``, the shape is fitted last, from the pose found.
+    4. With ``fit_shape``, the shape is fitted last: from each of the
+       :data:`SHAPED_CANDIDATES` best distinct candidates the search scored (a part's
+       origin :data:`DISTINCT_POSE` apart), and the best-scored after its shape fit is
+       returned (the best alone when it explains :data:`WELL_EXPLAINED`). The held shape
+       is not the subject's, and a wrong pose can score better than the right one at it
+       and worse once each has the subject's shape.
 
     Every pose stage holds ``shape``: a shape fitted while the pose is still wrong explains
     the pose's error (on the capsule figure, seed 1: a shin stretched to twice its length
@@ -114,6 +152,13 @@ def search_pose(
     the shape held (``benches/README.md``, branch clutter3).
     """
     names = model.motion_names
+    # Every candidate the search scores, kept for the ranking at the fitted shape (step 4).
+    scored: list[tuple[float, BodyState]] = []
+
+    def ranked(state: BodyState) -> tuple[float, float]:
+        s = score(state)
+        scored.append((s[0], state))
+        return s
 
     def start(heading: float, motion: NDArray[np.float64] | None = None) -> BodyState:
         state = model.rest_state(position=centre).replace(shape=shape)
@@ -129,6 +174,68 @@ def search_pose(
                 motion[names.index(name)] = angle
         return state.replace(motion=motion)
 
+    def first_stages() -> list[tuple[tuple[float, float], BodyState]]:
+        """Stages 1 and 2 at ``shape``: the middle stage's results, best first."""
+        return _first_stages(model, shape, fit, ranked, start, set_angles, headings, [*starts, *data_starts(model, shape, volume)])
+
+    middle = first_stages()
+    if fit_shape and TRUNK_SHAPE_FIRST and middle[0][0][1] < WELL_EXPLAINED:
+        # The trunk's shape from the middle stage's best, the limbs' held, and stages 1
+        # and 2 again at it: a wrong pose's fitted shape is wrong in the limbs that
+        # explain its error, not in the trunk, which the heading and the root place.
+        trunk = _trunk_coefficients(model)
+        fitted = fit(middle[0][1], None, 60, None).shape
+        if np.max(np.abs(fitted - shape)[trunk]) > TRUNK_SHAPE_CHANGE:
+            shape = np.where(trunk, fitted, shape)
+            middle = first_stages()
+    # Front and back: the best of the middle stage and the best facing the other way are
+    # both refined fully, limb restarts included, and the one that then explains the
+    # observations better is kept. A figure seen with its limbs nearly straight explains
+    # its silhouettes almost as well facing backwards; which facing is right shows only
+    # once each has its elbows and knees bent the way its joints allow, which the limb
+    # restarts find.
+    facings = [middle[0][1]]
+    opposite = [m for m in middle if abs(_turn(m[1].motion[3] - facings[0].motion[3])) > OPPOSITE_HEADING]
+    if opposite:
+        facings.append(opposite[0][1])
+    results: list[list[Any]] = []
+    for init in facings:
+        if results and results[0][0][1] >= WELL_EXPLAINED:
+            # The best facing explains nearly every observation: the other facing has
+            # nothing left to explain better (the demo's body figure: 0.986 against the
+            # other facing's 0.81, whose 54 restarts cost 9 of the search's 24 CPU s).
+            break
+        state = fit(init, shape, 60, None)
+        best: list[Any] = [ranked(state), state]
+
+        _restart_limbs(model, best, set_angles, fit, ranked, shape)
+        results.append(best)
+    results.sort(key=lambda b: b[0][0])
+    best = results[0]
+    for _ in range(RESTART_PASSES - 1):
+        # Each restart moves one limb (or the legs) with the rest held where the previous
+        # restarts left them, so a limb restarted while another limb was still wrong may
+        # have a better valley once that one is right: another pass from the improved
+        # state, while a pass still improves the score.
+        before = best[0][0]
+        _restart_limbs(model, best, set_angles, fit, ranked, shape)
+        if best[0][0] > (1 - PASS_GAIN) * before:
+            break
+    if not fit_shape:
+        return best[1]
+    if best[0][1] >= WELL_EXPLAINED:
+        # nearly every observation explained at the held shape: no other valley to rank
+        # (the demo's body figure, which is the model itself)
+        return fit(best[1], None, 60, None)
+    return _best_with_shape(model, scored, fit, score)
+
+
+def _first_stages(
+    model: BodyModel, shape: Any, fit: Fit, score: Score, start: Callable[..., BodyState], set_angles: Callable[..., BodyState], headings: int,
+    starts: Sequence[BodyState],
+) -> list[tuple[tuple[float, float], BodyState]]:
+    """Stages 1 and 2 of :func:`search_pose` at ``shape``: the middle stage's results
+    ``((score, explained), state)``, best first."""
     coarse = []
     for h in np.linspace(-np.pi, np.pi, headings, endpoint=False):
         for arms, legs in COARSE_STARTS:
@@ -148,45 +255,34 @@ def search_pose(
         for init in (found, start(found.motion[3] + np.pi, found.motion)):
             state = fit(init, shape, 30, 1200)
             middle.append((score(state), state))
-    for init in [*starts, *data_starts(model, shape, volume)]:
+    for init in starts:
         state = fit(init.replace(shape=shape), shape, 30, 1200)
         middle.append((score(state), state))
     middle.sort(key=lambda m: m[0][0])
-    # Front and back: the best of the middle stage and the best facing the other way are
-    # both refined fully, limb restarts included, and the one that then explains the
-    # observations better is kept. A figure seen with its limbs nearly straight explains
-    # its silhouettes almost as well facing backwards; which facing is right shows only
-    # once each has its elbows and knees bent the way its joints allow, which the limb
-    # restarts find.
-    facings = [middle[0][1]]
-    opposite = [m for m in middle if abs(_turn(m[1].motion[3] - facings[0].motion[3])) > OPPOSITE_HEADING]
-    if opposite:
-        facings.append(opposite[0][1])
-    results: list[list[Any]] = []
-    for init in facings:
-        if results and results[0][0][1] >= WELL_EXPLAINED:
-            # The best facing explains nearly every observation: the other facing has
-            # nothing left to explain better (the demo's body figure: 0.986 against the
-            # other facing's 0.81, whose 54 restarts cost 9 of the search's 24 CPU s).
-            break
-        state = fit(init, shape, 60, None)
-        best: list[Any] = [score(state), state]
+    return middle
 
-        _restart_limbs(model, best, set_angles, fit, score, shape)
-        results.append(best)
-    results.sort(key=lambda b: b[0][0])
-    best = results[0]
-    for _ in range(RESTART_PASSES - 1):
-        # Each restart moves one limb (or the legs) with the rest held where the previous
-        # restarts left them, so a limb restarted while another limb was still wrong may
-        # have a better valley once that one is right: another pass from the improved
-        # state, while a pass still improves the score.
-        before = best[0][0]
-        _restart_limbs(model, best, set_angles, fit, score, shape)
-        if best[0][0] > (1 - PASS_GAIN) * before:
+
+def _trunk_coefficients(model: BodyModel) -> NDArray[np.bool_]:
+    """Which shape coefficients belong to the trunk and head (the parts not of a left or
+    right limb)."""
+    trunk = np.array([name[:2] not in ("l_", "r_") for name in model.part_names])
+    return np.repeat(trunk, model.n_shape // len(model.part_names))
+
+
+def _best_with_shape(model: BodyModel, scored: list[tuple[float, BodyState]], fit: Fit, score: Score) -> BodyState:
+    """Step 4 of :func:`search_pose`: the :data:`SHAPED_CANDIDATES` best distinct of
+    ``scored`` (``(score at the held shape, state)``), each fitted with the shape free
+    (60 iterations, all observations), the best-scored after that returned."""
+    chosen: list[tuple[BodyState, Any]] = []
+    for _, state in sorted(scored, key=lambda c: c[0]):
+        joints = model.pose(state)[1]
+        # distinct: the best few of one valley would crowd out the others
+        if all(np.max(np.linalg.norm(joints - other, axis=1)) > DISTINCT_POSE for _, other in chosen):
+            chosen.append((state, joints))
+        if len(chosen) == SHAPED_CANDIDATES:
             break
-    state = best[1]
-    return fit(state, None, 60, None) if fit_shape else state
+    fitted = [fit(state, None, 60, None) for state, _ in chosen]
+    return min(fitted, key=lambda state: score(state)[0])
 
 
 def _attempt(trial: BodyState, best: list[Any], fit: Fit, score: Score, shape: Any) -> None:
