@@ -67,6 +67,8 @@ def test_parse_frames():
 def test_bad_input(capture, tmp_path):
     with pytest.raises(InvalidInputError, match="not in the capture"):
         run_hull_stage(capture, tmp_path, frames=[99], progress=False)
+    with pytest.raises(InvalidInputError, match="phantoms must be 'drop' or 'keep'"):
+        run_hull_stage(capture, tmp_path, phantoms="maybe", progress=False)
     empty = tmp_path / "nomasks"
     empty.mkdir()
     with pytest.raises((InvalidInputError, FileNotFoundError)):

@@ -23,7 +23,7 @@ from elastocap.cameras.rig import Rig
 from elastocap.hull.grid import Grid
 from elastocap.hull.sdf import SDF
 
-__all__ = ["Hull", "visual_hull"]
+__all__ = ["Hull", "masks_in_rig_order", "visual_hull"]
 
 
 class Hull:
@@ -106,7 +106,9 @@ class Hull:
         return mesh
 
 
-def _masks_in_rig_order(masks: Any, rig: Rig) -> list[NDArray[np.uint8]]:
+def masks_in_rig_order(masks: Any, rig: Rig) -> list[NDArray[np.uint8]]:
+    """Silhouettes as ``(H, W) uint8`` 0/1 in the rig's camera order, each checked against its
+    camera's image size; ``masks`` a dict of camera name to mask or a sequence in rig order."""
     if isinstance(masks, Mapping):
         missing = [name for name in rig.names if name not in masks]
         if missing:
@@ -170,7 +172,7 @@ def visual_hull(
         raise InvalidInputError("rig must be a Rig with at least one camera")
     if not isinstance(grid, Grid):
         raise InvalidInputError(f"grid must be a Grid, got {type(grid)}")
-    ordered = _masks_in_rig_order(masks, rig)
+    ordered = masks_in_rig_order(masks, rig)
     cameras = rig.cameras
     if as_count("tolerance", tolerance, minimum=0) >= len(cameras):
         raise InvalidInputError(

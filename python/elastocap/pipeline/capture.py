@@ -157,7 +157,8 @@ def run_capture(
 
     def hull() -> None:
         masked["capture"] = masked_capture(cap, out, method=method)
-        run_hull_stage(masked["capture"], out, resolution=options.resolution, tolerance=options.tolerance, progress=progress)
+        run_hull_stage(masked["capture"], out, resolution=options.resolution, tolerance=options.tolerance,
+                       phantoms=options.phantoms, progress=progress)
 
     stages.append(("hull", hull))
     if options.tracks:

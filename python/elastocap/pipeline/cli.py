@@ -48,6 +48,7 @@ def _hull(args: argparse.Namespace) -> int:
         frames=parse_frames(args.frames, capture.frames),
         tolerance=args.tolerance,
         footprint=args.footprint,
+        phantoms="keep" if args.keep_phantoms else "drop",
         progress=not args.quiet,
     )
     print(f"wrote {len(written)} hull(s) into {Path(args.out) / 'hull'} ({len(capture.frames) - len(written)} already there or not asked for)")
@@ -231,6 +232,8 @@ def _parser() -> argparse.ArgumentParser:
     hull.add_argument("--frames", default=None, help="frames a:b (end exclusive) or a single frame (default: all)")
     hull.add_argument("--tolerance", type=int, default=0, help="cameras that may disagree (default: 0)")
     hull.add_argument("--footprint", choices=["center", "conservative"], default="center", help="finest-level test")
+    hull.add_argument("--keep-phantoms", action="store_true",
+                      help="keep the hull's components that explain no silhouette pixel of their own (default: left out)")
     hull.add_argument("--quiet", action="store_true", help="no progress bar")
     hull.set_defaults(run=_hull)
     track = commands.add_parser(

@@ -21,6 +21,7 @@ from elastocap.capture.folder import Capture
 from elastocap.hull.grid import Grid, space_seen_by
 from elastocap.hull.sdf import SDF
 from elastocap.hull.carve import Hull, visual_hull
+from elastocap.hull.phantoms import drop_phantoms
 
 __all__ = ["coarse_visibility", "frame_grid", "load_hull", "parse_frames", "run_hull_stage", "with_masks"]
 
@@ -104,6 +105,7 @@ def run_hull_stage(
     frames: Iterable[int] | None = None,
     tolerance: int = 0,
     footprint: str = "center",
+    phantoms: str = "drop",
     progress: bool = True,
 ) -> list[int]:
     """Carve, mesh and write the hull of every frame; returns the frames written now.
@@ -120,6 +122,10 @@ def run_hull_stage(
         Frames to process (default: all); frames already written are skipped.
     tolerance, footprint
         As in :func:`~elastocap.hull.carve.visual_hull`.
+    phantoms : {"drop", "keep"}
+        ``"drop"``: leave out the hull's components that explain no silhouette pixel of
+        their own (:func:`~elastocap.hull.phantoms.drop_phantoms`: blobs in space that few
+        cameras see, which the elastic model would take for part of the subject).
     progress : bool
         Show a progress bar.
     """
@@ -134,6 +140,8 @@ def run_hull_stage(
     unknown = sorted(set(wanted) - set(cap.frames))
     if unknown:
         raise InvalidInputError(f"frames {unknown[:5]} are not in the capture (it has {cap.frames[0]}..{cap.frames[-1]})")
+    if phantoms not in ("drop", "keep"):
+        raise InvalidInputError(f"phantoms must be 'drop' or 'keep', got {phantoms!r}")
     out = Path(out)
     todo = [f for f in wanted if not all(p.exists() for p in _frame_files(out, f))]
     seen = space_seen_by(cap.rig)
@@ -150,6 +158,8 @@ def run_hull_stage(
             )
         grid = frame_grid(masks, rig, resolution, seen, visibility if rig is cap.rig else None)
         hull = visual_hull(masks, rig, grid, tolerance=tolerance, footprint=footprint)
+        if phantoms == "drop":
+            hull = drop_phantoms(hull, masks, rig)
         ply, npz = _frame_files(out, frame)
         save_npz(
             npz,

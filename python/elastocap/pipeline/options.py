@@ -38,6 +38,8 @@ class CaptureOptions:
     dark_threshold: float = _option(30.0, "float", "grey level (0-255) above which a pixel may be the object (silhouettes = dark)")
     resolution: int = _option(128, "int", "hull voxels along the longest side")
     tolerance: int = _option(0, "int", "cameras that may disagree when carving")
+    phantoms: str = _option("drop", "str", "drop: leave out the hull's components that explain no silhouette pixel of their "
+                            "own (space few cameras see); keep: the carving as it is", ("drop", "keep"))
     nodes: int = _option(2500, "int", "nodes of the elastic model")
     rest_frame: int | None = _option(None, "int?", "frame the elastic model is built from (not set: the frame whose hull encloses the least volume)")
     rotation: str = _option("warped", "str", "rotation compensation of the elastic model", ("rhs", "warped", "none"))
