@@ -142,10 +142,15 @@ DRIFT_VARIANCE = (0.07, 0.22)
 # 3.57%, seed 3 2.56 -> 2.16%; through and every image figure unchanged. Tuned offline on
 # seed 0 (12 neighbours: sigma 1 3.12%, 2 2.36%, 3 2.28%; sigma 2: 20 neighbours 3.26%).
 # Where the neighbours straddle two body parts the prediction is wrong (seed 2: 215
-# positions broken for 228 fixed).
+# positions broken for 228 fixed). RIGID_BOTH_FRAMES > 0: the neighbours nearest in the
+# 6-D space of where they are now and (times this) where they were on the point's seeding
+# frame, so a part that has come close since is not taken (branch track12, tuned offline on
+# seeds 0, 2, 3 against the true point: 8 neighbours, sd 2 px, now only 2.11 / 3.57 /
+# 2.16%; 6, sd 3 px, 6-D 2.16 / 3.12 / 2.01%; true-part neighbours 1.89 / 2.95 / 1.57%).
 RIGID = True
-RIGID_NEIGHBOURS = 8
-RIGID_SIGMA = 2.0
+RIGID_NEIGHBOURS = 6
+RIGID_SIGMA = 3.0
+RIGID_BOTH_FRAMES = 1.0
 # Positions whose standard deviation along the weakest direction of that covariance
 # exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
 # tracker follows them on, but a run resumed from its files restarts their trajectory

@@ -311,7 +311,7 @@ class FrameTracker:
         xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
         if settings.RIGID:
             x, xcov = rigid_fusion(x, xcov, pixel, self.seeded_at, self.history, neighbours=settings.RIGID_NEIGHBOURS,
-                                   sigma=settings.RIGID_SIGMA)
+                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES)
         if not np.isfinite(settings.UNCERTAIN_SD):
             return x, xcov, flags
         with np.errstate(invalid="ignore"):
