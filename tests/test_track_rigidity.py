@@ -88,3 +88,42 @@ def test_the_prediction_weighs_less_where_the_intersection_is_sure():
     b, _ = rigid_fusion(x, loose, pixel, seeded, {0: before}, neighbours=8, sigma=2.0)
     assert np.linalg.norm(a[0] - x[0]) < 0.01 * PIXEL
     assert np.linalg.norm(b[0] - now[0]) < 0.4 * PIXEL
+
+
+def test_a_point_by_another_part_that_came_close_is_pulled_to_its_own_parts_motion():
+    # An arm (a limb) that has swung in beside the torso (a flat patch) since the points were
+    # seeded: now the arm's edge points have torso points among their nearest, whose motion
+    # (a small shift) is not theirs (a swing of 40 degrees and 25 cm). A point on the arm's
+    # edge drifted 6 px-eq along its rays (the covariance long along them, z).
+    rng = np.random.default_rng(7)
+    arm_now = _limb(rng, 120)
+    edge = np.array([0.05 * np.sin(1.25), 0.15, 0.05 * np.cos(1.25)])  # x 0.047: by the torso
+    arm_now = np.vstack([edge, arm_now])
+    torso_now = np.column_stack([rng.uniform(0.052, 0.2, 150), rng.uniform(0.0, 0.3, 150), rng.uniform(-0.002, 0.02, 150)])
+    swing = Rotation.from_euler("xyz", [40, 0, -25], degrees=True).as_matrix()
+    arm_then = (arm_now - np.array([0.25, 0.1, 0.0])) @ swing  # R^T (now - t)
+    torso_then = torso_now - np.array([0.0, 0.0, 0.02])
+    now, then = np.vstack([arm_now, torso_now]), np.vstack([arm_then, torso_then])
+    m = len(now)
+    ray = np.array([0.0, 0.0, 1.0])
+    cov = np.tile((0.3 * PIXEL) ** 2 * np.eye(3) + ((3.0 * PIXEL) ** 2 - (0.3 * PIXEL) ** 2) * np.outer(ray, ray), (m, 1, 1))
+    x = now.copy()
+    x[0] += 6.0 * PIXEL * ray
+    pixel = np.full(m, PIXEL)
+    seeded = np.zeros(m, np.int64)
+    # Nearest now only: the torso's shift is mixed into the arm's motion, the point predicted
+    # wrong (the test's premise: the two parts do meet at it).
+    mixed, _ = rigid_fusion(x, cov, pixel, seeded, {0: then}, neighbours=6, sigma=3.0)
+    fused, fcov = rigid_fusion(x, cov, pixel, seeded, {0: then}, neighbours=6, sigma=3.0, both_frames=1.0)
+    # With the seeding frame too, its neighbours are the arm's: from 6 px-eq to what the
+    # Gaussians leave, 6 sigma^2 / (sigma^2 + 3^2) = 3 px-eq, pulled along the rays only.
+    error = np.linalg.norm(fused[0] - now[0]) / PIXEL
+    np.testing.assert_allclose(error, 6.0 * 9 / 18, atol=0.2)
+    shift = fused[0] - x[0]
+    assert np.abs(shift[:2]).max() < 0.05 * abs(shift[2])
+    assert np.linalg.norm(mixed[0] - now[0]) / PIXEL > error + 1.0
+    # Every other point is exact but for the drifted one among its neighbours: at most its
+    # share of their fit, 6 px-eq / 6 neighbours.
+    others = np.linalg.norm(fused[1:] - now[1:], axis=1) / PIXEL
+    assert np.median(others) < 1e-9 and others.max() < 6.0 / 6 + 0.1
+    assert (np.linalg.eigvalsh(fcov) > 0).all()
