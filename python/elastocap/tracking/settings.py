@@ -144,13 +144,17 @@ DRIFT_VARIANCE = (0.07, 0.22)
 # Where the neighbours straddle two body parts the prediction is wrong (seed 2: 215
 # positions broken for 228 fixed). RIGID_BOTH_FRAMES > 0: the neighbours nearest in the
 # 6-D space of where they are now and (times this) where they were on the point's seeding
-# frame, so a part that has come close since is not taken (branch track12, tuned offline on
-# seeds 0, 2, 3 against the true point: 8 neighbours, sd 2 px, now only 2.11 / 3.57 /
-# 2.16%; 6, sd 3 px, 6-D 2.16 / 3.12 / 2.01%; true-part neighbours 1.89 / 2.95 / 1.57%).
+# frame, so a part that has come close since is not taken; RIGID_STRETCH finite: among the
+# RIGID_CANDIDATES nearest so, those whose distance to the point changed by less than this
+# many pixels since (branch track12, tuned offline on seeds 0, 2, 3 against the true point:
+# 8 neighbours, sd 2 px, nearest now 2.11 / 3.57 / 2.16%; 6-D 2.02 / 3.50 / 2.13%; 6-D and
+# stretch < 8 px, sd 2.5 px 2.05 / 2.77 / 1.75%; true-part neighbours 1.89 / 2.95 / 1.57%).
 RIGID = True
-RIGID_NEIGHBOURS = 6
-RIGID_SIGMA = 3.0
+RIGID_NEIGHBOURS = 8
+RIGID_SIGMA = 2.5
 RIGID_BOTH_FRAMES = 1.0
+RIGID_CANDIDATES = 16
+RIGID_STRETCH = 8.0
 # The reported covariance (after the fusion) times this. Against the true surface point the
 # fused covariance is optimistic: median Mahalanobis distance 1.93 / 2.04 / 1.91 on seeds 0,
 # 2, 3 (branch track12), where a calibrated 3-D Gaussian gives 1.54; 1.6 calibrates the
