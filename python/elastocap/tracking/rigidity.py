@@ -19,10 +19,15 @@ and the views keep the rest::
 
     x' = x + S (S + P)^-1 (p - x),   S' = S - S (S + P)^-1 S,   P = (sigma pixel)^2 I
 
-The neighbours are those nearest to the point both now and on its seeding frame (6-D;
-branch track12): the points nearest now alone mix body parts where two meet (on the
+The neighbours are taken from the point's own body part as far as its trajectory tells
+(branch track12): the points nearest now alone mix body parts where two meet (on the
 textured capture seed 2, 215 positions the fusion broke had most of their 8 neighbours on
-another part, an arm by the torso); a part that has come close since was far then.
+another part, an arm by the torso). So they are the nearest in the 6-D space of now and
+the seeding frame (a part that has come close since was far then), and of those the ones
+whose distance to the point has not changed by more than a few pixels since (a rigid
+motion keeps distances whatever its rotation; a part sliding past does not). Against the
+true surface point, kept 3-D positions beyond 5 px-equivalents, held-out seeds 8 and 9:
+3.50 -> 2.77% and 2.36 -> 1.98% (nearest now -> these), true-part neighbours 2.31 / 1.32%.
 
 Only what is reported changes: the tracker follows its points from their intersections,
 and the views (so every image figure) are untouched.

@@ -148,7 +148,8 @@ DRIFT_VARIANCE = (0.07, 0.22)
 # RIGID_CANDIDATES nearest so, those whose distance to the point changed by less than this
 # many pixels since (branch track12, tuned offline on seeds 0, 2, 3 against the true point:
 # 8 neighbours, sd 2 px, nearest now 2.11 / 3.57 / 2.16%; 6-D 2.02 / 3.50 / 2.13%; 6-D and
-# stretch < 8 px, sd 2.5 px 2.05 / 2.77 / 1.75%; true-part neighbours 1.89 / 2.95 / 1.57%).
+# stretch < 8 px, sd 2.5 px 2.05 / 2.77 / 1.75%; true-part neighbours 1.89 / 2.95 / 1.57%;
+# held out, fresh seeds 8 and 9: nearest now 3.50 / 2.36%, these 2.77 / 1.98%).
 RIGID = True
 RIGID_NEIGHBOURS = 8
 RIGID_SIGMA = 2.5
