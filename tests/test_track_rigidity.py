@@ -31,6 +31,29 @@ def test_rigid_motions_recover_a_rotation_exactly(seed):
     np.testing.assert_allclose(np.linalg.det(r), 1.0)
 
 
+@given(st.integers(0, 2**32 - 1))
+@hsettings(max_examples=25, deadline=None)
+def test_weighted_rigid_motions_ignore_what_weighs_nothing(seed):
+    # Points of weight 0 moved anywhere change nothing; the weighted fit of exact points is
+    # exact; weights that are all equal give the unweighted fit.
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(3, 8, 3))
+    rot = Rotation.random(3, random_state=seed).as_matrix()
+    t = rng.normal(size=(3, 3))
+    b = np.einsum("nij,nkj->nki", rot, a) + t[:, None]
+    w = rng.uniform(0.1, 2.0, size=(3, 8))
+    w[:, 5:] = 0.0
+    b[:, 5:] += rng.normal(0, 5.0, size=(3, 3, 3))
+    r, tr = rigid_motions(a, b, w)
+    np.testing.assert_allclose(r, rot, atol=1e-9)
+    np.testing.assert_allclose(tr, t, atol=1e-9)
+    b2 = b + rng.normal(0, 0.05, b.shape)
+    r1, t1 = rigid_motions(a, b2)
+    r2, t2 = rigid_motions(a, b2, np.full((3, 8), 0.3))
+    np.testing.assert_allclose(r2, r1, atol=1e-12)
+    np.testing.assert_allclose(t2, t1, atol=1e-12)
+
+
 def test_a_point_drifted_along_its_rays_is_pulled_back_by_its_neighbours():
     rng = np.random.default_rng(3)
     m = 80
@@ -88,3 +111,76 @@ def test_the_prediction_weighs_less_where_the_intersection_is_sure():
     b, _ = rigid_fusion(x, loose, pixel, seeded, {0: before}, neighbours=8, sigma=2.0)
     assert np.linalg.norm(a[0] - x[0]) < 0.01 * PIXEL
     assert np.linalg.norm(b[0] - now[0]) < 0.4 * PIXEL
+
+
+def test_a_point_by_another_part_that_came_close_is_pulled_to_its_own_parts_motion():
+    # An arm (a limb) that has swung in beside the torso (a flat patch) since the points were
+    # seeded: now the arm's edge points have torso points among their nearest, whose motion
+    # (a small shift) is not theirs (a swing of 40 degrees and 25 cm). A point on the arm's
+    # edge drifted 6 px-eq along its rays (the covariance long along them, z).
+    rng = np.random.default_rng(7)
+    arm_now = _limb(rng, 120)
+    edge = np.array([0.05 * np.sin(1.25), 0.15, 0.05 * np.cos(1.25)])  # x 0.047: by the torso
+    arm_now = np.vstack([edge, arm_now])
+    torso_now = np.column_stack([rng.uniform(0.052, 0.2, 150), rng.uniform(0.0, 0.3, 150), rng.uniform(-0.002, 0.02, 150)])
+    swing = Rotation.from_euler("xyz", [40, 0, -25], degrees=True).as_matrix()
+    arm_then = (arm_now - np.array([0.25, 0.1, 0.0])) @ swing  # R^T (now - t)
+    torso_then = torso_now - np.array([0.0, 0.0, 0.02])
+    now, then = np.vstack([arm_now, torso_now]), np.vstack([arm_then, torso_then])
+    m = len(now)
+    ray = np.array([0.0, 0.0, 1.0])
+    cov = np.tile((0.3 * PIXEL) ** 2 * np.eye(3) + ((3.0 * PIXEL) ** 2 - (0.3 * PIXEL) ** 2) * np.outer(ray, ray), (m, 1, 1))
+    x = now.copy()
+    x[0] += 6.0 * PIXEL * ray
+    pixel = np.full(m, PIXEL)
+    seeded = np.zeros(m, np.int64)
+    # Nearest now only: the torso's shift is mixed into the arm's motion, the point predicted
+    # wrong (the test's premise: the two parts do meet at it).
+    mixed, _ = rigid_fusion(x, cov, pixel, seeded, {0: then}, neighbours=6, sigma=3.0)
+    fused, fcov = rigid_fusion(x, cov, pixel, seeded, {0: then}, neighbours=6, sigma=3.0, both_frames=1.0)
+    # With the seeding frame too, its neighbours are the arm's: from 6 px-eq to what the
+    # Gaussians leave, 6 sigma^2 / (sigma^2 + 3^2) = 3 px-eq, pulled along the rays only.
+    error = np.linalg.norm(fused[0] - now[0]) / PIXEL
+    np.testing.assert_allclose(error, 6.0 * 9 / 18, atol=0.2)
+    shift = fused[0] - x[0]
+    assert np.abs(shift[:2]).max() < 0.05 * abs(shift[2])
+    assert np.linalg.norm(mixed[0] - now[0]) / PIXEL > error + 1.0
+    # Every other point is exact but for the drifted one among its neighbours: at most its
+    # share of their fit, 6 px-eq / 6 neighbours.
+    others = np.linalg.norm(fused[1:] - now[1:], axis=1) / PIXEL
+    assert np.median(others) < 1e-9 and others.max() < 6.0 / 6 + 0.1
+    assert (np.linalg.eigvalsh(fcov) > 0).all()
+
+
+def test_neighbours_whose_distance_to_the_point_changed_are_refused():
+    # The arm's edge point again, the arm moved 5 cm sideways onto the torso since: among
+    # the points nearest now (without the seeding frame's positions) most are the torso's,
+    # each of whose distances to the point has changed by centimetres, while a rigid
+    # motion keeps distances whatever its rotation.
+    rng = np.random.default_rng(8)
+    arm_now = np.vstack([[0.05 * np.sin(1.25), 0.15, 0.05 * np.cos(1.25)], _limb(rng, 120)])
+    torso_now = np.column_stack([rng.uniform(0.052, 0.2, 300), rng.uniform(0.0, 0.3, 300), rng.uniform(0.0, 0.01, 300)])
+    turn = Rotation.from_euler("y", 30, degrees=True).as_matrix()
+    arm_then = (arm_now + np.array([0.05, 0.0, 0.0])) @ turn - np.array([0.1, 0.0, 0.0])
+    torso_then = torso_now.copy()
+    now, then = np.vstack([arm_now, torso_now]), np.vstack([arm_then, torso_then])
+    m = len(now)
+    ray = np.array([0.0, 0.0, 1.0])
+    cov = np.tile((0.3 * PIXEL) ** 2 * np.eye(3) + ((3.0 * PIXEL) ** 2 - (0.3 * PIXEL) ** 2) * np.outer(ray, ray), (m, 1, 1))
+    x = now.copy()
+    x[0] += 6.0 * PIXEL * ray
+    pixel = np.full(m, PIXEL)
+    seeded = np.zeros(m, np.int64)
+    options = dict(neighbours=8, sigma=2.5)
+    plain, _ = rigid_fusion(x, cov, pixel, seeded, {0: then}, **options)
+    kept, kcov = rigid_fusion(x, cov, pixel, seeded, {0: then}, candidates=16, stretch=8.0, **options)
+    error = np.linalg.norm(kept[0] - now[0]) / PIXEL
+    # 6 sigma^2 / (sigma^2 + 3^2) = 2.46 px-eq left, moved along the rays only.
+    np.testing.assert_allclose(error, 6.0 * 6.25 / 15.25, atol=0.25)
+    shift = kept[0] - x[0]
+    assert np.abs(shift[:2]).max() < 0.05 * abs(shift[2])
+    assert np.linalg.norm(plain[0] - now[0]) / PIXEL > error + 1.0
+    assert (np.linalg.eigvalsh(kcov) > 0).all()
+    # Where fewer than 3 candidates kept their distance (none here), the nearest are taken.
+    few, _ = rigid_fusion(x, cov, pixel, seeded, {0: then}, candidates=16, stretch=0.0, **options)
+    np.testing.assert_allclose(few, plain, rtol=0, atol=1e-12)

@@ -311,7 +311,10 @@ class FrameTracker:
         xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
         if settings.RIGID:
             x, xcov = rigid_fusion(x, xcov, pixel, self.seeded_at, self.history, neighbours=settings.RIGID_NEIGHBOURS,
-                                   sigma=settings.RIGID_SIGMA)
+                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
+                                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+        if settings.COVARIANCE_SCALE != 1.0:
+            xcov = xcov * settings.COVARIANCE_SCALE
         if not np.isfinite(settings.UNCERTAIN_SD):
             return x, xcov, flags
         with np.errstate(invalid="ignore"):
