@@ -61,7 +61,7 @@ def track_backward(capture: Capture, tracks: Tracks, *, reach: int, spacing: int
         stop = max(0, int(start) - int(reach))
         if stop == start:
             continue
-        tracker = _started(capture, tracks, int(start), batch, spacing, size, radius, min_correlation, options)
+        tracker = _started(capture, tracks, tracks.views, int(start), batch, spacing, size, radius, min_correlation, options)
         for row in range(int(start) - 1, stop - 1, -1):
             record = tracker.step(int(tracks.frames[row]), first=False, reseed=False)
             # Only where the forward pass has nothing (it never does before `start`).
@@ -81,15 +81,16 @@ def track_backward(capture: Capture, tracks: Tracks, *, reach: int, spacing: int
                   views=views)
 
 
-def _started(capture: Capture, tracks: Tracks, row: int, batch: NDArray[np.int64], spacing: int, size: int, radius: int,
-             min_correlation: float, options: dict[str, Any]) -> FrameTracker:
+def _started(capture: Capture, tracks: Tracks, views: NDArray[np.float64], row: int, batch: NDArray[np.int64], spacing: int,
+             size: int, radius: int, min_correlation: float, options: dict[str, Any]) -> FrameTracker:
     """A tracker whose state is the ``batch`` of tracks at frame row ``row``, as if it had
-    just stepped there: their views, their 3-D positions, anchor patches cut there."""
+    just stepped there: their ``views`` (``tracks.views``), their 3-D positions, anchor
+    patches cut there."""
     tracker = FrameTracker(capture, spacing, size, radius, min_correlation, options)
     frame = int(tracks.frames[row])
     grey, masks = tracker._read(frame)
     weights = tracker._weights(masks)
-    uv = tracks.views[row, batch].copy()
+    uv = views[row, batch].copy()
     n, c = uv.shape[:2]
     tracker.uv = uv
     tracker.uv_last = np.full_like(uv, np.nan)

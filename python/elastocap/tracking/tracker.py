@@ -200,20 +200,23 @@ def track_points(
             records.append({k: record[k] for k in ("ids", "positions", "covariances", "flags", "uv")})
         if progress is not None:
             progress(chosen[i])
-    follow = dict(reach=backward, spacing=spacing, size=size, radius=radius, min_correlation=float(min_correlation),
-                  options=options)
+
+    def follow(tracks: Tracks) -> Tracks:
+        return track_backward(capture, tracks, reach=backward, spacing=spacing, size=size, radius=radius,
+                              min_correlation=float(min_correlation), options=options)
+
     if out is not None:
         tracks = load_tracks(out)
         keep = np.isin(tracks.frames, chosen)
         tracks = Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep],
                         None if tracks.views is None else tracks.views[keep])
         if backward and marker is not None and not marker.exists():
-            tracks = track_backward(capture, tracks, **follow)
+            tracks = follow(tracks)
             _rewrite(out, tracks)
             marker.write_text(json.dumps({"backward": backward}))
         return tracks
     tracks = _assemble(np.array(chosen, np.int64), records)
-    return track_backward(capture, tracks, **follow) if backward else tracks
+    return follow(tracks) if backward else tracks
 
 
 def _rewrite(out: str | Path, tracks: Tracks) -> None:
