@@ -156,6 +156,7 @@ def main() -> None:
         diagnose(truth, tracks, frames, diagonal, curves)
         lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
         anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6])
+        part_drift(truth, tracks, frames, diagonal, curves)
 
 
 def figure_lost(model, positions, meshes, frames) -> list[float]:
@@ -207,6 +208,35 @@ def diagnose(truth, tracks, frames, diagonal, curves) -> None:
                 near = float(np.mean(d < 0.02))
         print(f"{f:3d} {curves[False][0][i]:6.2f} {curves[True][0][i]:6.2f} {curves[True][2][i]:5d} {curves[True][3][i]:5d} "
               f"{count:5d} {age:5.1f} {drifted:6d} {near:5.2f}")
+
+
+def part_drift(truth, tracks, frames, diagonal, curves) -> None:
+    """Where the drift is, by body part (``synth.skeleton.PARTS``) of the truth's points:
+    the part's share of the points, its mean drift over the frames without / with tracks,
+    its share of the mean drift with tracks, and the share of its points with a tracked
+    position within 2% of the diagonal in the frame (what the tracks cover); worst first."""
+    from elastocap.synth.skeleton import PARTS
+
+    error = {}
+    for with_tracks in (False, True):
+        vertices, ties = curves[with_tracks][4], curves[with_tracks][5]
+        error[with_tracks] = np.stack([np.linalg.norm(vertices[f][ties] - truth.positions[f], axis=1) for f in frames]) * 100 / diagonal
+    near = np.zeros(error[True].shape, bool)
+    for i, f in enumerate(frames):
+        row = np.flatnonzero(tracks.frames == f)
+        live = tracks.positions[row[0]][tracks.flags[row[0]] == 0] if len(row) else np.zeros((0, 3))
+        if len(live):
+            near[i] = cKDTree(live).query(truth.positions[f])[0] <= 0.02 * diagonal
+    print(f"drift by part (% of the diagonal): all points {error[True].mean():.2f}; near a track ({near.mean():.2f} of them) "
+          f"{error[True][near].mean():.2f}, the others {error[True][~near].mean():.2f}")
+    print("  part          points  without   with  contributes  near")
+    rows = []
+    for p in np.unique(truth.part):
+        on = truth.part == p
+        rows.append((error[True][:, on].sum() / error[True].size, PARTS[p], on.mean(), error[False][:, on].mean(),
+                     error[True][:, on].mean(), near[:, on].mean()))
+    for share, name, points, without, with_, covered in sorted(rows, reverse=True):
+        print(f"  {name:12s} {100 * points:6.1f}% {without:8.2f} {with_:6.2f} {share:12.2f} {covered:5.2f}")
 
 
 def anchor_errors(model, truth, tracks, frames, diagonal, positions) -> None:

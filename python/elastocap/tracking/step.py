@@ -181,8 +181,9 @@ class FrameTracker:
                 preference = np.nan_to_num(corr, nan=0.0)
                 if settings.RETIE_REFERENCE == "anchor" and self.anchors is not None:
                     # The view whose anchor is oldest (cut again fewest times: drifted
-                    # least), the correlation breaking ties.
-                    age = np.where(self.anchors.held[:n], frame - self.anchors.frame[:n], 0)
+                    # least), the correlation breaking ties. Frames apart, either way: a
+                    # backward pass (tracking/backward.py) steps to earlier frames.
+                    age = np.where(self.anchors.held[:n], np.abs(frame - self.anchors.frame[:n]), 0)
                     preference = age / (frame + 1.0) + 1e-3 * preference
                 uv, cov2d, removed, shift = retie_views(grey, uv, cov2d, preference, size=self.size, min_correlation=self.min_correlation,
                                                  tolerance=settings.RETIE_TOLERANCE, drop=settings.RETIE_DROP,

@@ -16,6 +16,7 @@ per-frame step is :mod:`elastocap.tracking.step`, the re-acquisition of lost vie
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -26,9 +27,10 @@ from numpy.typing import NDArray
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_positive
 from elastocap.capture import Capture
+from elastocap.tracking.backward import track_backward
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.step import FrameTracker
-from elastocap.tracking.tracks import Tracks, load_tracks, write_frame
+from elastocap.tracking.tracks import Tracks, frame_file, load_tracks, read_frame, write_frame
 
 __all__ = ["track_points"]
 
@@ -66,6 +68,7 @@ def track_points(
     rescue: bool = True,
     mask_weights: bool = True,
     revive: bool = False,
+    backward: int = 0,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
     """Track surface points through a capture in every camera and in 3-D.
@@ -131,6 +134,13 @@ def track_points(
         by 0.1-0.3 point on the held-out seeds (seed 0: 3.28% against 3.31%) and a revived
         point's image error stays higher (median 0.7-0.8 px against 0.5) (benches/README.md,
         branch track9).
+    backward : int, default 0, keyword-only
+        After the forward pass, follow every point seeded after the first frame backward
+        from its seeding frame through at most this many earlier frames (the same step on
+        the frames in reverse, seeding nothing; :mod:`elastocap.tracking.backward`), so
+        that its track starts where it was first seen, nearer the rest frame of a fit.
+        0: off. With ``out``, the frame files are rewritten once all are written (a
+        ``tracks/backward.json`` records it; such a folder is not resumed with more frames).
     progress : callable, optional, keyword-only
         Called with each frame number once it is done.
 
@@ -142,7 +152,8 @@ def track_points(
     Raises
     ------
     InvalidInputError
-        Options out of range, frames not in the capture, a capture without masks.
+        Options out of range, frames not in the capture, a capture without masks; more
+        frames asked of an ``out`` whose tracks were followed backward.
     """
     if not capture.has_masks or not capture.has_images:
         raise InvalidInputError("capture must have images and masks to track points")
@@ -154,6 +165,7 @@ def track_points(
     if size % 2 == 0:
         raise InvalidInputError(f"size must be odd, got {size}")
     radius = as_count("radius", radius, minimum=0)
+    backward = as_count("backward", backward, minimum=0)
     if not -1 <= float(min_correlation) <= 1:
         raise InvalidInputError(f"min_correlation must lie in [-1, 1], got {min_correlation!r}")
     options = dict(
@@ -173,8 +185,13 @@ def track_points(
     tracker = FrameTracker(capture, spacing, size, radius, float(min_correlation), options)
     records: list[dict[str, NDArray[np.generic]]] = []
     start = 0
+    marker = None if out is None else Path(out) / "tracks" / "backward.json"
     if out is not None:
         start = tracker.resume(out, chosen)
+        if marker is not None and marker.exists() and start < len(chosen):
+            # Its files hold positions before each point's seeding that the forward state
+            # (seeding frames, the rigid fusion's history) does not know.
+            raise InvalidInputError(f"the tracks in {out} were followed backward; track more frames into a fresh folder")
     for i in range(start, len(chosen)):
         record = tracker.step(chosen[i], first=i == 0, reseed=i % options["reseed_every"] == 0)
         if out is not None:
@@ -183,12 +200,39 @@ def track_points(
             records.append({k: record[k] for k in ("ids", "positions", "covariances", "flags", "uv")})
         if progress is not None:
             progress(chosen[i])
+
+    def follow(tracks: Tracks) -> Tracks:
+        return track_backward(capture, tracks, reach=backward, spacing=spacing, size=size, radius=radius,
+                              min_correlation=float(min_correlation), options=options)
+
     if out is not None:
         tracks = load_tracks(out)
         keep = np.isin(tracks.frames, chosen)
-        return Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep],
-                      None if tracks.views is None else tracks.views[keep])
-    return _assemble(np.array(chosen, np.int64), records)
+        tracks = Tracks(tracks.frames[keep], tracks.ids, tracks.positions[keep], tracks.covariances[keep], tracks.flags[keep],
+                        None if tracks.views is None else tracks.views[keep])
+        if backward and marker is not None and not marker.exists():
+            tracks = follow(tracks)
+            _rewrite(out, tracks)
+            marker.write_text(json.dumps({"backward": backward}))
+        return tracks
+    tracks = _assemble(np.array(chosen, np.int64), records)
+    return follow(tracks) if backward else tracks
+
+
+def _rewrite(out: str | Path, tracks: Tracks) -> None:
+    """Each frame file of ``out`` with the positions, covariances, flags and views of
+    ``tracks``, its ids extended by the points followed back to it (seeded later); its
+    other arrays, the forward state, kept as they were."""
+    for i, frame in enumerate(tracks.frames):
+        arrays = dict(read_frame(frame_file(out, int(frame))))
+        ids = np.union1d(arrays["ids"], tracks.ids[tracks.flags[i] != TrackFlag.NOT_SEEDED]).astype(np.int64)
+        arrays["ids"] = ids
+        cols = np.searchsorted(tracks.ids, ids)
+        arrays["positions"], arrays["covariances"] = tracks.positions[i, cols], tracks.covariances[i, cols]
+        arrays["flags"] = tracks.flags[i, cols]
+        if tracks.views is not None:
+            arrays["uv"] = tracks.views[i, cols]
+        write_frame(out, int(frame), arrays)
 
 
 def _assemble(frames: NDArray[np.int64], records: list[dict[str, NDArray[np.generic]]]) -> Tracks:
