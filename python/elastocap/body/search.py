@@ -283,12 +283,13 @@ def _scaled(shape: Any, size: float) -> NDArray[np.float64]:
 def _overall_scale(state: BodyState, shape: Any, fit: Fit, score: Score) -> float:
     """The subject's overall size relative to ``shape``: of :data:`SCALE_PROBES`, the one
     at which ``state``'s pose, refitted with the shape held at it, scores best."""
-    best = (np.inf, 1.0)
+    best = (np.inf, 0.0, 1.0)
     for size in SCALE_PROBES:
         scaled = _scaled(shape, size)
         refit = fit(state.replace(shape=scaled), scaled, SCALE_ITERATIONS, 1200)
-        best = min(best, (score(refit)[0], size))
-    return best[1]
+        # a tie keeps the size nearest the held shape's
+        best = min(best, (score(refit)[0], abs(size - 1.0), size))
+    return best[2]
 
 
 def _trunk_coefficients(model: BodyModel) -> NDArray[np.bool_]:
