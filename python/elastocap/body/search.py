@@ -86,6 +86,12 @@ TRUNK_SHAPE_CHANGE = 0.1
 #: length, width and depth times one number) at which the middle stage's best is refitted
 #: (:data:`SCALE_ITERATIONS`, the shape held) and scored before the trunk's shape is
 #: fitted; the best-scored size is the limbs' in the second pass. Empty: the limbs at 1.
+#: Why: the capsule figure's frame 0 still started wrong after body12 on exactly the short
+#: figures (1.63-1.67 m against the model's 1.75 m); searched at the true height's scale
+#: (the limbs and trunk times 0.93), seed 28 with points went from 296 to 15 mm joints
+#: RMS. One number is what a wrong pose bends least: the middle stage's best of seed 28,
+#: 16 and 14 probed 0.92-0.96, and the demo's figure (the model itself) 1.0
+#: (``benches/README.md``, branch body13).
 SCALE_PROBES: tuple[float, ...] = (0.92, 0.96, 1.0, 1.04)
 SCALE_ITERATIONS = 30
 
@@ -131,7 +137,9 @@ def search_pose(
 
     With ``fit_shape`` and :data:`TRUNK_SHAPE_FIRST`, stages 1 and 2 run twice: at
     ``shape``, then at the trunk's coefficients of the shape fitted to the middle stage's
-    best (the limbs' from ``shape``); stages 3 and 4 follow from the second.
+    best and the limbs' from ``shape`` times the subject's overall size (the one of
+    :data:`SCALE_PROBES` at which the middle stage's best, refitted with the shape held,
+    scores best); stages 3 and 4 follow from the second.
 
     ``starts`` are further states (the tracker passes the last frame it held) fitted in
     stage 2 beside the carried ones (not turned): a pose the coarse grid does not reach (an
