@@ -89,9 +89,11 @@ TRUNK_SHAPE_CHANGE = 0.1
 #: Why: the capsule figure's frame 0 still started wrong after body12 on exactly the short
 #: figures (1.63-1.67 m against the model's 1.75 m); searched at the true height's scale
 #: (the limbs and trunk times 0.93), seed 28 with points went from 296 to 15 mm joints
-#: RMS. One number is what a wrong pose bends least: the middle stage's best of seed 28,
-#: 16 and 14 probed 0.92-0.96, and the demo's figure (the model itself) 1.0
-#: (``benches/README.md``, branch body13).
+#: RMS. One number, read from the middle stage's best even where that pose is wrong: on
+#: the capsule seeds it read 0.92-1.0, never above the truth, and the demo's figure (the
+#: model itself) 1.0; a pose half a turn off with its limbs bent the wrong way read 1.0
+#: for a 0.92 subject, so a badly wrong middle stage gets no size (``benches/README.md``,
+#: branch body13).
 SCALE_PROBES: tuple[float, ...] = (0.92, 0.96, 1.0, 1.04)
 SCALE_ITERATIONS = 30
 
