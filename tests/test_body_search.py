@@ -270,3 +270,82 @@ def test_the_trunk_pass_runs_only_when_the_trunk_shape_moved(trunk_value: float,
     search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
     assert len(coarse) == passes * 8 * len(search.COARSE_STARTS)
     assert coarse[-1] == pytest.approx(1.0 if passes == 1 else trunk_value)
+
+
+def test_the_limbs_are_searched_at_the_subject_size_probed_from_the_middle_stage_best(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A short subject (every part 0.92 of the model's): at the model's own limbs the
+    backward facing scores best, even once the trunk's shape is fitted, and only at the
+    subject's size does the right facing (the capsule figure's seed 28 with points, 1.63 m:
+    296 mm joints RMS at the model's limbs, 15 mm searched at its height's scale). The
+    middle stage's best, though facing the wrong way, scores best refitted at the subject's
+    size (its trunk and legs span the subject's height); the second pass searches there
+    and finds the right facing. Without the probes (:data:`SCALE_PROBES` empty: the limbs
+    held at 1, as before) the backward facing is returned."""
+    size = 0.92
+    subject = np.full(MODEL.n_shape, size)
+    subject[3::4] = 1.0  # tapers as described
+
+    def limbs_off(shape) -> float:
+        return abs(float(np.median(np.asarray(shape)[::4])) - size)
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        right = _facing(float(state.motion[3])) < 0.2
+        if shape is None:
+            # the right pose's fitted shape is the subject's; a wrong pose's limbs absorb its error
+            return state.replace(shape=subject if right else np.full(MODEL.n_shape, 1.3))
+        if right and limbs_off(shape) > 0.05:
+            # at limbs far from the subject's, a fit started facing right walks into the
+            # backward valley
+            motion = state.motion.copy()
+            motion[3] = np.pi
+            return state.replace(shape=shape, motion=motion)
+        return state.replace(shape=shape)
+
+    def score(state: BodyState) -> tuple[float, float]:
+        if np.any(state.motion[6:]):
+            return 0.05, 0.5
+        heading = _facing(float(state.motion[3]))
+        # how far the limbs' size is from the subject's: a height off misplaces hands and feet
+        off = limbs_off(state.shape)
+        if heading < 0.2:
+            return 0.004 + 0.1 * off, 0.9
+        if heading > np.pi - 0.2:
+            return 0.008 + 0.01 * off, 0.9
+        return 0.05, 0.5
+
+    assert size in search.SCALE_PROBES
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
+    assert _facing(float(state.motion[3])) < 0.2
+    assert np.allclose(state.shape, subject)
+    monkeypatch.setattr(search, "SCALE_PROBES", ())
+    state = search_pose(MODEL, np.zeros(3), np.ones(MODEL.n_shape), fit, score, fit_shape=True, headings=8)
+    assert _facing(float(state.motion[3])) > np.pi - 0.2
+
+
+@pytest.mark.parametrize("size", [0.92, 1.04])
+def test_the_size_probe_recovers_a_subject_size_with_the_tracker_fit(size: float) -> None:
+    """The body model itself at ``size`` seen by 6 cameras (masks alone), the probe run with
+    the tracker's own fit and score from the true pose at the model's unit shape: it
+    returns the subject's size, not the model's. (From that pose turned by half a turn, a
+    wrong pose with its arms and legs bent the wrong way, the probe returned 1.0 for a
+    0.92 subject: it is read from the middle stage's best, which on the short capsule
+    figures was good enough; ``benches/README.md``, branch body13.)"""
+    from body_scenes import z_up_cameras
+
+    from elastocap.body import BodyObservations
+    from elastocap.body.track import BodyTracker
+    from elastocap.render import render_silhouette
+    from elastocap.synth.body import BodyFigure
+
+    cameras = z_up_cameras(6, width=320, height=240)
+    subject = search._scaled(np.ones(MODEL.n_shape), size)
+    truth = BodyFigure(5).state(0).replace(shape=subject)
+    masks = [render_silhouette(MODEL.skin_mesh(truth, spacing=0.01), c) for c in cameras]
+    tracker = BodyTracker(MODEL, cameras=cameras)
+    frame = tracker._prepare(BodyObservations(masks=masks), 0)
+
+    def fit(state: BodyState, shape, iterations: int, rays) -> BodyState:
+        return tracker._fit([frame], [state], shape=shape, iterations=iterations, rays=rays).states[0]
+
+    start = BodyState(np.ones(MODEL.n_shape), truth.motion.copy())
+    assert search._overall_scale(start, np.ones(MODEL.n_shape), fit, lambda s: tracker.score(s, frame)) == size

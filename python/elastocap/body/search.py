@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from elastocap.body.model import BodyModel, BodyState
+from elastocap.body.model import SHAPE_NAMES, BodyModel, BodyState
 from elastocap.body.starts import BodyVolume, data_starts
 
 __all__ = ["ARM_STARTS", "LEG_STARTS", "search_pose"]
@@ -82,6 +82,20 @@ TRUNK_SHAPE_FIRST = True
 #: search at nearly the same shape (the demo's body figure, the model itself: 0.98-1.02,
 #: 11 more CPU s; the capsule figure's trunk: 0.56-0.89 at the true pose).
 TRUNK_SHAPE_CHANGE = 0.1
+#: With ``fit_shape`` and :data:`TRUNK_SHAPE_FIRST`: the overall sizes (every part's
+#: length, width and depth times one number) at which the middle stage's best is refitted
+#: (:data:`SCALE_ITERATIONS`, the shape held) and scored before the trunk's shape is
+#: fitted; the best-scored size is the limbs' in the second pass. Empty: the limbs at 1.
+#: Why: the capsule figure's frame 0 still started wrong after body12 on exactly the short
+#: figures (1.63-1.67 m against the model's 1.75 m); searched at the true height's scale
+#: (the limbs and trunk times 0.93), seed 28 with points went from 296 to 15 mm joints
+#: RMS. One number, read from the middle stage's best even where that pose is wrong: on
+#: the capsule seeds it read 0.92-1.0, never above the truth, and the demo's figure (the
+#: model itself) 1.0; a pose half a turn off with its limbs bent the wrong way read 1.0
+#: for a 0.92 subject, so a badly wrong middle stage gets no size (``benches/README.md``,
+#: branch body13).
+SCALE_PROBES: tuple[float, ...] = (0.92, 0.96, 1.0, 1.04)
+SCALE_ITERATIONS = 30
 
 #: fit(state, shape, iterations, rays) -> fitted state; shape None fits the shape too, rays
 #: None uses all silhouette rays.
@@ -125,7 +139,9 @@ def search_pose(
 
     With ``fit_shape`` and :data:`TRUNK_SHAPE_FIRST`, stages 1 and 2 run twice: at
     ``shape``, then at the trunk's coefficients of the shape fitted to the middle stage's
-    best (the limbs' from ``shape``); stages 3 and 4 follow from the second.
+    best and the limbs' from ``shape`` times the subject's overall size (the one of
+    :data:`SCALE_PROBES` at which the middle stage's best, refitted with the shape held,
+    scores best); stages 3 and 4 follow from the second.
 
     ``starts`` are further states (the tracker passes the last frame it held) fitted in
     stage 2 beside the carried ones (not turned): a pose the coarse grid does not reach (an
@@ -180,13 +196,17 @@ def search_pose(
 
     middle = first_stages()
     if fit_shape and TRUNK_SHAPE_FIRST and middle[0][0][1] < WELL_EXPLAINED:
-        # The trunk's shape from the middle stage's best, the limbs' held, and stages 1
-        # and 2 again at it: a wrong pose's fitted shape is wrong in the limbs that
-        # explain its error, not in the trunk, which the heading and the root place.
+        # The subject's overall size first (one number, which a wrong pose bends little),
+        # then the trunk's shape from the middle stage's best at that size, the limbs'
+        # held at it, and stages 1 and 2 again at that shape: a wrong pose's fitted shape
+        # is wrong in the limbs that explain its error, not in the trunk, which the
+        # heading and the root place.
+        size = _overall_scale(middle[0][1], shape, fit, score) if SCALE_PROBES else 1.0
+        scaled = _scaled(shape, size)
         trunk = _trunk_coefficients(model)
-        fitted = fit(middle[0][1], None, 60, None).shape
-        if np.max(np.abs(fitted - shape)[trunk]) > TRUNK_SHAPE_CHANGE:
-            shape = np.where(trunk, fitted, shape)
+        fitted = fit(middle[0][1].replace(shape=scaled), None, 60, None).shape
+        if size != 1.0 or np.max(np.abs(fitted - shape)[trunk]) > TRUNK_SHAPE_CHANGE:
+            shape = np.where(trunk, fitted, scaled)
             middle = first_stages()
     # Front and back: the best of the middle stage and the best facing the other way are
     # both refined fully, limb restarts included, and the one that then explains the
@@ -260,6 +280,26 @@ def _first_stages(
         middle.append((score(state), state))
     middle.sort(key=lambda m: m[0][0])
     return middle
+
+
+def _scaled(shape: Any, size: float) -> NDArray[np.float64]:
+    """``shape`` with every part's length, width and depth times ``size`` (its taper
+    kept): the same body ``size`` times as large."""
+    table = np.array(shape, dtype=np.float64).reshape(-1, len(SHAPE_NAMES))
+    table[:, :3] *= size
+    return table.reshape(-1)
+
+
+def _overall_scale(state: BodyState, shape: Any, fit: Fit, score: Score) -> float:
+    """The subject's overall size relative to ``shape``: of :data:`SCALE_PROBES`, the one
+    at which ``state``'s pose, refitted with the shape held at it, scores best."""
+    best = (np.inf, 0.0, 1.0)
+    for size in SCALE_PROBES:
+        scaled = _scaled(shape, size)
+        refit = fit(state.replace(shape=scaled), scaled, SCALE_ITERATIONS, 1200)
+        # a tie keeps the size nearest the held shape's
+        best = min(best, (score(refit)[0], abs(size - 1.0), size))
+    return best[2]
 
 
 def _trunk_coefficients(model: BodyModel) -> NDArray[np.bool_]:
