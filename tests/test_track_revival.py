@@ -87,3 +87,51 @@ def test_a_lost_point_is_predicted_by_its_neighbours_rigid_motion(monkeypatch):
     assert errors[True].max() < 1e-9
     # The lever arm from the neighbours' centre is millimetres to centimetres here.
     assert errors[False].max() > 1e-3
+
+
+def _rotation(axis: int, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    i, j = [k for k in range(3) if k != axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+def test_a_lost_point_is_predicted_from_its_own_parts_motion(monkeypatch):
+    # Two rigid patches (an arm and the torso, 1 cm grids). Since the points were seeded
+    # the arm has swung down by the torso: on the frame before the loss its edge points
+    # lie 1 cm from the torso's, so half the nearest points then are the torso's. While
+    # the edge points are lost the arm swings on 25 degrees and the torso turns the other
+    # way: the nearest points' rigid motion mixes the two and misses; the neighbours whose
+    # distance to the point kept since the seeding (the own-part rule) are the arm's, and
+    # their rigid motion lands on the point exactly.
+    g = np.stack(np.meshgrid(np.arange(8), np.arange(8), indexing="ij"), -1).reshape(-1, 2) * 0.01
+    arm0 = np.column_stack([g[:, 0] + 0.2, g[:, 1], np.zeros(len(g))])     # seeded 20 cm away
+    torso0 = np.column_stack([-g[:, 0] - 0.01, g[:, 1], np.zeros(len(g))])
+    arm_then = arm0 - [0.2, 0, 0]                                             # came close: 1 cm gap
+    torso_then = torso0.copy()
+    pivot = np.array([0.07, 0.035, 0.0])
+    arm_now = (arm_then - pivot) @ _rotation(1, 25).T + pivot
+    torso_now = torso_then @ _rotation(2, -10).T + [0, 0, 0.02]
+    seed = np.concatenate([arm0, torso0])
+    then = np.concatenate([arm_then, torso_then])
+    truth_now = np.concatenate([arm_now, torso_now])
+    edge = np.flatnonzero(np.isclose(arm_then[:, 0], 0.0))                    # arm points by the torso
+    lost = Lost(window=15)
+    lost.remember(0, seed)
+    lost.remember(4, then)
+    died = np.zeros(len(then), bool)
+    died[edge] = True
+    lost.record(died, then, frame=5)
+    now = np.where(died[:, None], np.nan, truth_now)
+    seeded = np.zeros(len(then), np.int64)
+    pixel = np.full(len(edge), 0.003)   # 3 mm a pixel: the torso's points moved by 20 cm = 67 px
+    errors = {}
+    for own in (False, True):
+        monkeypatch.setattr(settings, "REVIVE_OWN_PART", own)
+        monkeypatch.setattr(settings, "REVIVE_RIGID", True)
+        predicted = lost.predict(edge, now, seeded=seeded, seeds={0: seed}, pixel=pixel)
+        errors[own] = np.linalg.norm(predicted - truth_now[edge], axis=1)
+    assert errors[True].max() < 1e-9
+    assert errors[False].max() > 0.01   # a grid step (2.8 cm here)

@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from elastocap.tracking import settings
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.rigidity import rigid_motions
 from elastocap.tracking.views import intersect_views, project_all
 from elastocap.tracking.visibility import predicted_visible
 
@@ -73,14 +74,23 @@ class Lost:
         """Points lost before ``frame`` and at most ``window`` frames before it."""
         return np.flatnonzero((self.since >= 0) & (self.since < frame) & (frame - self.since <= self.window))
 
-    def predict(self, rows: NDArray[np.int64], now: NDArray[np.float64]) -> NDArray[np.float64]:
+    def predict(self, rows: NDArray[np.int64], now: NDArray[np.float64], *,
+                seeded: NDArray[np.int64] | None = None, seeds: dict[int, NDArray[np.float64]] | None = None,
+                pixel: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """(M, 3) predicted positions of ``rows``: their last position moved by the motion
-        of the ``NEIGHBOURS`` points nearest to it among those tracked on the last frame
-        before it was lost and now (``now`` (N, 3), NaN where not tracked): their rigid
-        motion (``settings.REVIVE_RIGID``) or their median displacement; NaN without that
-        frame's positions or with fewer than ``MIN_NEIGHBOURS`` such points."""
+        of neighbours tracked on the last frame before it was lost and now (``now`` (N, 3),
+        NaN where not tracked); NaN without that frame's positions or with fewer than
+        ``MIN_NEIGHBOURS`` such points.
+
+        With ``seeded`` (N,), ``seeds`` and ``pixel`` (M,) given and
+        ``settings.REVIVE_OWN_PART`` (the tracker's seeding frame of each point, the
+        positions on those frames, world units per pixel at ``rows``), the neighbours are
+        those of its own body part as far as their trajectories tell (:func:`own_part`) and
+        their rigid motion moves it; else the ``NEIGHBOURS`` points nearest to it then, by
+        their rigid motion (``settings.REVIVE_RIGID``) or their median displacement."""
         out = np.full((len(rows), 3), np.nan)
         frames = sorted(self.history)
+        own = settings.REVIVE_OWN_PART and seeded is not None and seeds is not None and pixel is not None
         for since in np.unique(self.since[rows]):
             before = [f for f in frames if f < since]
             if not before:
@@ -91,6 +101,13 @@ class Lost:
             if both.size < MIN_NEIGHBOURS:
                 continue
             group = np.flatnonzero(self.since[rows] == since)
+            if own:
+                assert seeded is not None and seeds is not None and pixel is not None
+                for key in np.unique(seeded[rows[group]]):
+                    sub = group[seeded[rows[group]] == key]
+                    earlier = _padded(seeds.get(int(key)), len(then))
+                    out[sub] = own_part(self.x[rows[sub]], earlier[rows[sub]], then, earlier, now, both, pixel[sub])
+                continue
             k = min(NEIGHBOURS, both.size)
             _, near = cKDTree(then[both]).query(self.x[rows[group]], k=k)
             near = both[np.asarray(near).reshape(len(group), k)]
@@ -110,6 +127,59 @@ class Lost:
         if "lost_since" in arrays:
             self.since = np.asarray(arrays["lost_since"], np.int64).copy()
             self.x = np.asarray(arrays["lost_x"], float).copy()
+
+
+def _padded(positions: NDArray[np.float64] | None, n: int) -> NDArray[np.float64]:
+    """``positions`` (M, 3) as (n, 3), NaN past M or where missing."""
+    out = np.full((n, 3), np.nan)
+    if positions is not None:
+        m = min(n, len(positions))
+        out[:m] = positions[:m]
+    return out
+
+
+def own_part(x: NDArray[np.float64], x_seed: NDArray[np.float64], then: NDArray[np.float64], seed: NDArray[np.float64],
+             now: NDArray[np.float64], candidates: NDArray[np.int64], pixel: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Lost points at ``x`` (M, 3) on the last frame before their loss (``x_seed`` on their
+    seeding frame) moved by the rigid motion (``then`` -> ``now``, (N, 3)) of neighbours of
+    their own body part: of the ``candidates`` (tracked then and now), the
+    ``settings.REVIVE_CANDIDATES`` nearest in the 6-D space of then and the seeding frame
+    (``seed``; a part that has come close since was far then), and of those the nearest
+    ``NEIGHBOURS`` whose distance to the point changed by less than ``settings.RIGID_STRETCH``
+    pixels (``pixel`` (M,) world units) between the two (a rigid motion keeps distances; a
+    part sliding past does not): branch track12's rule for the fusion. Where the seeding
+    frame is unknown, or fewer than ``MIN_NEIGHBOURS`` keep their distance, the nearest
+    then. A point lost by an arm passing in front of it is lost where another part comes
+    close: the nearest points then are the arm's as often as its own."""
+    out = np.full((len(x), 3), np.nan)
+    cand = candidates[np.isfinite(seed[candidates]).all(axis=1)]
+    dated = np.isfinite(x_seed).all(axis=1) & np.isfinite(pixel)
+    if cand.size < MIN_NEIGHBOURS:
+        dated[:] = False
+        cand = candidates
+    k = min(max(settings.REVIVE_CANDIDATES, NEIGHBOURS), cand.size)
+    near = np.zeros((len(x), k), np.int64)
+    if dated.any():
+        _, idx = cKDTree(np.hstack([then[cand], seed[cand]])).query(np.hstack([x[dated], x_seed[dated]]), k=k)
+        near[dated] = cand[np.asarray(idx).reshape(-1, k)]
+    if (~dated).any():
+        k3 = min(k, candidates.size)
+        _, idx = cKDTree(then[candidates]).query(x[~dated], k=k3)
+        near[~dated, :k3] = candidates[np.asarray(idx).reshape(-1, k3)]
+        near[~dated, k3:] = near[~dated, :1]
+    take = np.zeros(near.shape, bool)
+    take[:, :NEIGHBOURS] = True
+    with np.errstate(invalid="ignore"):
+        d_then = np.linalg.norm(then[near] - x[:, None], axis=2)
+        d_seed = np.linalg.norm(seed[near] - x_seed[:, None], axis=2)
+        kept = np.abs(d_then - d_seed) < settings.RIGID_STRETCH * pixel[:, None]
+    kept &= dated[:, None]
+    kept &= np.cumsum(kept, axis=1) <= NEIGHBOURS
+    enough = kept.sum(axis=1) >= MIN_NEIGHBOURS
+    take[enough] = kept[enough]
+    r, t = rigid_motions(then[near], now[near], take.astype(np.float64))
+    out[:] = np.einsum("mij,mj->mi", r, x) + t
+    return out
 
 
 def _rigid_motion(then: NDArray[np.float64], now: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -145,7 +215,9 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     if rows.size == 0:
         return x, x_state
     tracked = np.isfinite(x).all(axis=1)
-    predicted = tracker.lost.predict(rows, np.where(tracked[:, None], x, np.nan))
+    pixel = pixel_size(tracker.cameras, tracker.lost.x[rows], tracker.anchors.held[rows])
+    predicted = tracker.lost.predict(rows, np.where(tracked[:, None], x, np.nan), seeded=tracker.seeded_at,
+                                     seeds=tracker.history, pixel=pixel)
     targets = project_all(tracker.cameras, predicted, margin=tracker.size)
     if settings.PREDICT_VISIBILITY:
         # The cameras that held the point and are predicted to see it again.

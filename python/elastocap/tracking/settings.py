@@ -38,6 +38,12 @@ REVIVE_FRAMES = 15
 # brings back are lost again: through 33.46 -> 33.49%, kept 3-D beyond 5 px-eq 3.28 ->
 # 3.36% (benches/README.md, branch track9), so it is off.
 REVIVE_RIGID = False
+# The neighbours that predict a lost point taken from its own body part (revival.own_part:
+# of the REVIVE_CANDIDATES nearest in the 6-D space of the last frame before the loss and
+# the point's seeding frame, those whose distance to it changed by less than RIGID_STRETCH
+# pixels), moved by their rigid motion (REVIVE_RIGID then does not apply).
+REVIVE_OWN_PART = False
+REVIVE_CANDIDATES = 16
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
 # position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8
