@@ -135,3 +135,51 @@ def test_a_lost_point_is_predicted_from_its_own_parts_motion(monkeypatch):
         errors[own] = np.linalg.norm(predicted - truth_now[edge], axis=1)
     assert errors[True].max() < 1e-9
     assert errors[False].max() > 0.01   # a grid step (2.8 cm here)
+
+
+def _textured(seed: int, shape=(120, 160)) -> np.ndarray:
+    import cv2
+
+    noise = np.random.default_rng(seed).uniform(0, 255, (shape[0] // 3, shape[1] // 3)).astype(np.float32)
+    return cv2.GaussianBlur(cv2.resize(noise, shape[::-1], interpolation=cv2.INTER_CUBIC), (0, 0), 0.7)
+
+
+def test_an_anchor_turned_with_its_part_is_found_by_its_warped_patch():
+    # One camera's image turned by 35 degrees and foreshortened by 0.7 along one axis about a
+    # point between the frame its anchor patches were cut on and now: the plain anchor search
+    # (a translation-only box search first) loses most of them; warped by the known affine
+    # they are found where the points went, within 0.05 px (the warped patch's corners
+    # fall outside what was cut and weigh nothing, so a few are still missed). With the identity the warped
+    # search is the plain one, to the bit.
+    import cv2
+    from types import SimpleNamespace
+
+    from elastocap.tracking.anchors import Anchors
+    from elastocap.tracking.revival import warped_search
+
+    before = _textured(4)
+    a = np.radians(35.0)
+    affine = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) @ np.diag([1.0, 0.7])
+    pivot = np.array([80.0, 60.0])
+    warp = np.hstack([affine, (pivot - affine @ pivot)[:, None]])
+    after = cv2.warpAffine(before, warp, before.shape[::-1], flags=cv2.INTER_CUBIC)
+    grid = np.stack(np.meshgrid(np.arange(55.0, 106.0, 10.0), np.arange(40.0, 81.0, 10.0)), -1).reshape(-1, 2) + 0.3
+    n = len(grid)
+    anchors = Anchors(1, 15)
+    anchors.cut([before], grid[:, None], np.ones((n, 1), bool), 0)
+    moved = (grid - pivot) @ affine.T + pivot
+    starts = (moved + [1.5, -1.0])[:, None]  # a prediction a pixel or two off
+    tracker = SimpleNamespace(anchors=anchors, min_correlation=0.75, o={"forward_backward": 0.6}, keep_texture=0.0)
+    where = np.ones((n, 1), bool)
+    rows = np.arange(n)
+    kwargs = dict(radius=settings.REVIVE_RADIUS, min_correlation=0.75, box_correlation=min(0.75, settings.BOX_CORRELATION),
+                  forward_backward=0.6, min_texture=0.0, max_iterations=settings.STEP_ITERATIONS)
+    plain, _ = anchors.search([after], starts, where, **kwargs)
+    same, _ = warped_search(tracker, [after], starts, where, rows, np.broadcast_to(np.eye(2), (n, 1, 2, 2)))
+    np.testing.assert_array_equal(same, plain)
+    warped, cov = warped_search(tracker, [after], starts, where, rows, np.broadcast_to(affine, (n, 1, 2, 2)))
+    found = np.isfinite(warped[:, 0, 0])
+    assert found.mean() >= 0.8
+    assert np.isfinite(plain[:, 0, 0]).mean() <= 0.2
+    assert np.abs(warped[found, 0] - moved[found]).max() < 0.05
+    assert np.isfinite(cov[found]).all()

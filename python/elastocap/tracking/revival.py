@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from elastocap import _core
 from elastocap.tracking import settings
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
@@ -45,6 +47,7 @@ class Lost:
         self.since = np.zeros(0, np.int64)
         self.x = np.zeros((0, 3))
         self.history: dict[int, NDArray[np.float64]] = {}
+        self.chosen: dict[int, tuple[NDArray[np.int64], int]] = {}
 
     def grow(self, n: int) -> None:
         extra = n - len(self.since)
@@ -90,6 +93,9 @@ class Lost:
         their rigid motion (``settings.REVIVE_RIGID``) or their median displacement."""
         out = np.full((len(rows), 3), np.nan)
         frames = sorted(self.history)
+        # Per point predicted from its own part: those neighbours and the frame before the
+        # loss (for the anchors' warp, :func:`anchor_affines`).
+        self.chosen = {}
         own = settings.REVIVE_OWN_PART and seeded is not None and seeds is not None and pixel is not None
         for since in np.unique(self.since[rows]):
             before = [f for f in frames if f < since]
@@ -106,7 +112,11 @@ class Lost:
                 for key in np.unique(seeded[rows[group]]):
                     sub = group[seeded[rows[group]] == key]
                     earlier = _padded(seeds.get(int(key)), len(then))
-                    out[sub] = own_part(self.x[rows[sub]], earlier[rows[sub]], then, earlier, now, both, pixel[sub])
+                    near, take = own_part(self.x[rows[sub]], earlier[rows[sub]], then, earlier, both, pixel[sub])
+                    r, t = rigid_motions(then[near], now[near], take.astype(np.float64))
+                    out[sub] = np.einsum("mij,mj->mi", r, self.x[rows[sub]]) + t
+                    for j, row in enumerate(rows[sub]):
+                        self.chosen[int(row)] = (near[j][take[j]], int(before[-1]))
                 continue
             k = min(NEIGHBOURS, both.size)
             _, near = cKDTree(then[both]).query(self.x[rows[group]], k=k)
@@ -139,10 +149,11 @@ def _padded(positions: NDArray[np.float64] | None, n: int) -> NDArray[np.float64
 
 
 def own_part(x: NDArray[np.float64], x_seed: NDArray[np.float64], then: NDArray[np.float64], seed: NDArray[np.float64],
-             now: NDArray[np.float64], candidates: NDArray[np.int64], pixel: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Lost points at ``x`` (M, 3) on the last frame before their loss (``x_seed`` on their
-    seeding frame) moved by the rigid motion (``then`` -> ``now``, (N, 3)) of neighbours of
-    their own body part: of the ``candidates`` (tracked then and now), the
+             candidates: NDArray[np.int64], pixel: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """The neighbours (M, K) of lost points at ``x`` (M, 3) on the last frame before their
+    loss (``x_seed`` on their seeding frame) whose rigid motion (``then`` (N, 3) -> now)
+    predicts them, and which of them count (M, K): of the ``candidates`` (tracked then and
+    now), the
     ``settings.REVIVE_CANDIDATES`` nearest in the 6-D space of then and the seeding frame
     (``seed``; a part that has come close since was far then), and of those the nearest
     ``NEIGHBOURS`` whose distance to the point changed by less than ``settings.RIGID_STRETCH``
@@ -151,7 +162,6 @@ def own_part(x: NDArray[np.float64], x_seed: NDArray[np.float64], then: NDArray[
     frame is unknown, or fewer than ``MIN_NEIGHBOURS`` keep their distance, the nearest
     then. A point lost by an arm passing in front of it is lost where another part comes
     close: the nearest points then are the arm's as often as its own."""
-    out = np.full((len(x), 3), np.nan)
     cand = candidates[np.isfinite(seed[candidates]).all(axis=1)]
     dated = np.isfinite(x_seed).all(axis=1) & np.isfinite(pixel)
     if cand.size < MIN_NEIGHBOURS:
@@ -177,9 +187,7 @@ def own_part(x: NDArray[np.float64], x_seed: NDArray[np.float64], then: NDArray[
     kept &= np.cumsum(kept, axis=1) <= NEIGHBOURS
     enough = kept.sum(axis=1) >= MIN_NEIGHBOURS
     take[enough] = kept[enough]
-    r, t = rigid_motions(then[near], now[near], take.astype(np.float64))
-    out[:] = np.einsum("mij,mj->mi", r, x) + t
-    return out
+    return near, take
 
 
 def _rigid_motion(then: NDArray[np.float64], now: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -195,6 +203,117 @@ def _rigid_motion(then: NDArray[np.float64], now: NDArray[np.float64], x: NDArra
     vt[:, 2] *= d[:, None]
     r = np.einsum("mji,mkj->mik", vt, u)
     return np.einsum("mij,mj->mi", r, x - ca) + cb
+
+
+def anchor_affines(tracker: FrameTracker, rows: NDArray[np.int64], predicted: NDArray[np.float64],
+                   now: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(M, C, 2, 2) the image affine from each held anchor patch of ``rows`` (as cut) to
+    the point predicted now at ``predicted`` (M, 3): the surface plane of the point's own
+    neighbours (``Lost.chosen``) on the anchor's frame (or the nearest frame the revival
+    remembers), moved by their rigid motion to ``now`` (N, 3), both projected into the
+    camera. Identity where unknown or ill-conditioned. A limb that swung or turned while a
+    point was hidden shows its anchor rotated and foreshortened, which the box search
+    (translation only) does not find; the least-squares match would have followed it."""
+    lost, anchors = tracker.lost, tracker.anchors
+    assert lost is not None and anchors is not None
+    m, c = len(rows), len(tracker.cameras)
+    out = np.broadcast_to(np.eye(2), (m, c, 2, 2)).copy()
+    frames = np.array(sorted(lost.history))
+    pairs, before, after = [], [], []
+    for i, row in enumerate(rows.tolist()):
+        if row not in lost.chosen or not np.isfinite(predicted[i]).all():
+            continue
+        near, _ = lost.chosen[row]
+        for k in np.flatnonzero(anchors.held[row]):
+            fa = frames[np.argmin(np.abs(frames - anchors.frame[row, k]))]
+            pairs.append((i, k))
+            before.append(lost.history[int(fa)][near] if len(lost.history[int(fa)]) > near.max() else np.full((near.size, 3), np.nan))
+            after.append(now[near])
+    if not pairs:
+        return out
+    kmax = max(len(b) for b in before)
+    a = np.zeros((len(pairs), kmax, 3))
+    b = np.zeros((len(pairs), kmax, 3))
+    w = np.zeros((len(pairs), kmax))
+    for j, (pa, pb) in enumerate(zip(before, after)):
+        ok = np.isfinite(pa).all(axis=1) & np.isfinite(pb).all(axis=1)
+        a[j, : ok.sum()], b[j, : ok.sum()], w[j, : ok.sum()] = pa[ok], pb[ok], 1.0
+    enough = w.sum(axis=1) >= MIN_NEIGHBOURS
+    w[~enough] = 1.0
+    r, t = rigid_motions(a, b, w)
+    idx = np.array(pairs)
+    x_now = predicted[idx[:, 0]]
+    x_then = np.einsum("pji,pj->pi", r, x_now - t)
+    # The neighbours' plane then: its two largest directions.
+    wn = w / w.sum(axis=1, keepdims=True)
+    centre = np.einsum("pk,pki->pi", wn, a)
+    d = a - centre[:, None]
+    _, vec = np.linalg.eigh(np.einsum("pk,pki,pkj->pij", wn, d, d))
+    tangent = vec[:, :, 1:].transpose(0, 2, 1)  # (P, 2, 3)
+    step = pixel_size(tracker.cameras, x_now, np.ones((len(idx), c), bool))[:, None, None] * tangent
+    for k in np.unique(idx[:, 1]):
+        sel = np.flatnonzero((idx[:, 1] == k) & enough)
+        if sel.size == 0:
+            continue
+        cam = tracker.cameras[k]
+
+        def jacobian(x: NDArray[np.float64], e: NDArray[np.float64]) -> NDArray[np.float64]:
+            u0 = cam.project(x)[0]
+            return np.stack([cam.project(x + e[:, j])[0] - u0 for j in range(2)], axis=2)  # (S, 2, 2)
+
+        ja = jacobian(x_then[sel], step[sel])
+        jb = jacobian(x_now[sel], np.einsum("pij,pkj->pki", r[sel], step[sel]))
+        with np.errstate(all="ignore"):
+            affine = jb @ np.linalg.pinv(ja)
+            sv = np.linalg.svd(affine, compute_uv=False)
+        # A grazing view then or now (a near-singular map) is left to the plain search.
+        sane = np.isfinite(sv).all(axis=1) & (sv[:, 1] > 1 / 3) & (sv[:, 0] < 3)
+        out[idx[sel[sane], 0], k] = affine[sane]
+    return out
+
+
+def warped_search(tracker: FrameTracker, grey: list[NDArray[np.float32]], starts: NDArray[np.float64],
+                  where: NDArray[np.bool_], rows: NDArray[np.int64],
+                  affines: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``Anchors.search`` with each anchor patch of ``rows`` (and its weights) warped by its
+    affine (``affines`` (M, C, 2, 2), :func:`anchor_affines`) about its centre first:
+    positions (N, C, 2) and covariances, NaN where not found."""
+    anchors = tracker.anchors
+    assert anchors is not None
+    n, c = starts.shape[:2]
+    out = np.full((n, c, 2), np.nan)
+    cov = np.full((n, c, 2, 2), np.nan)
+    side, half = anchors.side, anchors.side // 2
+    position = np.full(n, -1)
+    position[rows] = np.arange(len(rows))
+    where = where & anchors.held[:n] & np.isfinite(starts).all(axis=2)
+    for k in range(c):
+        sel = np.flatnonzero(where[:, k] & (position >= 0))
+        if sel.size == 0:
+            continue
+        per_row = int(np.ceil(np.sqrt(sel.size)))
+        tiles = np.zeros((2, per_row * per_row, side, side), np.float32)
+        centre = np.array([half, half], float)
+        for j, p in enumerate(sel.tolist()):
+            inverse = np.linalg.inv(affines[position[p], k])
+            warp = np.hstack([inverse, (centre - inverse @ centre)[:, None]])
+            for layer, source in enumerate((anchors.patches[p, k], anchors.weights[p, k])):
+                tiles[layer, j] = cv2.warpAffine(source, warp, (side, side), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        mosaic, weighs = (np.ascontiguousarray(tiles[layer].reshape(per_row, per_row, side, side).transpose(0, 2, 1, 3)
+                                               .reshape(per_row * side, per_row * side)) for layer in range(2))
+        index = np.arange(sel.size)
+        centres = np.column_stack([(index % per_row) * side + half, (index // per_row) * side + half]).astype(float)
+        previous = 2 * centres - starts[sel, k]
+        pos, flags, pcov, corr = _core.track_step(
+            [mosaic], [grey[k]], centres[None], previous[None], size=anchors.size, radius=settings.REVIVE_RADIUS,
+            min_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION), forward_backward=tracker.o["forward_backward"],
+            min_texture=tracker.keep_texture, max_iterations=settings.STEP_ITERATIONS,
+            weights=([weighs], [np.ones_like(grey[k])]))
+        good = (flags[0] == 0) & (corr[0] >= tracker.min_correlation)
+        out[sel[good], k] = pos[0, good]
+        cov[sel[good], k] = pcov[0, good]
+    return out, cov
 
 
 def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
@@ -243,6 +362,14 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
                                       box_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION),
                                       forward_backward=tracker.o["forward_backward"], min_texture=tracker.keep_texture,
                                       max_iterations=settings.STEP_ITERATIONS)
+    if settings.REVIVE_WARP and tracker.lost.chosen:
+        # The anchors warped by the part's motion since they were cut; the plain search
+        # keeps the views the warp does not find.
+        warped, wcov = warped_search(tracker, grey, starts, where, rows,
+                                     anchor_affines(tracker, rows, predicted, np.where(tracked[:, None], x, np.nan)))
+        better = np.isfinite(warped[..., 0])
+        found = np.where(better[..., None], warped, found)
+        fcov = np.where(better[..., None, None], wcov, fcov)
     two = np.isfinite(found[rows, :, 0]).sum(axis=1) >= 2
     rows, predicted = rows[two], predicted[two]
     if rows.size == 0:

@@ -44,6 +44,10 @@ REVIVE_RIGID = False
 # pixels), moved by their rigid motion (REVIVE_RIGID then does not apply).
 REVIVE_OWN_PART = False
 REVIVE_CANDIDATES = 16
+# With REVIVE_OWN_PART: the anchor patches searched warped by the affine of their part's
+# motion since they were cut (revival.anchor_affines), the plain search kept where it
+# finds a view the warped one does not.
+REVIVE_WARP = False
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
 # position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8
