@@ -310,7 +310,7 @@ def warped_search(tracker: FrameTracker, grey: list[NDArray[np.float32]], starts
             min_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION), forward_backward=tracker.o["forward_backward"],
             min_texture=tracker.keep_texture, max_iterations=settings.STEP_ITERATIONS,
             weights=([weighs], [np.ones_like(grey[k])]))
-        good = (flags[0] == 0) & (corr[0] >= tracker.min_correlation)
+        good = (flags[0] == 0) & (corr[0] >= min(tracker.min_correlation, settings.REVIVE_CORRELATION))
         out[sel[good], k] = pos[0, good]
         cov[sel[good], k] = pcov[0, good]
     return out, cov
@@ -358,7 +358,8 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     rows, predicted = rows[pairs], predicted[pairs]
     if rows.size == 0:
         return x, x_state
-    found, fcov = tracker.anchors.search(grey, starts, where, radius=settings.REVIVE_RADIUS, min_correlation=tracker.min_correlation,
+    found, fcov = tracker.anchors.search(grey, starts, where, radius=settings.REVIVE_RADIUS,
+                                      min_correlation=min(tracker.min_correlation, settings.REVIVE_CORRELATION),
                                       box_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION),
                                       forward_backward=tracker.o["forward_backward"], min_texture=tracker.keep_texture,
                                       max_iterations=settings.STEP_ITERATIONS)

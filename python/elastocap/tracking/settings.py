@@ -41,13 +41,23 @@ REVIVE_RIGID = False
 # The neighbours that predict a lost point taken from its own body part (revival.own_part:
 # of the REVIVE_CANDIDATES nearest in the 6-D space of the last frame before the loss and
 # the point's seeding frame, those whose distance to it changed by less than RIGID_STRETCH
-# pixels), moved by their rigid motion (REVIVE_RIGID then does not apply).
-REVIVE_OWN_PART = False
+# pixels), moved by their rigid motion (REVIVE_RIGID then does not apply). Tuning seeds 0,
+# 2, 3, 8, 9 against the true surface point (benches/README.md, branch track15), against the
+# nearest points' median shift: revivals' predictions within 2 px-eq of the truth 25-50% ->
+# 56-72%, revivals +8-50%, kept 3-D positions beyond 5 px-eq (mean) 2.25 -> 2.03%, through
+# 29.65 -> 29.73% (the points found come back and are lost again).
+REVIVE_OWN_PART = True
 REVIVE_CANDIDATES = 16
 # With REVIVE_OWN_PART: the anchor patches searched warped by the affine of their part's
 # motion since they were cut (revival.anchor_affines), the plain search kept where it
-# finds a view the warped one does not.
+# finds a view the warped one does not. Off: it finds no more (seeds 0 / 8: revivals 115 ->
+# 113 / 99 -> 103, kept 3-D beyond 5 px-eq 1.95 -> 1.96% / 2.48 -> 2.48%); the anchors that
+# fail where the prediction is right fail for another reason (branch track15).
 REVIVE_WARP = False
+# Least correlation of a revived view's match (the tracker's min_correlation when lower).
+# 0.6 (seeds 0 / 2): through 35.07 -> 35.52% / 25.45 -> 25.48%, kept 3-D beyond 5 px-eq
+# 1.95 -> 1.96% / 2.48 -> 2.62% (branch track15).
+REVIVE_CORRELATION = 1.0
 # ... by its anchors, in a box of this half-side (pixels) around the projections of its
 # position predicted from its neighbours' motion.
 REVIVE_RADIUS = 8

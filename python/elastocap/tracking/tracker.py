@@ -67,7 +67,7 @@ def track_points(
     anchor: bool = True,
     rescue: bool = True,
     mask_weights: bool = True,
-    revive: bool = False,
+    revive: bool = True,
     backward: int = 0,
     progress: Callable[[int], None] | None = None,
 ) -> Tracks:
@@ -122,18 +122,19 @@ def track_points(
         anchor and cross-camera matches (weighted least squares, pixels outside the mask
         weigh 0): a patch on the silhouette's edge then follows the surface, not the
         background in its corner. Most views of limbs lie within a patch of the edge.
-    revive : bool, default False, keyword-only
+    revive : bool, default True, keyword-only
         Look for lost points again, under their own id, for 15 frames after they were lost
         (they left two-camera visibility or all their views failed): their anchor patches
         are searched for around the projections of their position predicted from the
-        motion of the points tracked around them, and they come back when two views
-        intersect within 4 pixel equivalents of the prediction
-        (:mod:`elastocap.tracking.revival`; ``settings.REVIVE_REACH``). Needs ``anchor``.
-        Off by default: on the textured capture it keeps 0.7-1.2 points more of the points
-        through their visibility, but the kept 3-D positions beyond 5 px-equivalents rise
-        by 0.1-0.3 point on the held-out seeds (seed 0: 3.28% against 3.31%) and a revived
-        point's image error stays higher (median 0.7-0.8 px against 0.5) (benches/README.md,
-        branch track9).
+        rigid motion of tracked points of their own body part (the points near it when it
+        was lost whose distance to it had kept since its seeding), and they come back when
+        two views intersect within 4 pixel equivalents of the prediction
+        (:mod:`elastocap.tracking.revival`; ``settings.REVIVE_REACH``,
+        ``settings.REVIVE_OWN_PART``). Needs ``anchor``. On the textured capture's five
+        tuning seeds it keeps 1.6 points more of the points through their visibility
+        (mean 28.1 -> 29.7%) and takes the kept 3-D positions beyond 5 px-equivalents
+        from 2.26 to 2.03%, but a revived point's views are off by more (median RMS image
+        error of all points 0.44 -> 0.51 px) (benches/README.md, branch track15).
     backward : int, default 0, keyword-only
         After the forward pass, follow every point seeded after the first frame backward
         from its seeding frame through at most this many earlier frames (the same step on
