@@ -43,8 +43,8 @@ def test_revival_accepts_only_intersections_near_the_prediction(banded, monkeypa
     original = Lost.predict
     counts = {}
     for offset, reach in ((6.0, 4.0), (6.0, 8.0), (1.5, 4.0)):
-        def moved(self, rows, now, offset=offset):
-            out = original(self, rows, now)
+        def moved(self, rows, now, offset=offset, **kwargs):
+            out = original(self, rows, now, **kwargs)
             size = pixel_size(cameras, out, np.ones((len(out), len(cameras)), bool))
             return out + offset * size[:, None] * direction
 
