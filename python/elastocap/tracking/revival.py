@@ -327,6 +327,12 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     n, c = uv.shape[:2]
     tracker.lost.grow(n)
     left = np.isfinite(uv[..., 0]).any(axis=1)
+    if settings.REVIVE_LAST_PATCH and tracker.grey is not None and tracker.lost.history:
+        # The anchors of the points lost now cut again from their last tracked frame (the
+        # image and views the step started from): an anchor's patch cut long ago shows the
+        # surface as it was then, and a surface that turned since is not found by it.
+        died = (alive & ~left)[:, None] & np.isfinite(tracker.uv[:n, :, 0]) & tracker.anchors.held[:n]
+        tracker.anchors.cut(tracker.grey, tracker.uv[:n], died, max(tracker.lost.history), weights=tracker.weights)
     tracker.lost.record(alive & ~left, tracker.x_last, frame)
     tracker.lost.forget((tracker.lost.since[:n] >= 0) & (frame - tracker.lost.since[:n] > settings.REVIVE_FRAMES))
     rows = tracker.lost.candidates(frame)
