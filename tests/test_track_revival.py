@@ -183,3 +183,17 @@ def test_an_anchor_turned_with_its_part_is_found_by_its_warped_patch():
     assert np.isfinite(plain[:, 0, 0]).mean() <= 0.2
     assert np.abs(warped[found, 0] - moved[found]).max() < 0.05
     assert np.isfinite(cov[found]).all()
+
+
+def test_anchors_cut_again_at_the_loss_still_bring_the_points_back_right(banded, monkeypatch):
+    # With the anchors of a lost point cut again from its last tracked frame
+    # (settings.REVIVE_LAST_PATCH), the band's points come back under their ids where they
+    # are: a patch cut at the wrong place or from the wrong image would revive them off, or
+    # not at all.
+    capture, truth = banded
+    monkeypatch.setattr(settings, "REVIVE_LAST_PATCH", True)
+    tracks = track_points(capture, revive=True)
+    back = _revived(tracks)
+    assert back.sum() >= 10
+    acc = track_accuracy(tracks, capture.rig.cameras, truth.positions, truth.visible, truth.part)
+    assert np.nanmedian(acc.error[5:, back]) < 0.2
