@@ -155,7 +155,7 @@ def test_an_anchor_turned_with_its_part_is_found_by_its_warped_patch():
     from types import SimpleNamespace
 
     from elastocap.tracking.anchors import Anchors
-    from elastocap.tracking.revival import warped_search
+    from elastocap.tracking.revival_warp import warped_search
 
     before = _textured(4)
     a = np.radians(35.0)

@@ -1,11 +1,13 @@
 """Revival of lost points under their own id (issue 15): a point that left two-camera
 visibility (an arm passing in front of it, a limb turning away) or whose views all failed
 at once keeps its anchor patches and its last 3-D position. While it is lost, its position
-is predicted from the motion of the points that were tracked around it when it was lost
-and are tracked now (a limb's points move together; a constant-velocity guess over
-several frames does not follow a swinging arm), and its anchors are matched at the projections of that
-prediction. It comes back when at least two views match, intersect within the residual
-threshold and land near the prediction.
+is predicted from the rigid motion of points of its own body part that were tracked around
+it when it was lost and are tracked now (a limb's points move together; a constant-velocity
+guess over several frames does not follow a swinging arm; the points nearest it then are often
+the occluding arm's: :func:`own_part`), and its anchors are matched at the projections of
+that prediction (optionally warped by the part's motion:
+:mod:`elastocap.tracking.revival_warp`). It comes back when at least two views match,
+intersect within the residual threshold and land near the prediction.
 
 The state is per point (flat arrays, written with each frame so that a run resumes; the
 positions of the last frames are read back from their files)."""
@@ -14,15 +16,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from elastocap import _core
 from elastocap.tracking import settings
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.revival_warp import anchor_affines, warped_search
 from elastocap.tracking.rigidity import rigid_motions
 from elastocap.tracking.views import intersect_views, project_all
 from elastocap.tracking.visibility import predicted_visible
@@ -94,7 +95,7 @@ class Lost:
         out = np.full((len(rows), 3), np.nan)
         frames = sorted(self.history)
         # Per point predicted from its own part: those neighbours and the frame before the
-        # loss (for the anchors' warp, :func:`anchor_affines`).
+        # loss (for the anchors' warp, :func:`~elastocap.tracking.revival_warp.anchor_affines`).
         self.chosen = {}
         own = settings.REVIVE_OWN_PART and seeded is not None and seeds is not None and pixel is not None
         for since in np.unique(self.since[rows]):
@@ -115,8 +116,9 @@ class Lost:
                     near, take = own_part(self.x[rows[sub]], earlier[rows[sub]], then, earlier, both, pixel[sub])
                     r, t = rigid_motions(then[near], now[near], take.astype(np.float64))
                     out[sub] = np.einsum("mij,mj->mi", r, self.x[rows[sub]]) + t
-                    for j, row in enumerate(rows[sub]):
-                        self.chosen[int(row)] = (near[j][take[j]], int(before[-1]))
+                    if settings.REVIVE_WARP:
+                        for j, row in enumerate(rows[sub]):
+                            self.chosen[int(row)] = (near[j][take[j]], int(before[-1]))
                 continue
             k = min(NEIGHBOURS, both.size)
             _, near = cKDTree(then[both]).query(self.x[rows[group]], k=k)
@@ -153,8 +155,7 @@ def own_part(x: NDArray[np.float64], x_seed: NDArray[np.float64], then: NDArray[
     """The neighbours (M, K) of lost points at ``x`` (M, 3) on the last frame before their
     loss (``x_seed`` on their seeding frame) whose rigid motion (``then`` (N, 3) -> now)
     predicts them, and which of them count (M, K): of the ``candidates`` (tracked then and
-    now), the
-    ``settings.REVIVE_CANDIDATES`` nearest in the 6-D space of then and the seeding frame
+    now), the ``settings.REVIVE_CANDIDATES`` nearest in the 6-D space of then and the seeding frame
     (``seed``; a part that has come close since was far then), and of those the nearest
     ``NEIGHBOURS`` whose distance to the point changed by less than ``settings.RIGID_STRETCH``
     pixels (``pixel`` (M,) world units) between the two (a rigid motion keeps distances; a
@@ -203,117 +204,6 @@ def _rigid_motion(then: NDArray[np.float64], now: NDArray[np.float64], x: NDArra
     vt[:, 2] *= d[:, None]
     r = np.einsum("mji,mkj->mik", vt, u)
     return np.einsum("mij,mj->mi", r, x - ca) + cb
-
-
-def anchor_affines(tracker: FrameTracker, rows: NDArray[np.int64], predicted: NDArray[np.float64],
-                   now: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(M, C, 2, 2) the image affine from each held anchor patch of ``rows`` (as cut) to
-    the point predicted now at ``predicted`` (M, 3): the surface plane of the point's own
-    neighbours (``Lost.chosen``) on the anchor's frame (or the nearest frame the revival
-    remembers), moved by their rigid motion to ``now`` (N, 3), both projected into the
-    camera. Identity where unknown or ill-conditioned. A limb that swung or turned while a
-    point was hidden shows its anchor rotated and foreshortened, which the box search
-    (translation only) does not find; the least-squares match would have followed it."""
-    lost, anchors = tracker.lost, tracker.anchors
-    assert lost is not None and anchors is not None
-    m, c = len(rows), len(tracker.cameras)
-    out = np.broadcast_to(np.eye(2), (m, c, 2, 2)).copy()
-    frames = np.array(sorted(lost.history))
-    pairs, before, after = [], [], []
-    for i, row in enumerate(rows.tolist()):
-        if row not in lost.chosen or not np.isfinite(predicted[i]).all():
-            continue
-        near, _ = lost.chosen[row]
-        for k in np.flatnonzero(anchors.held[row]):
-            fa = frames[np.argmin(np.abs(frames - anchors.frame[row, k]))]
-            pairs.append((i, k))
-            before.append(lost.history[int(fa)][near] if len(lost.history[int(fa)]) > near.max() else np.full((near.size, 3), np.nan))
-            after.append(now[near])
-    if not pairs:
-        return out
-    kmax = max(len(b) for b in before)
-    a = np.zeros((len(pairs), kmax, 3))
-    b = np.zeros((len(pairs), kmax, 3))
-    w = np.zeros((len(pairs), kmax))
-    for j, (pa, pb) in enumerate(zip(before, after)):
-        ok = np.isfinite(pa).all(axis=1) & np.isfinite(pb).all(axis=1)
-        a[j, : ok.sum()], b[j, : ok.sum()], w[j, : ok.sum()] = pa[ok], pb[ok], 1.0
-    enough = w.sum(axis=1) >= MIN_NEIGHBOURS
-    w[~enough] = 1.0
-    r, t = rigid_motions(a, b, w)
-    idx = np.array(pairs)
-    x_now = predicted[idx[:, 0]]
-    x_then = np.einsum("pji,pj->pi", r, x_now - t)
-    # The neighbours' plane then: its two largest directions.
-    wn = w / w.sum(axis=1, keepdims=True)
-    centre = np.einsum("pk,pki->pi", wn, a)
-    d = a - centre[:, None]
-    _, vec = np.linalg.eigh(np.einsum("pk,pki,pkj->pij", wn, d, d))
-    tangent = vec[:, :, 1:].transpose(0, 2, 1)  # (P, 2, 3)
-    step = pixel_size(tracker.cameras, x_now, np.ones((len(idx), c), bool))[:, None, None] * tangent
-    for k in np.unique(idx[:, 1]):
-        sel = np.flatnonzero((idx[:, 1] == k) & enough)
-        if sel.size == 0:
-            continue
-        cam = tracker.cameras[k]
-
-        def jacobian(x: NDArray[np.float64], e: NDArray[np.float64]) -> NDArray[np.float64]:
-            u0 = cam.project(x)[0]
-            return np.stack([cam.project(x + e[:, j])[0] - u0 for j in range(2)], axis=2)  # (S, 2, 2)
-
-        ja = jacobian(x_then[sel], step[sel])
-        jb = jacobian(x_now[sel], np.einsum("pij,pkj->pki", r[sel], step[sel]))
-        with np.errstate(all="ignore"):
-            affine = jb @ np.linalg.pinv(ja)
-            sv = np.linalg.svd(affine, compute_uv=False)
-        # A grazing view then or now (a near-singular map) is left to the plain search.
-        sane = np.isfinite(sv).all(axis=1) & (sv[:, 1] > 1 / 3) & (sv[:, 0] < 3)
-        out[idx[sel[sane], 0], k] = affine[sane]
-    return out
-
-
-def warped_search(tracker: FrameTracker, grey: list[NDArray[np.float32]], starts: NDArray[np.float64],
-                  where: NDArray[np.bool_], rows: NDArray[np.int64],
-                  affines: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``Anchors.search`` with each anchor patch of ``rows`` (and its weights) warped by its
-    affine (``affines`` (M, C, 2, 2), :func:`anchor_affines`) about its centre first:
-    positions (N, C, 2) and covariances, NaN where not found."""
-    anchors = tracker.anchors
-    assert anchors is not None
-    n, c = starts.shape[:2]
-    out = np.full((n, c, 2), np.nan)
-    cov = np.full((n, c, 2, 2), np.nan)
-    side, half = anchors.side, anchors.side // 2
-    position = np.full(n, -1)
-    position[rows] = np.arange(len(rows))
-    where = where & anchors.held[:n] & np.isfinite(starts).all(axis=2)
-    for k in range(c):
-        sel = np.flatnonzero(where[:, k] & (position >= 0))
-        if sel.size == 0:
-            continue
-        per_row = int(np.ceil(np.sqrt(sel.size)))
-        tiles = np.zeros((2, per_row * per_row, side, side), np.float32)
-        centre = np.array([half, half], float)
-        for j, p in enumerate(sel.tolist()):
-            inverse = np.linalg.inv(affines[position[p], k])
-            warp = np.hstack([inverse, (centre - inverse @ centre)[:, None]])
-            for layer, source in enumerate((anchors.patches[p, k], anchors.weights[p, k])):
-                tiles[layer, j] = cv2.warpAffine(source, warp, (side, side), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        mosaic, weighs = (np.ascontiguousarray(tiles[layer].reshape(per_row, per_row, side, side).transpose(0, 2, 1, 3)
-                                               .reshape(per_row * side, per_row * side)) for layer in range(2))
-        index = np.arange(sel.size)
-        centres = np.column_stack([(index % per_row) * side + half, (index // per_row) * side + half]).astype(float)
-        previous = 2 * centres - starts[sel, k]
-        pos, flags, pcov, corr = _core.track_step(
-            [mosaic], [grey[k]], centres[None], previous[None], size=anchors.size, radius=settings.REVIVE_RADIUS,
-            min_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION), forward_backward=tracker.o["forward_backward"],
-            min_texture=tracker.keep_texture, max_iterations=settings.STEP_ITERATIONS,
-            weights=([weighs], [np.ones_like(grey[k])]))
-        good = (flags[0] == 0) & (corr[0] >= min(tracker.min_correlation, settings.REVIVE_CORRELATION))
-        out[sel[good], k] = pos[0, good]
-        cov[sel[good], k] = pcov[0, good]
-    return out, cov
 
 
 def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], masks: list[NDArray[np.bool_]],
