@@ -49,7 +49,7 @@ REVIVE_RIGID = False
 REVIVE_OWN_PART = True
 REVIVE_CANDIDATES = 16
 # With REVIVE_OWN_PART: the anchor patches searched warped by the affine of their part's
-# motion since they were cut (revival.anchor_affines), the plain search kept where it
+# motion since they were cut (revival_warp.anchor_affines), the plain search kept where it
 # finds a view the warped one does not. Off: it finds no more (seeds 0 / 8: revivals 115 ->
 # 113 / 99 -> 103, kept 3-D beyond 5 px-eq 1.95 -> 1.96% / 2.48 -> 2.48%); the anchors that
 # fail where the prediction is right fail for another reason (branch track15).
