@@ -134,7 +134,9 @@ def track_points(
         tuning seeds it keeps 1.6 points more of the points through their visibility
         (mean 28.1 -> 29.7%) and takes the kept 3-D positions beyond 5 px-equivalents
         from 2.26 to 2.03%, but a revived point's views are off by more (median RMS image
-        error of all points 0.44 -> 0.51 px) (benches/README.md, branch track15).
+        error of all points 0.44 -> 0.51 px); on the held-out seeds through +1.2 and +2.1
+        points, the kept 3-D figure +0.12 and -0.12 point (benches/README.md, branch
+        track15). ``False`` gives the tracker as it was before.
     backward : int, default 0, keyword-only
         After the forward pass, follow every point seeded after the first frame backward
         from its seeding frame through at most this many earlier frames (the same step on
