@@ -39,6 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from elastocap.tracking import settings
+
 __all__ = ["rigid_fusion", "rigid_motions"]
 
 
@@ -62,7 +64,8 @@ def rigid_motions(a: NDArray[np.float64], b: NDArray[np.float64],
 def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel: NDArray[np.float64],
                  seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
                  sigma: float, both_frames: float = 0.0, candidates: int = 0,
-                 stretch: float = float("inf"), min_neighbours: int = 3) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                 stretch: float = float("inf"), min_neighbours: int = 3,
+                 gate: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Positions ``x`` (N, 3; NaN where not tracked) with ``covariance`` (N, 3, 3) fused with
     their neighbours' rigid-motion prediction (module docstring).
 
@@ -77,9 +80,16 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
     the nearest ``neighbours`` among the ``candidates`` nearest so whose distance to the point
     has changed by less than ``stretch`` pixels since then (a rigid motion keeps distances
     whatever its rotation; a point of another part that moved past it does not), or the
-    nearest ``neighbours`` where fewer than ``min_neighbours`` have. Points seeded on this
-    frame, or with too few neighbours, are returned as they are. Returns the fused positions
-    and covariances."""
+    nearest ``neighbours`` where fewer than ``min_neighbours`` have. With ``gate`` finite
+    (None: ``settings.RIGID_GATE``) the prediction's covariance ``P`` is scaled by ``max(1,
+    m^2 / gate^2)``, ``m`` the Mahalanobis distance of the prediction from the intersection
+    in ``S + P``: beyond the gate the correction falls as the disagreement grows (a
+    redescending weight; module docstring). Points seeded on this frame, or with too few
+    neighbours, are returned as they are. Returns the fused positions and covariances."""
+    if gate is None:
+        gate = settings.RIGID_GATE
+    if not gate > 0:
+        raise ValueError(f"gate must be positive (or infinite), got {gate!r}")
     x_out, cov_out = x.copy(), covariance.copy()
     tracked = np.isfinite(x).all(axis=1) & np.isfinite(covariance).all(axis=(1, 2)) & np.isfinite(pixel)
     for key, before in history.items():
@@ -118,7 +128,16 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
         r, t = rigid_motions(then[near], x[near], take.astype(np.float64))
         predicted = np.einsum("nij,nj->ni", r, then[rows]) + t
         s = covariance[rows]
-        total = s + ((sigma * pixel[rows]) ** 2)[:, None, None] * np.eye(3)
+        prior = ((sigma * pixel[rows]) ** 2)[:, None, None] * np.eye(3)
+        if np.isfinite(gate):
+            # Where the neighbours' prediction and the views disagree by much more than
+            # both allow, the prediction is the one more often wrong (its neighbours'
+            # own intersections drifted, or they are not the point's part): its weight
+            # falls with the square of the disagreement.
+            d = predicted - x[rows]
+            m2 = np.einsum("ni,ni->n", d, np.linalg.solve(s + prior, d[..., None])[..., 0])
+            prior = prior * np.maximum(m2 / gate**2, 1.0)[:, None, None]
+        total = s + prior
         gain = np.linalg.solve(total, s).transpose(0, 2, 1)  # S (S + P)^-1 (both symmetric)
         x_out[rows] = x[rows] + np.einsum("nij,nj->ni", gain, predicted - x[rows])
         cov_out[rows] = s - np.einsum("nij,njk->nik", gain, s)
