@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings as hsettings, strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -184,3 +185,51 @@ def test_neighbours_whose_distance_to_the_point_changed_are_refused():
     # Where fewer than 3 candidates kept their distance (none here), the nearest are taken.
     few, _ = rigid_fusion(x, cov, pixel, seeded, {0: then}, candidates=16, stretch=0.0, **options)
     np.testing.assert_allclose(few, plain, rtol=0, atol=1e-12)
+
+
+def _drifted_neighbours(d: float) -> tuple[np.ndarray, ...]:
+    """A limb moved rigidly; every point but the first reported ``d`` px-eq off along the
+    rays (z), the first exactly: its neighbours' prediction is ``d`` px-eq off in depth."""
+    rng = np.random.default_rng(11)
+    m = 60
+    before = _limb(rng, m)
+    rot = Rotation.from_euler("xyz", [10, 25, -5], degrees=True).as_matrix()
+    now = before @ rot.T + np.array([0.05, 0.1, -0.1])
+    ray = np.array([0.0, 0.0, 1.0])
+    cov = np.tile((0.3 * PIXEL) ** 2 * np.eye(3) + ((3.0 * PIXEL) ** 2 - (0.3 * PIXEL) ** 2) * np.outer(ray, ray), (m, 1, 1))
+    x = now.copy()
+    x[1:] += d * PIXEL * ray
+    return x, cov, np.full(m, PIXEL), np.zeros(m, np.int64), before, now
+
+
+@pytest.mark.parametrize("d", [3.0, 6.0, 12.0, 20.0, 40.0])
+def test_a_prediction_far_from_the_views_is_gated(d):
+    # sd 3 px-eq along the rays, the prediction's 2: the disagreement d is m = d / sqrt(13)
+    # Mahalanobis units; beyond the gate the prediction's variance is 4 m^2 / gate^2, so the
+    # point moves d 9 / (9 + 4 max(1, m^2 / gate^2)) along the rays.
+    x, cov, pixel, seeded, before, now = _drifted_neighbours(d)
+    plain, _ = rigid_fusion(x, cov, pixel, seeded, {0: before}, neighbours=8, sigma=2.0, gate=float("inf"))
+    gated, gcov = rigid_fusion(x, cov, pixel, seeded, {0: before}, neighbours=8, sigma=2.0, gate=2.0)
+    shift = (gated[0] - now[0]) / PIXEL
+    np.testing.assert_allclose((plain[0] - now[0]) / PIXEL, [0, 0, d * 9 / 13], atol=1e-6)
+    scale = max(1.0, d * d / 13 / 4.0)
+    np.testing.assert_allclose(shift, [0, 0, d * 9 / (9 + 4 * scale)], atol=1e-6)
+    # The others agree with their (equally drifted) neighbours: untouched by the gate.
+    np.testing.assert_allclose(gated[1:], plain[1:], atol=1e-12)
+    assert (np.linalg.eigvalsh(gcov) > 0).all()
+
+
+def test_the_gated_correction_falls_beyond_the_gate_and_is_checked():
+    # Redescending: the correction peaks near the gate (d = 2 sqrt(13 * 9 / 4) = 10.8 px-eq
+    # here) and falls beyond, where the plain fusion's keeps growing.
+    moves = []
+    for d in (4.0, 10.8, 20.0, 40.0):
+        x, cov, pixel, seeded, before, now = _drifted_neighbours(d)
+        gated, _ = rigid_fusion(x, cov, pixel, seeded, {0: before}, neighbours=8, sigma=2.0, gate=2.0)
+        moves.append(np.linalg.norm(gated[0] - x[0]) / PIXEL)
+    assert moves[0] < moves[1] and moves[1] > moves[2] > moves[3]
+    assert moves[3] < 0.11 * 40.0 * 9 / 13  # the plain fusion: 27.7 px-eq
+    x, cov, pixel, seeded, before, _ = _drifted_neighbours(5.0)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="gate"):
+            rigid_fusion(x, cov, pixel, seeded, {0: before}, neighbours=8, sigma=2.0, gate=bad)
