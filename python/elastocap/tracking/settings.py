@@ -175,7 +175,7 @@ RIGID_GATE = 2.0
 # fusion (branch track14) the medians are 1.97 / 2.07 / 1.94 and 1.7 calibrates them (1.51
 # / 1.59 / 1.49), 8-10% still beyond the chi-square 99% point (1% if calibrated); the
 # tail is better met by the drift's isotropic term: DRIFT_VARIANCE (0.25, 0.4) gives 1.45
-# / 1.52 / 1.42 and 6.5 / 7.9 / 6.4% for the same positions to 0.02 point. Neither is
+# / 1.52 / 1.42 and 6.5 / 7.9 / 6.4% with the 3-D figure within 0.03 point. Neither is
 # set, for the same reason.
 COVARIANCE_SCALE = 1.0
 # Positions whose standard deviation along the weakest direction of that covariance
