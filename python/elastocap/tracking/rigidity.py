@@ -75,7 +75,7 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
                  seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
                  sigma: float, both_frames: float = 0.0, candidates: int = 0,
                  stretch: float = float("inf"), min_neighbours: int = 3,
-                 gate: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                 gate: float | None = None, passes: int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Positions ``x`` (N, 3; NaN where not tracked) with ``covariance`` (N, 3, 3) fused with
     their neighbours' rigid-motion prediction (module docstring).
 
@@ -94,12 +94,35 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
     (None: ``settings.RIGID_GATE``) the prediction's covariance ``P`` is scaled by ``max(1,
     m^2 / gate^2)``, ``m`` the Mahalanobis distance of the prediction from the intersection
     in ``S + P``: beyond the gate the correction falls as the disagreement grows (a
-    redescending weight; module docstring). Points seeded on this frame, or with too few
-    neighbours, are returned as they are. Returns the fused positions and covariances."""
+    redescending weight; module docstring). With ``passes`` > 1 (None:
+    ``settings.RIGID_PASSES``) the fusion is repeated with the neighbours' rigid motions
+    fitted to their fused positions of the pass before (the same neighbours; each point's
+    own intersection and covariance stay the measurement), so that a neighbour's drift in
+    depth weighs less in its neighbours' predictions. Points seeded on this frame, or with
+    too few neighbours, are returned as they are. Returns the fused positions and
+    covariances."""
     if gate is None:
         gate = settings.RIGID_GATE
+    if passes is None:
+        passes = settings.RIGID_PASSES
+    if not (isinstance(passes, (int, np.integer)) and passes >= 1):
+        raise ValueError(f"passes must be a whole number >= 1, got {passes!r}")
     if not gate > 0:
         raise ValueError(f"gate must be positive (or infinite), got {gate!r}")
+    options = dict(neighbours=neighbours, sigma=sigma, both_frames=both_frames, candidates=candidates,
+                   stretch=stretch, min_neighbours=min_neighbours, gate=gate)
+    fused, fused_cov = _fuse_once(x, x, covariance, pixel, seeded, history, first=True, **options)
+    for _ in range(passes - 1):
+        fused, fused_cov = _fuse_once(x, fused, covariance, pixel, seeded, history, first=False, **options)
+    return fused, fused_cov
+
+
+def _fuse_once(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
+               pixel: NDArray[np.float64], seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *,
+               first: bool, neighbours: int, sigma: float, both_frames: float, candidates: int, stretch: float,
+               min_neighbours: int, gate: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One pass of :func:`rigid_fusion`: the neighbours chosen by their intersections ``x``,
+    their rigid motion fitted to ``moved`` (``x`` itself on the first pass)."""
     x_out, cov_out = x.copy(), covariance.copy()
     tracked = np.isfinite(x).all(axis=1) & np.isfinite(covariance).all(axis=(1, 2)) & np.isfinite(pixel)
     for key, before in history.items():
@@ -112,6 +135,10 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
         both = np.flatnonzero(tracked & np.isfinite(then).all(axis=1))
         k = max(candidates, neighbours) if np.isfinite(stretch) else neighbours
         if rows.size == 0 or both.size < neighbours + 1:
+            continue
+        if not first and np.array_equal(then[both], x[both]):
+            # This frame's own intersections (points seeded now): the first pass predicted
+            # them where they are; later passes would only spread the neighbours' corrections.
             continue
         k = min(k, both.size - 1)
         # Its own row is among the nearest (distance 0): ask for one more and drop it.
@@ -135,7 +162,7 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
             kept &= np.cumsum(kept, axis=1) <= neighbours
             enough = kept.sum(axis=1) >= min_neighbours
             take[enough] = kept[enough]
-        r, t = rigid_motions(then[near], x[near], take.astype(np.float64))
+        r, t = rigid_motions(then[near], moved[near], take.astype(np.float64))
         predicted = np.einsum("nij,nj->ni", r, then[rows]) + t
         s = covariance[rows]
         prior = ((sigma * pixel[rows]) ** 2)[:, None, None] * np.eye(3)

@@ -167,6 +167,12 @@ RIGID_STRETCH = 8.0
 # and 9: 2.77 / 1.98% -> 2.35 / 1.26%). Held out, fresh seeds 12 and 13: 3.52 / 2.14% ->
 # 2.86 / 1.83%; through and every image figure unchanged (output only).
 RIGID_GATE = 2.0
+# The fusion repeated with the neighbours' motion fitted to their fused positions of the
+# pass before (1: once): a neighbour whose own depth drifted moves its neighbours'
+# predictions less. Tuned offline on seeds 0, 2, 3, 8, 9 with the gate (branch track14):
+# one pass 1.63 / 2.20 / 1.46 / 2.35 / 1.26%, two 1.54 / 2.05 / 1.51 / 2.11 / 1.23%, three
+# 1.53 / 2.10 / 1.52% (0, 2, 3).
+RIGID_PASSES = 2
 # The reported covariance (after the fusion) times this. Against the true surface point the
 # fused covariance is optimistic: median Mahalanobis distance 1.93 / 2.04 / 1.91 on seeds 0,
 # 2, 3 (branch track12), where a calibrated 3-D Gaussian gives 1.54; 1.6 calibrates the
