@@ -48,6 +48,8 @@ and the views (so every image figure) are untouched.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
@@ -112,21 +114,33 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
         raise ValueError(f"passes must be a whole number >= 1, got {passes!r}")
     if not gate > 0:
         raise ValueError(f"gate must be positive (or infinite), got {gate!r}")
-    options = dict(neighbours=neighbours, sigma=sigma, both_frames=both_frames, candidates=candidates,
-                   stretch=stretch, min_neighbours=min_neighbours, gate=gate)
-    fused, fused_cov = _fuse_once(x, x, covariance, pixel, seeded, history, first=True, **options)
+    plans = _neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
+                             candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
+    fused, fused_cov = _fuse(x, x, covariance, pixel, plans, sigma=sigma, gate=gate)
+    # A history frame that is this frame's own intersections (points seeded now) predicts
+    # them where they are on the first pass; later passes would only spread the
+    # neighbours' corrections onto them.
+    later = [plan for plan in plans if not plan.now]
     for _ in range(passes - 1):
-        fused, fused_cov = _fuse_once(x, fused, covariance, pixel, seeded, history, first=False, **options)
+        fused, fused_cov = _fuse(x, fused, covariance, pixel, later, sigma=sigma, gate=gate)
     return fused, fused_cov
 
 
-def _fuse_once(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
-               pixel: NDArray[np.float64], seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *,
-               first: bool, neighbours: int, sigma: float, both_frames: float, candidates: int, stretch: float,
-               min_neighbours: int, gate: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """One pass of :func:`rigid_fusion`: the neighbours chosen by their intersections ``x``,
-    their rigid motion fitted to ``moved`` (``x`` itself on the first pass)."""
-    x_out, cov_out = x.copy(), covariance.copy()
+class _Plan(NamedTuple):
+    """The points of one seeding frame and their chosen neighbours."""
+
+    rows: NDArray[np.int64]  # (M,) the points
+    near: NDArray[np.int64]  # (M, K) their candidate neighbours
+    weight: NDArray[np.float64]  # (M, K) 1 for the chosen ones, else 0
+    then: NDArray[np.float64]  # (N, 3) every point's position on that frame
+    now: bool  # that frame's positions are this frame's intersections
+
+
+def _neighbour_plans(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel: NDArray[np.float64],
+                     seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
+                     both_frames: float, candidates: int, stretch: float, min_neighbours: int) -> list[_Plan]:
+    """The neighbours of :func:`rigid_fusion`, chosen once by the intersections ``x``."""
+    plans = []
     tracked = np.isfinite(x).all(axis=1) & np.isfinite(covariance).all(axis=(1, 2)) & np.isfinite(pixel)
     for key, before in history.items():
         rows = np.flatnonzero(tracked & (seeded == key))
@@ -138,10 +152,6 @@ def _fuse_once(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: N
         both = np.flatnonzero(tracked & np.isfinite(then).all(axis=1))
         k = max(candidates, neighbours) if np.isfinite(stretch) else neighbours
         if rows.size == 0 or both.size < neighbours + 1:
-            continue
-        if not first and np.array_equal(then[both], x[both]):
-            # This frame's own intersections (points seeded now): the first pass predicted
-            # them where they are; later passes would only spread the neighbours' corrections.
             continue
         k = min(k, both.size - 1)
         # Its own row is among the nearest (distance 0): ask for one more and drop it.
@@ -165,7 +175,19 @@ def _fuse_once(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: N
             kept &= np.cumsum(kept, axis=1) <= neighbours
             enough = kept.sum(axis=1) >= min_neighbours
             take[enough] = kept[enough]
-        r, t = rigid_motions(then[near], moved[near], take.astype(np.float64))
+        plans.append(_Plan(rows, near, take.astype(np.float64), then, bool(np.array_equal(then[both], x[both]))))
+    return plans
+
+
+def _fuse(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
+          pixel: NDArray[np.float64], plans: list[_Plan], *, sigma: float,
+          gate: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One pass of :func:`rigid_fusion`: each planned point's intersection ``x`` fused with
+    the prediction of its neighbours' rigid motion fitted to ``moved`` (``x`` itself on the
+    first pass)."""
+    x_out, cov_out = x.copy(), covariance.copy()
+    for rows, near, weight, then, _ in plans:
+        r, t = rigid_motions(then[near], moved[near], weight)
         predicted = np.einsum("nij,nj->ni", r, then[rows]) + t
         s = covariance[rows]
         prior = ((sigma * pixel[rows]) ** 2)[:, None, None] * np.eye(3)
