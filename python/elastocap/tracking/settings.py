@@ -168,5 +168,15 @@ COVARIANCE_SCALE = 1.0
 # filters (the files hold no position for them), and the hidden views' frame counts
 # restart at zero on resume.
 UNCERTAIN_SD = float("inf")
+# The frame-to-frame step's failed views searched again (:mod:`elastocap.tracking.prediction`):
+# at the median displacement of the views of their RESEARCH_NEIGHBOURS nearest points in
+# 3-D (within RESEARCH_REACH pixel equivalents; at least RESEARCH_MIN_NEIGHBOURS), and
+# those without such neighbours in a box of RESEARCH_WIDE_RADIUS pixels (0: not) around
+# their own prediction (benches/README.md, branch track13).
+RESEARCH = True
+RESEARCH_NEIGHBOURS = 8
+RESEARCH_MIN_NEIGHBOURS = 3
+RESEARCH_REACH = 30.0
+RESEARCH_WIDE_RADIUS = 24
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

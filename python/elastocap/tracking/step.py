@@ -28,6 +28,7 @@ from elastocap.tracking.drift import drift_covariance, not_positive_definite, we
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
+from elastocap.tracking.prediction import research_failed_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -160,6 +161,20 @@ class FrameTracker:
             weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
             flags2d[weak] = TrackFlag.LOW_CORRELATION
             uv = np.where(weak[..., None], np.nan, uv)
+            if settings.RESEARCH:
+                # The failed views searched again where their neighbours went (a fast
+                # limb's, and a new point's, which has no velocity to predict from).
+                held = np.isfinite(self.uv[..., 0])
+                reach = settings.RESEARCH_REACH * pixel_size(self.cameras, self.x_last, held)
+                found = research_failed_views(
+                    self.grey, grey, self.uv, self.uv_last, uv, flags2d, cov2d, corr, self.x_last, reach, size=self.size,
+                    radius=self.radius, wide_radius=settings.RESEARCH_WIDE_RADIUS, min_correlation=self.min_correlation,
+                    box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
+                    forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                    max_iterations=settings.STEP_ITERATIONS,
+                    weights=None if weights is None or self.weights is None else (self.weights, weights),
+                    neighbours=settings.RESEARCH_NEIGHBOURS, min_neighbours=settings.RESEARCH_MIN_NEIGHBOURS)
+                uv, flags2d, cov2d, corr = found.uv, found.flags2d, found.cov2d, found.corr
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=settings.ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
