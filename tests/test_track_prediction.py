@@ -150,3 +150,30 @@ def test_views_lost_for_other_reasons_are_not_searched_again(flag):
     flags[:] = flag
     out = _research(previous, current, last, before, (uv, flags, cov, corr), wide_radius=24)
     assert not out.found.any() and (out.flags2d == flag).all()
+
+
+def test_a_view_searched_again_that_breaks_its_points_intersection_is_dropped_not_the_point():
+    from elastocap.synth.capture import ring_rig
+    from elastocap.tracking.prediction import drop_breaking_views
+    from elastocap.tracking.views import intersect_views
+
+    cameras = ring_rig(8, width=640, height=480).cameras
+    truth = np.array([[0.05, 0.9, 0.02], [0.0, 1.0, 0.1]])
+    uv = np.full((2, 8, 2), np.nan)
+    uv[:, :3] = np.stack([c.project(truth)[0] for c in cameras[:3]], axis=1)
+    # Camera 0's view found 3 px off with an uncertain match: not refused as a blunder by
+    # its normalised residual, beyond the residual bound, so the whole point fails.
+    uv[:, 0] += [3.0, 0.0]
+    cov = np.where(np.isfinite(uv)[..., None], np.eye(2) * 0.01, np.nan)
+    cov[:, 0] = np.eye(2)
+    x, xcov, used, rejected = intersect_views(cameras, uv, cov, max_residual=1.5, floor=0.1)
+    assert not np.isfinite(x).any()
+    researched = np.zeros((2, 8), bool)
+    researched[0, 0] = True  # point 1's bad view is the step's own: its failure stands
+    flags = np.zeros((2, 8), np.uint8)
+    x2, _, used2, rejected2 = drop_breaking_views(cameras, uv, cov, flags, researched, x, xcov, used, rejected,
+                                                  max_residual=1.5, floor=0.1)
+    np.testing.assert_allclose(x2[0], truth[0], atol=1e-6)
+    assert np.isnan(uv[0, 0]).all() and flags[0, 0] == TrackFlag.EPIPOLAR and rejected2[0, 0] and not used2[0, 0]
+    assert used2[0, 1:3].all()
+    assert not np.isfinite(x2[1]).any() and np.isfinite(uv[1, 0]).all()

@@ -15,6 +15,7 @@ prediction, and their finds predict the rest in a last neighbour pass."""
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -22,9 +23,11 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from elastocap import _core
+from elastocap.cameras import Camera
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.views import intersect_views
 
-__all__ = ["Research", "neighbour_predictions", "research_failed_views"]
+__all__ = ["Research", "drop_breaking_views", "neighbour_predictions", "research_failed_views"]
 
 # The frame-to-frame failures searched again (not the border: its box left the image).
 RESEARCHED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
@@ -164,3 +167,27 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
             search(rows, own, wide_radius)
         by_neighbour_motion()
     return Research(uv, flags2d, cov2d, corr, found, by_neighbours)
+
+
+def drop_breaking_views(cameras: Sequence[Camera], uv: NDArray[np.float64], cov2d: NDArray[np.float64],
+                        flags2d: NDArray[np.uint8], researched: NDArray[np.bool_], x: NDArray[np.float64],
+                        xcov: NDArray[np.float64], used: NDArray[np.bool_], rejected: NDArray[np.bool_], *,
+                        max_residual: float,
+                        floor: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+    """The points whose intersection (``x``, ``xcov``, ``used``, ``rejected`` of
+    :func:`elastocap.tracking.views.intersect_views` on ``uv``, ``cov2d``) failed while they
+    hold views found by the second search (``researched`` (N, C)) intersected again without
+    those views: a blunder beyond the residual bound fails its whole point, and a point the
+    step had kept on its other views must not end for a view searched again. The dropped
+    views are set to NaN in ``uv`` and ``cov2d`` and flagged EPIPOLAR in ``flags2d`` (in
+    place); returns the updated ``x``, ``xcov``, ``used`` and ``rejected``."""
+    again = ~np.isfinite(x).all(axis=1) & (researched & np.isfinite(uv[..., 0])).any(axis=1)
+    x, xcov, used, rejected = x.copy(), xcov.copy(), used.copy(), rejected.copy()
+    if not again.any():
+        return x, xcov, used, rejected
+    drop = researched & again[:, None]
+    uv[drop], cov2d[drop] = np.nan, np.nan
+    flags2d[drop] = TrackFlag.EPIPOLAR
+    rx, rcov, rused, rrejected = intersect_views(cameras, uv[again], cov2d[again], max_residual=max_residual, floor=floor)
+    x[again], xcov[again], used[again], rejected[again] = rx, rcov, rused, rrejected | drop[again]
+    return x, xcov, used, rejected
