@@ -180,6 +180,6 @@ RESEARCH_REACH = 30.0
 RESEARCH_WIDE_RADIUS = 24
 # The second search's patch side, pixels (0: the step's): a forearm is about as wide as the
 # step's 15 px patch, whose corners then hold the surface behind it, which moves otherwise.
-RESEARCH_SIZE = 0
+RESEARCH_SIZE = 11
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
