@@ -181,7 +181,7 @@ def drop_breaking_views(cameras: Sequence[Camera], uv: NDArray[np.float64], cov2
     step had kept on its other views must not end for a view searched again. The dropped
     views are set to NaN in ``uv`` and ``cov2d`` and flagged EPIPOLAR in ``flags2d`` (in
     place); returns the updated ``x``, ``xcov``, ``used`` and ``rejected``."""
-    again = ~np.isfinite(x).all(axis=1) & (researched & np.isfinite(uv[..., 0])).any(axis=1)
+    again = np.asarray(~np.isfinite(x).all(axis=1) & (researched & np.isfinite(uv[..., 0])).any(axis=1), dtype=bool)
     x, xcov, used, rejected = x.copy(), xcov.copy(), used.copy(), rejected.copy()
     if not again.any():
         return x, xcov, used, rejected
