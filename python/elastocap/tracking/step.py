@@ -28,6 +28,7 @@ from elastocap.tracking.drift import drift_covariance, not_positive_definite, we
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
+from elastocap.tracking.prediction import drop_breaking_views, research_failed_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -147,6 +148,7 @@ class FrameTracker:
             cov2d = np.full((n, c, 2, 2), np.nan)
             corr = np.full((n, c), np.nan)
         shift = np.full((n, c), np.nan)
+        researched = np.zeros((n, c), bool)
         if not (first or n == 0 or self.grey is None):
             pos, f2d, cv2d, cr = _core.track_step(
                 self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
@@ -160,6 +162,21 @@ class FrameTracker:
             weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
             flags2d[weak] = TrackFlag.LOW_CORRELATION
             uv = np.where(weak[..., None], np.nan, uv)
+            if settings.RESEARCH:
+                # The failed views searched again where their neighbours went (a fast
+                # limb's, and a new point's, which has no velocity to predict from).
+                held = np.isfinite(self.uv[..., 0])
+                reach = settings.RESEARCH_REACH * pixel_size(self.cameras, self.x_last, held)
+                found = research_failed_views(
+                    self.grey, grey, self.uv, self.uv_last, uv, flags2d, cov2d, corr, self.x_last, reach, size=settings.RESEARCH_SIZE or self.size,
+                    radius=self.radius, wide_radius=settings.RESEARCH_WIDE_RADIUS, min_correlation=self.min_correlation,
+                    box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
+                    forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                    max_iterations=settings.STEP_ITERATIONS,
+                    weights=None if weights is None or self.weights is None else (self.weights, weights),
+                    neighbours=settings.RESEARCH_NEIGHBOURS, min_neighbours=settings.RESEARCH_MIN_NEIGHBOURS)
+                uv, flags2d, cov2d, corr = found.uv, found.flags2d, found.cov2d, found.corr
+                researched = found.found
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=settings.ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
@@ -191,6 +208,9 @@ class FrameTracker:
                                                  min_texture=self.keep_texture, weights=weights)
                 flags2d[removed] = TrackFlag.EPIPOLAR
         x, xcov, used, rejected = intersect_views(self.cameras, uv, cov2d, max_residual=self.o["max_residual"], floor=settings.FLOOR)
+        if researched.any():
+            x, xcov, used, rejected = drop_breaking_views(self.cameras, uv, cov2d, flags2d, researched, x, xcov, used, rejected,
+                                                          max_residual=self.o["max_residual"], floor=settings.FLOOR)
         flags2d[rejected] = TrackFlag.EPIPOLAR
         set_aside = np.zeros((n, c), bool)
         if settings.HIDDEN_FRAMES and n:
