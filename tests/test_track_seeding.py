@@ -96,3 +96,23 @@ def test_bad_reseed_bare(scene):
         track_points(capture, frames=capture.frames[:2], reseed_bare=-1)
     with pytest.raises(elastocap.InvalidInputError, match="reseed_bare"):
         track_points(capture, frames=capture.frames[:2], reseed_bare=1.5)
+    with pytest.raises(elastocap.InvalidInputError, match="seed_margin"):
+        track_points(capture, frames=capture.frames[:2], seed_margin=-2)
+
+
+def test_a_limb_narrower_than_the_patch_gets_seeds_with_a_small_margin():
+    # A 12 px forearm and a 15 px patch: eroded by the patch (the default margin) the limb
+    # is gone from the mask, so it gets no seed (not even the region's minimum: the
+    # limb is joined to the body); 3 px from the edge, a seed in every cell along it.
+    mask = np.zeros((200, 240), bool)
+    mask[40:160, 30:120] = True
+    mask[94:106, 120:220] = True
+    grey = np.random.default_rng(1).uniform(0, 255, mask.shape).astype(np.float32)
+    default = seed_candidates(mask, grey, np.zeros((0, 2)), spacing=SPACING, size=15, min_texture=1.0)
+    assert (default[:, 0] > 125).sum() == 0
+    near_edge = seed_candidates(mask, grey, np.zeros((0, 2)), spacing=SPACING, size=15, min_texture=1.0, margin=3)
+    on_limb = near_edge[near_edge[:, 0] > 125]
+    assert len(on_limb) >= (215 - 125) // SPACING
+    # Every seed keeps its margin from the mask's edge.
+    assert (on_limb[:, 1] >= 94 + 3).all() and (on_limb[:, 1] <= 105 - 3).all()
+    assert set(map(tuple, default)) <= set(map(tuple, near_edge))

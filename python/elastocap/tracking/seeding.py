@@ -32,7 +32,8 @@ _COARSE = 120
 
 
 def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
-                    spacing: int, size: int, min_texture: float, bare: int = 0) -> NDArray[np.float64]:
+                    spacing: int, size: int, min_texture: float, bare: int = 0,
+                    margin: int | None = None) -> NDArray[np.float64]:
     """(M, 2) seed pixels of one camera: cell centres inside the mask eroded by the patch,
     textured, in cells holding none of ``covered`` (K, 2); plus the most interior pixel of
     every mask region that got no seed.
@@ -41,7 +42,7 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
     areas the tracks left bare, such as a fast limb whose points were all lost, not the odd
     cell between tracked points): the cheap seeding of the frames between full seedings."""
     h, w = mask.shape
-    reach = size // 2 + 2
+    reach = size // 2 + 2 if margin is None else margin
     kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
     inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
@@ -131,7 +132,7 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
 def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
                 covered: NDArray[np.float64], *, spacing: int, size: int, min_correlation: float, min_views: int,
                 min_texture: float, tolerance: float, max_residual: float, floor: float,
-                bare: int = 0) -> NDArray[np.float64]:
+                bare: int = 0, margin: int | None = None) -> NDArray[np.float64]:
     """New points: their views (M, C, 2; NaN where not matched; at least ``min_views``).
 
     ``covered`` (N, C, 2) holds the tracked points' views; seeds go where no point lies, one
@@ -143,7 +144,8 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
     views: list[NDArray[np.float64]] = []
     cover = [covered[:, k] for k in range(c)]
     for k, cam in enumerate(cameras):
-        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture, bare=bare)
+        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture, bare=bare,
+                                margin=margin)
         if len(seeds) == 0:
             continue
         points, hull = _hull_depths(cam, seeds, cameras, masks)

@@ -234,7 +234,8 @@ class FrameTracker:
             new = seed_points(grey, masks, self.cameras, uv, spacing=self.spacing, size=self.size,
                               min_correlation=self.min_correlation, min_views=self.o["min_views"],
                               min_texture=float(min(self.texture)), tolerance=self.o["max_residual"],
-                              max_residual=self.o["max_residual"], floor=settings.FLOOR, bare=0 if reseed else bare)
+                              max_residual=self.o["max_residual"], floor=settings.FLOOR, bare=0 if reseed else bare,
+                              margin=self.o.get("seed_margin"))
             if len(new):
                 ncov = np.where(np.isfinite(new)[..., None], np.eye(2) * 0.01, np.nan)
                 nx, nxcov, nused, _ = intersect_views(self.cameras, new, ncov, max_residual=self.o["max_residual"], floor=settings.FLOOR)
