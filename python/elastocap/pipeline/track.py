@@ -98,8 +98,8 @@ def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | No
         bar.update(1)
 
     try:
-        tracks = track_points(capture, frames=chosen, out=out, progress=tick, spacing=spacing,  # type: ignore[arg-type]
-                              **{**FIT_TRACK_OPTIONS, **options})
+        tracks = track_points(capture, frames=chosen, out=out, progress=tick, spacing=spacing,
+                              **{**FIT_TRACK_OPTIONS, **options})  # type: ignore[arg-type]
     finally:
         bar.close()
     root = Path(out)
