@@ -17,7 +17,7 @@ from elastocap.capture.folder import Capture
 from elastocap.tracking import Tracks, track_points
 from elastocap.tracking.flags import TrackFlag
 
-__all__ = ["FIT_SPACING", "run_track_stage", "trajectory_picture", "strip_picture"]
+__all__ = ["FIT_SPACING", "FIT_TRACK_OPTIONS", "run_track_stage", "trajectory_picture", "strip_picture"]
 
 # The seeding density (pixels per seed) of the tracks the pipeline makes, which are the
 # elastic fit's (``elastocap fit`` reads OUT/tracks). Textured fast capture, the fit with
@@ -27,6 +27,17 @@ __all__ = ["FIT_SPACING", "run_track_stage", "trajectory_picture", "strip_pictur
 # one frame lost) at 10 px, 0.591 / 0.641 (none) at 5 px. ``track_points``' own default (10) stays the
 # tracker's (its speed line at 1,000 points).
 FIT_SPACING = 5
+
+# The seeding of the fit's tracks (``track_points`` options; benches/README.md, trackfit6):
+# seeds 3 px from the mask's edge (``track_points``' own margin, a whole patch, leaves the
+# forearms, hands and feet without a seed: 0-10% of their seen points lie that far inside
+# two cameras' masks), and between the full seedings every frame where the tracks left the
+# mask bare within 2 cells (a fast limb loses its points within a frame or two). Seed 7
+# (tuning): the share of the truth's seen points within 2% of the diagonal of a tracked
+# position 0.49 -> 0.89 (right forearm 0.05 -> 0.93, hand 0.04 -> 0.97), the frame that
+# lost the right hand with tracks (frame 32, 7.65%) held. Both stay off in ``track_points``
+# (its tracking figures, its speed line).
+FIT_TRACK_OPTIONS: dict[str, int] = {"seed_margin": 3, "reseed_bare": 2}
 
 # Colours of the strip per flag (RGB): tracked green, not seeded dark, failures warm.
 _FLAG_COLOURS = np.array([
@@ -76,7 +87,8 @@ def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | No
                     spacing: int = FIT_SPACING, **options: object) -> Tracks:
     """Track the capture's surface points into ``OUT/tracks/`` (resuming), then draw the
     pictures. ``spacing`` is the seeding density for the elastic fit (:data:`FIT_SPACING`,
-    not ``track_points``' own default); ``options`` go to :func:`elastocap.track_points`."""
+    not ``track_points``' own default); ``options`` go to :func:`elastocap.track_points`,
+    over :data:`FIT_TRACK_OPTIONS` (the fit's seeding)."""
     chosen = list(capture.frames) if frames is None else frames
     bar = tqdm(total=len(chosen), desc="track", unit="frame", disable=not progress)
     done = {"n": 0}
@@ -86,7 +98,8 @@ def run_track_stage(capture: Capture, out: str | Path, *, frames: list[int] | No
         bar.update(1)
 
     try:
-        tracks = track_points(capture, frames=chosen, out=out, progress=tick, spacing=spacing, **options)  # type: ignore[arg-type]
+        tracks = track_points(capture, frames=chosen, out=out, progress=tick, spacing=spacing,
+                              **{**FIT_TRACK_OPTIONS, **options})  # type: ignore[arg-type]
     finally:
         bar.close()
     root = Path(out)

@@ -32,12 +32,17 @@ _COARSE = 120
 
 
 def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
-                    spacing: int, size: int, min_texture: float) -> NDArray[np.float64]:
+                    spacing: int, size: int, min_texture: float, bare: int = 0,
+                    margin: int | None = None) -> NDArray[np.float64]:
     """(M, 2) seed pixels of one camera: cell centres inside the mask eroded by the patch,
     textured, in cells holding none of ``covered`` (K, 2); plus the most interior pixel of
-    every mask region that got no seed."""
+    every mask region that got no seed.
+
+    ``bare`` > 0 keeps only the cells with none of ``covered`` within ``bare`` cells (the
+    areas the tracks left bare, such as a fast limb whose points were all lost, not the odd
+    cell between tracked points): the cheap seeding of the frames between full seedings."""
     h, w = mask.shape
-    reach = size // 2 + 2
+    reach = size // 2 + 2 if margin is None else margin
     kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
     inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
@@ -48,6 +53,8 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
         cu = np.clip((covered[ok, 0] // spacing).astype(int), 0, cells.shape[1] - 1)
         cv = np.clip((covered[ok, 1] // spacing).astype(int), 0, cells.shape[0] - 1)
         cells[cv, cu] = True
+    if bare > 0:
+        cells = cv2.dilate(cells.astype(np.uint8), np.ones((2 * bare + 1, 2 * bare + 1), np.uint8)) > 0
     vs, us = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
     pick = inner[vs, us] & (texture[vs, us] >= min_texture) & ~cells[vs // spacing, us // spacing]
     seeds = [np.column_stack([us[pick], vs[pick]]).astype(float)]
@@ -124,18 +131,21 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
 
 def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
                 covered: NDArray[np.float64], *, spacing: int, size: int, min_correlation: float, min_views: int,
-                min_texture: float, tolerance: float, max_residual: float, floor: float) -> NDArray[np.float64]:
+                min_texture: float, tolerance: float, max_residual: float, floor: float,
+                bare: int = 0, margin: int | None = None) -> NDArray[np.float64]:
     """New points: their views (M, C, 2; NaN where not matched; at least ``min_views``).
 
     ``covered`` (N, C, 2) holds the tracked points' views; seeds go where no point lies, one
     camera after the other (so a point seeded from one camera covers its cells in the
-    others)."""
+    others); with ``bare`` > 0 only where none lies within ``bare`` cells
+    (:func:`seed_candidates`)."""
     c = len(cameras)
     partners = _partners(cameras)
     views: list[NDArray[np.float64]] = []
     cover = [covered[:, k] for k in range(c)]
     for k, cam in enumerate(cameras):
-        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture)
+        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture, bare=bare,
+                                margin=margin)
         if len(seeds) == 0:
             continue
         points, hull = _hull_depths(cam, seeds, cameras, masks)

@@ -137,7 +137,7 @@ class FrameTracker:
                 self.anchors.cuts[: len(where_frames)] = last["anchor_cuts"]
         self._forget()
         return done
-    def step(self, frame: int, *, first: bool, reseed: bool) -> dict[str, NDArray[np.generic]]:
+    def step(self, frame: int, *, first: bool, reseed: bool, bare: int = 0) -> dict[str, NDArray[np.generic]]:
         grey, masks = self._read(frame)
         weights = self._weights(masks)
         n, c = self.uv.shape[:2]
@@ -248,12 +248,14 @@ class FrameTracker:
         if self.lost is not None and n:
             x, x_state = revive(self, frame, grey, masks, alive, uv, cov2d, x, xcov, x_state, flags, flags2d)
 
-        # New points where the textured masks have none.
-        if reseed:
+        # New points where the textured masks have none (with ``bare`` alone: only where
+        # none lies within ``bare`` cells, seeding.seed_candidates).
+        if reseed or bare > 0:
             new = seed_points(grey, masks, self.cameras, uv, spacing=self.spacing, size=self.size,
                               min_correlation=self.min_correlation, min_views=self.o["min_views"],
                               min_texture=float(min(self.texture)), tolerance=self.o["max_residual"],
-                              max_residual=self.o["max_residual"], floor=settings.FLOOR)
+                              max_residual=self.o["max_residual"], floor=settings.FLOOR, bare=0 if reseed else bare,
+                              margin=self.o.get("seed_margin"))
             if len(new):
                 ncov = np.where(np.isfinite(new)[..., None], np.eye(2) * 0.01, np.nan)
                 nx, nxcov, nused, _ = intersect_views(self.cameras, new, ncov, max_residual=self.o["max_residual"], floor=settings.FLOOR)

@@ -60,6 +60,8 @@ def track_points(
     max_residual: float = 1.5,
     min_views: int = 2,
     reseed_every: int = 5,
+    reseed_bare: int = 0,
+    seed_margin: int | None = None,
     max_velocity: float = 40.0,
     max_acceleration: float = 12.0,
     uniformity: float = 4.0,
@@ -104,6 +106,15 @@ def track_points(
         their residual; the correlation peak along the epipolar line must then be unique.
     reseed_every : int, default 5, keyword-only
         Seed new points on the first frame and every this many frames after.
+    reseed_bare : int, default 0, keyword-only
+        On the frames between those, seed new points too, but only in the textured mask
+        area with no tracked point within this many ``spacing`` cells (the areas the tracks
+        left bare: a fast limb loses all its points within a frame or two, and waits bare
+        for the next seeding otherwise). 0: off.
+    seed_margin : int, optional, keyword-only
+        Least distance of a seed from its mask's edge, pixels (default ``size // 2 + 2``:
+        the whole patch on the figure). Forearms, hands and feet are a patch or two wide in
+        the image: at the default they hold almost no seed.
     max_velocity, max_acceleration : float, default 40 and 12, keyword-only
         Trajectory thresholds, pixel equivalents per frame (per frame squared).
     uniformity : float, default 4, keyword-only
@@ -176,6 +187,8 @@ def track_points(
         max_residual=as_positive("max_residual", max_residual),
         min_views=as_count("min_views", min_views, minimum=2),
         reseed_every=as_count("reseed_every", reseed_every),
+        reseed_bare=as_count("reseed_bare", reseed_bare, minimum=0),
+        seed_margin=None if seed_margin is None else as_count("seed_margin", seed_margin, minimum=0),
         max_velocity=as_positive("max_velocity", max_velocity),
         max_acceleration=as_positive("max_acceleration", max_acceleration),
         uniformity=as_positive("uniformity", uniformity),
@@ -196,7 +209,7 @@ def track_points(
             # (seeding frames, the rigid fusion's history) does not know.
             raise InvalidInputError(f"the tracks in {out} were followed backward; track more frames into a fresh folder")
     for i in range(start, len(chosen)):
-        record = tracker.step(chosen[i], first=i == 0, reseed=i % options["reseed_every"] == 0)
+        record = tracker.step(chosen[i], first=i == 0, reseed=i % options["reseed_every"] == 0, bare=options["reseed_bare"])
         if out is not None:
             write_frame(out, chosen[i], record)
         else:
