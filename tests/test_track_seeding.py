@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import elastocap
-from elastocap.tracking import TrackFlag, track_points
+from elastocap.tracking import TrackFlag, settings, track_points
 from elastocap.tracking.seeding import seed_candidates
 from track_scene import write_scene
 
@@ -65,12 +65,16 @@ def scene(tmp_path_factory: pytest.TempPathFactory):
     return root, truth
 
 
-def test_points_seeded_between_full_seedings_are_true_surface_points(scene):
+def test_points_seeded_between_full_seedings_are_true_surface_points(scene, monkeypatch):
     root, truth = scene
     capture = elastocap.Capture.open(root)
+    # The bare seeding needs bare area: points lost on the way. The revival and the step's
+    # second search keep most of this small scene's points (3 seeded late with them), so
+    # they are off here; what is measured is where the bare seeding puts its points.
+    monkeypatch.setattr(settings, "RESEARCH", False)
     # One full seeding (frame 0); the bare seeding every frame after.
-    plain = track_points(capture, spacing=6, reseed_every=100)
-    bare = track_points(capture, spacing=6, reseed_every=100, reseed_bare=2)
+    plain = track_points(capture, spacing=6, reseed_every=100, revive=False)
+    bare = track_points(capture, spacing=6, reseed_every=100, reseed_bare=2, revive=False)
     # The same points up to their seeding (the bare seeding only adds ids after).
     n0 = len(plain.ids)
     first = (bare.flags == TrackFlag.TRACKED).argmax(axis=0)
