@@ -182,7 +182,7 @@ impl BodySkeleton {
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let (f, g, h) = py.detach(|| body::field_at(&self.skeleton, s, m, p))?;
+        let (f, g, h) = super::detach(py, || body::field_at(&self.skeleton, s, m, p))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
@@ -204,7 +204,7 @@ impl BodySkeleton {
             c_slice(&motion, "motion")?,
             rows::<3>(&points, "points")?,
         );
-        let f = py.detach(|| body::field_values(&self.skeleton, s, m, p))?;
+        let f = super::detach(py, || body::field_values(&self.skeleton, s, m, p))?;
         Ok(f.into_pyarray(py))
     }
 
@@ -228,7 +228,7 @@ impl BodySkeleton {
         } else {
             Cutoff::Bounded
         };
-        let (f, j) = py.detach(|| body::state_jacobian(&self.skeleton, s, m, p, cutoff))?;
+        let (f, j) = super::detach(py, || body::state_jacobian(&self.skeleton, s, m, p, cutoff))?;
         let n = f.len();
         Ok((
             f.into_pyarray(py),
@@ -251,7 +251,8 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let (t, x, f, hit, j) = py.detach(|| body::ray_jacobian(&self.skeleton, s, m, o, r))?;
+        let (t, x, f, hit, j) =
+            super::detach(py, || body::ray_jacobian(&self.skeleton, s, m, o, r))?;
         let n = t.len();
         Ok((
             t.into_pyarray(py),
@@ -277,7 +278,9 @@ impl BodySkeleton {
             rows::<3>(&origins, "origins")?,
             rows::<3>(&directions, "directions")?,
         );
-        let inside = py.detach(|| body::ray_inside(&self.skeleton, s, m, o, r, threshold))?;
+        let inside = super::detach(py, || {
+            body::ray_inside(&self.skeleton, s, m, o, r, threshold)
+        })?;
         Ok(inside.into_pyarray(py))
     }
 
@@ -309,7 +312,7 @@ impl BodySkeleton {
         };
         let (s, m) = (c_slice(&shape, "shape")?, c_slice(&motion, "motion")?);
         let (lo, hi) = (c_slice(&lower, "lower")?, c_slice(&upper, "upper")?);
-        let result = py.detach(|| fit(&self.skeleton, &obs, s, m, (lo, hi), &options))?;
+        let result = super::detach(py, || fit(&self.skeleton, &obs, s, m, (lo, hi), &options))?;
         let out = PyDict::new(py);
         let frames = obs.frames;
         out.set_item(

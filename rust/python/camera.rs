@@ -33,7 +33,7 @@ fn camera_project<'py>(
         .map_err(|_| invalid_input("t must have shape (3,)".to_string()))?;
     let camera = Camera::new(k, c_slice(&dist, "dist")?, r, t, width, height)?;
     let points = rows::<3>(&points, "points")?;
-    let uv: Vec<[f64; 2]> = py.detach(|| {
+    let uv: Vec<[f64; 2]> = super::detach(py, || {
         points
             .par_iter()
             .map(|p| camera.project(p).unwrap_or([f64::NAN; 2]))

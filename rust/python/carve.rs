@@ -70,7 +70,9 @@ fn carve<'py>(
         spacing,
         shape,
     };
-    let occupancy = py.detach(|| carve_masks(&cameras, &views, grid, tolerance, footprint))?;
+    let occupancy = super::detach(py, || {
+        carve_masks(&cameras, &views, grid, tolerance, footprint)
+    })?;
     PyArray1::from_vec(py, occupancy).reshape(shape)
 }
 

@@ -144,7 +144,7 @@ fn efg_stiffness<'py>(
     plane: &str,
 ) -> PyResult<Csr<'py>> {
     let inputs = inputs(&points, &neighbors, &grad, &volumes, youngs, poisson, plane)?;
-    let csr = py.detach(|| match inputs.dim {
+    let csr = super::detach(py, || match inputs.dim {
         2 => stiffness::<2>(&inputs),
         _ => stiffness::<3>(&inputs),
     })?;
@@ -183,11 +183,11 @@ fn efg_energy<'py>(
     let (energy, forces, strains) = match dim {
         2 => {
             let u = rows::<2>(&displacements, "displacements")?;
-            py.detach(|| energy::<2>(&inputs, u))
+            super::detach(py, || energy::<2>(&inputs, u))
         }
         _ => {
             let u = rows::<3>(&displacements, "displacements")?;
-            py.detach(|| energy::<3>(&inputs, u))
+            super::detach(py, || energy::<3>(&inputs, u))
         }
     }?;
     let s = dim * (dim + 1) / 2;

@@ -167,14 +167,14 @@ impl ElasticCore {
         let model = match nodes.shape()[1] {
             2 => {
                 let rest = rows::<2>(&nodes, "nodes")?.to_vec();
-                Model::Planar(py.detach(|| {
+                Model::Planar(super::detach(py, || {
                     ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
                         .with_stabilization(stabilization)
                 })?)
             }
             3 => {
                 let rest = rows::<3>(&nodes, "nodes")?.to_vec();
-                Model::Spatial(py.detach(|| {
+                Model::Spatial(super::detach(py, || {
                     ElasticModel::new(rest, k, volumes, &material, rotation, fit)?
                         .with_stabilization(stabilization)
                 })?)
@@ -254,7 +254,7 @@ impl ElasticCore {
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
-            let r = py.detach(|| m.rotations(x))?;
+            let r = super::detach(py, || m.rotations(x))?;
             Ok(blocks_out(py, r))
         })
     }
@@ -269,7 +269,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            Ok(py.detach(|| m.energy(x, &r))?)
+            Ok(super::detach(py, || m.energy(x, &r))?)
         })
     }
 
@@ -283,7 +283,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let x = self::positions::<D>(&positions, m.len(), "positions")?;
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let f = py.detach(|| m.forces(x, &r))?;
+            let f = super::detach(py, || m.forces(x, &r))?;
             Ok(rows_out(py, f))
         })
     }
@@ -296,7 +296,7 @@ impl ElasticCore {
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let f = py.detach(|| m.rhs(&r))?;
+            let f = super::detach(py, || m.rhs(&r))?;
             Ok(rows_out(py, f))
         })
     }
@@ -311,7 +311,7 @@ impl ElasticCore {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
             let u = self::positions::<D>(&u, m.len(), "u")?;
-            let y = py.detach(|| m.apply(&r, u))?;
+            let y = super::detach(py, || m.apply(&r, u))?;
             Ok(rows_out(py, y))
         })
     }
@@ -325,7 +325,7 @@ impl ElasticCore {
     ) -> PyResult<Csr<'py>> {
         dispatch!(&self.model, m, D => {
             let r = blocks::<D>(&rotations, m.len(), "rotations")?;
-            let (indptr, indices, data) = py.detach(|| m.system_csr(&r))?;
+            let (indptr, indices, data) = super::detach(py, || m.system_csr(&r))?;
             let as_i64 = |v: Vec<usize>| v.into_iter().map(|x| x as i64).collect::<Vec<_>>();
             Ok((
                 as_i64(indptr).into_pyarray(py),

@@ -89,13 +89,11 @@ impl FitCore {
         let workspace = match (core.spatial(), core.planar()) {
             (Some(m), _) => {
                 let faces: Vec<[u32; 3]> = flat.as_chunks::<3>().0.to_vec();
-                py.detach(|| FitWorkspace::new(m, &surface, &faces))
-                    .map(Workspace::Spatial)
+                super::detach(py, || FitWorkspace::new(m, &surface, &faces)).map(Workspace::Spatial)
             }
             (None, Some(m)) => {
                 let faces: Vec<[u32; 2]> = flat.as_chunks::<2>().0.to_vec();
-                py.detach(|| FitWorkspace::new(m, &surface, &faces))
-                    .map(Workspace::Planar)
+                super::detach(py, || FitWorkspace::new(m, &surface, &faces)).map(Workspace::Planar)
             }
             (None, None) => unreachable!("a model is 2-D or 3-D"),
         }?;
@@ -174,7 +172,7 @@ impl FitCore {
                     .map(|t| frame_tracks(model.len(), t, track_weight, track_sigma, track_scale))
                     .transpose()?;
                 let start = rows::<3>(&start, "start")?;
-                let (x, m) = py.detach(|| {
+                let (x, m) = super::detach(py, || {
                     let samples = (coverage > 0.0)
                         .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
                         .transpose()?;
@@ -200,7 +198,7 @@ impl FitCore {
                     ));
                 }
                 let start = rows::<2>(&start, "start")?;
-                let (x, m) = py.detach(|| {
+                let (x, m) = super::detach(py, || {
                     let samples = (coverage > 0.0)
                         .then(|| TargetSamples::from_grid(flat, grid, origin, spacing, &field))
                         .transpose()?;

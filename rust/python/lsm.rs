@@ -155,7 +155,7 @@ fn lsm_match_patches<'py>(
                 out,
             )
         };
-        py.detach(|| match threads {
+        super::detach(py, || match threads {
             Some(threads) => match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
                 Ok(pool) => Ok(pool.install(run)),
                 Err(e) => Err(e.to_string()),

@@ -34,7 +34,7 @@ impl TriangleMesh {
             )));
         }
         let t = c_slice(&triangles, "triangles")?.as_chunks::<3>().0;
-        let mesh = py.detach(|| mesh::TriangleMesh::new(v, t))?;
+        let mesh = super::detach(py, || mesh::TriangleMesh::new(v, t))?;
         Ok(TriangleMesh { mesh })
     }
 
@@ -89,7 +89,7 @@ impl TriangleMesh {
             );
             let (p, d, t) = (p.as_slice_mut()?, d.as_slice_mut()?, t.as_slice_mut()?);
             let p = p.as_chunks_mut::<3>().0;
-            py.detach(|| self.mesh.closest_points_into(q, signed, p, d, t))?;
+            super::detach(py, || self.mesh.closest_points_into(q, signed, p, d, t))?;
         }
         Ok((points, distances, triangles))
     }
@@ -107,7 +107,7 @@ impl TriangleMesh {
         {
             let mut d = distances.readwrite();
             let d = d.as_slice_mut()?;
-            py.detach(|| self.mesh.distances_into(q, signed, max_distance, d))?;
+            super::detach(py, || self.mesh.distances_into(q, signed, max_distance, d))?;
         }
         Ok(distances)
     }
@@ -119,7 +119,7 @@ impl TriangleMesh {
         queries: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
         let q = rows::<3>(&queries, "queries")?;
-        let inside = py.detach(|| self.mesh.contains(q))?;
+        let inside = super::detach(py, || self.mesh.contains(q))?;
         Ok(PyArray1::from_vec(py, inside))
     }
 
@@ -133,7 +133,7 @@ impl TriangleMesh {
     ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
         let o = rows::<3>(&origins, "origins")?;
         let d = rows::<3>(&directions, "directions")?;
-        let hits = py.detach(|| self.mesh.cast_rays(o, d, max_distance))?;
+        let hits = super::detach(py, || self.mesh.cast_rays(o, d, max_distance))?;
         Ok((
             PyArray1::from_vec(py, hits.distances),
             PyArray1::from_vec(py, hits.triangles),

@@ -50,7 +50,9 @@ fn run<'py, const D: usize, const M: usize>(
         let mut used = used.readwrite();
         let (phi, used) = (phi.as_slice_mut()?, used.as_slice_mut()?);
         let grad = grad.as_slice_mut()?.as_chunks_mut::<D>().0;
-        py.detach(|| shape_functions_into::<D, M>(points, neighbors, k, support, phi, grad, used))?
+        super::detach(py, || {
+            shape_functions_into::<D, M>(points, neighbors, k, support, phi, grad, used)
+        })?
     };
     Ok((phi, grad, used, repaired))
 }

@@ -13,6 +13,7 @@ mod mesh;
 mod mls;
 mod neighbors;
 mod polar;
+mod pool;
 mod raster;
 mod sdf;
 mod snake;
@@ -23,6 +24,7 @@ use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 pub(crate) use errors::invalid_input;
+pub(crate) use pool::detach;
 
 /// The data of a C-contiguous array. (`as_slice` alone also accepts Fortran order, whose
 /// data would then be read transposed.)
@@ -53,6 +55,7 @@ pub(crate) fn rows<'a, const D: usize>(
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    pool::register();
     errors::register(m)?;
     fit::register(m)?;
     body::register(m)?;

@@ -32,14 +32,14 @@ fn knn_arrays<'py, const D: usize>(
     queries: Option<&[[f64; D]]>,
     k: usize,
 ) -> PyResult<KnnArrays<'py>> {
-    let m = py.detach(|| index.check_knn(queries, k))?;
+    let m = super::detach(py, || index.check_knn(queries, k))?;
     let indices = PyArray2::<i64>::zeros(py, [m, k], false);
     let distances = PyArray2::<f64>::zeros(py, [m, k], false);
     {
         let mut i = indices.readwrite();
         let mut d = distances.readwrite();
         let (i, d) = (i.as_slice_mut()?, d.as_slice_mut()?);
-        py.detach(|| index.knn_into(queries, k, i, d))?;
+        super::detach(py, || index.knn_into(queries, k, i, d))?;
     }
     Ok((indices, distances))
 }
@@ -59,11 +59,11 @@ impl SpatialIndex {
         let index = match points.shape()[1] {
             2 => {
                 let p = rows::<2>(&points, "points")?;
-                Index::Planar(py.detach(|| SpatialHash::new(p))?)
+                Index::Planar(super::detach(py, || SpatialHash::new(p))?)
             }
             3 => {
                 let p = rows::<3>(&points, "points")?;
-                Index::Spatial(py.detach(|| SpatialHash::new(p))?)
+                Index::Spatial(super::detach(py, || SpatialHash::new(p))?)
             }
             d => {
                 return Err(invalid_input(format!(
@@ -140,14 +140,14 @@ impl SpatialIndex {
                     .as_ref()
                     .map(|q| rows::<2>(q, "queries"))
                     .transpose()?;
-                py.detach(|| i.radius_neighbors(q, radius))
+                super::detach(py, || i.radius_neighbors(q, radius))
             }
             Index::Spatial(i) => {
                 let q = queries
                     .as_ref()
                     .map(|q| rows::<3>(q, "queries"))
                     .transpose()?;
-                py.detach(|| i.radius_neighbors(q, radius))
+                super::detach(py, || i.radius_neighbors(q, radius))
             }
         };
         Ok(csr_arrays(py, result?))

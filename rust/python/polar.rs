@@ -32,7 +32,7 @@ fn run<'py, const D: usize, const DD: usize>(
             Some(s) => Some(s.as_slice_mut()?.as_chunks_mut::<DD>().0),
             None => None,
         };
-        py.detach(|| kernel(matrices, r, s))?;
+        super::detach(py, || kernel(matrices, r, s))?;
     }
     Ok((rotations, stretches))
 }

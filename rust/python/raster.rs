@@ -52,7 +52,7 @@ fn raster_fragments<'py>(
             "an image of {width} x {height} pixels is too large"
         )));
     }
-    let found = py.detach(|| fragments(uv, &triangles, width, height));
+    let found = super::detach(py, || fragments(uv, &triangles, width, height));
     let count = found.pixel.len();
     Ok((
         found.pixel.into_pyarray(py),

@@ -23,7 +23,7 @@ fn signed_distance<'py>(
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
     let shape = shape3(occupancy.shape());
     let flat = c_slice(&occupancy, "occupancy")?;
-    let sdf = py.detach(|| core_signed_distance(flat, shape, spacing))?;
+    let sdf = super::detach(py, || core_signed_distance(flat, shape, spacing))?;
     PyArray1::from_vec(py, sdf).reshape(shape)
 }
 
@@ -55,7 +55,7 @@ fn sample_grid<'py>(
             Some(g) => Some(g.as_slice_mut()?.as_chunks_mut::<3>().0),
             None => None,
         };
-        py.detach(|| sample_points(&field, p, v, g))?;
+        super::detach(py, || sample_points(&field, p, v, g))?;
     }
     Ok((out_values, out_gradients))
 }

@@ -45,7 +45,7 @@ fn active_contour_py<'py>(
         window: window.max(1),
         min_area,
     };
-    let result = py.detach(|| active_contour(values, width, height, init, &options))?;
+    let result = super::detach(py, || active_contour(values, width, height, init, &options))?;
     let status = match result.status {
         SnakeStatus::Converged => "converged",
         SnakeStatus::MaxIterations => "maximum iterations",

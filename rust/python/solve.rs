@@ -134,7 +134,7 @@ impl SparseCholesky {
         check_block(block)?;
         let index = index_arrays(&indptr, &indices)?;
         let csr = csr(size, &index, &data)?;
-        let factor = py.detach(|| {
+        let factor = super::detach(py, || {
             with_csr!(&csr, m => match block {
                 2 => Cholesky::from_csr_parts(m).map(Factor::Two),
                 _ => Cholesky::from_csr_parts(m).map(Factor::Three),
@@ -159,7 +159,7 @@ impl SparseCholesky {
         let csr = csr(self.size, &index, &data)?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        Ok(py.detach(|| {
+        Ok(super::detach(py, || {
             with_csr!(&csr, m => match factor {
                 Factor::Two(f) => f.factorize_csr_parts(m),
                 Factor::Three(f) => f.factorize_csr_parts(m),
@@ -176,7 +176,7 @@ impl SparseCholesky {
         let rhs = c_slice(&rhs, "rhs")?;
         let mut guard = self.lock();
         let factor = &mut *guard;
-        let x = py.detach(|| match factor {
+        let x = super::detach(py, || match factor {
             Factor::Two(f) => f.solve(rhs),
             Factor::Three(f) => f.solve(rhs),
         })?;
@@ -261,7 +261,7 @@ fn conjugate_gradient<'py>(
         }
         let mut guard = held.map(|p| p.lock());
         let factor = guard.as_deref_mut();
-        py.detach(|| {
+        super::detach(py, || {
             with_csr!(&csr, m => match (block, factor) {
                 (2, factor) => {
                     let factor = match factor {

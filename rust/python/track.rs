@@ -136,7 +136,7 @@ fn track_step<'py>(
         let flags_s = flags_w.as_slice_mut()?;
         let covariance_s = covariance_w.as_slice_mut()?.as_chunks_mut::<4>().0;
         let correlation_s = correlation_w.as_slice_mut()?;
-        py.detach(|| {
+        super::detach(py, || {
             for k in 0..c {
                 let range = k * n..(k + 1) * n;
                 track_camera(
@@ -195,7 +195,7 @@ fn track_ncc_at<'py>(
     {
         let mut w = scores.readwrite();
         let out = w.as_slice_mut()?;
-        py.detach(|| {
+        super::detach(py, || {
             if k > 0 {
                 out.par_chunks_mut(k).enumerate().for_each(|(i, row)| {
                     ncc_at(&t, p[i], &s, &cand[i * k..(i + 1) * k], size, row)
