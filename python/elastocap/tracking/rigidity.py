@@ -42,6 +42,16 @@ with the neighbours' motion fitted to their fused positions, so that a neighbour
 depth drifted misleads its neighbours less (tuning seeds 0, 2, 3, 8, 9: 1.76 -> 1.70% and
 1.81 -> 1.67%).
 
+What the fusion leaves are mostly points that slid along the surface in both views of
+their pair (branch track14), a few tenths of a pixel a frame, which no one-frame check sees:
+:func:`rigid_residuals` measures each point's offset from its neighbours' rigid map since
+its seeding frame across its rays, and the neighbourhood's own held-out residual to that
+map, and the tracker withholds points too far off (flag SLID, ``settings.SLIDE``; branch
+track17: tuning seeds 0, 2, 3, kept 3-D beyond 5 px-eq 1.45 / 1.93 / 1.27% -> 0.90 / 1.08 /
+0.87%, through -1.2 / -1.0 / -0.4 points). Where the two disagree by several px-eq the
+prediction itself is mostly the one wrong (its error a median 7-18 px-eq there), so a point
+is withheld, never moved onto it.
+
 Only what is reported changes: the tracker follows its points from their intersections,
 and the views (so every image figure) are untouched.
 """
