@@ -49,7 +49,7 @@ its seeding frame across its rays, and the neighbourhood's own held-out residual
 map, and the tracker withholds points too far off (flag SLID, ``settings.SLIDE``; branch
 track17: tuning seeds 0, 2, 3, kept 3-D beyond 5 px-eq 1.45 / 1.93 / 1.27% -> 0.90 / 1.08 /
 0.87%, through -1.2 / -1.0 / -0.4 points). Where the two disagree by several px-eq the
-prediction itself is mostly the one wrong (its error a median 7-18 px-eq there), so a point
+prediction itself is mostly the one wrong (its error a median 6-21 px-eq there), so a point
 is withheld, never moved onto it.
 
 Only what is reported changes: the tracker follows its points from their intersections,
