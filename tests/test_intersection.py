@@ -168,3 +168,32 @@ def test_bad_input() -> None:
         intersect(cams, good, critical=-1)
     with pytest.raises(InvalidInputError, match="cameras"):
         intersect([cams[0], "not a camera"], good)  # type: ignore[list-item]
+
+
+@given(st.integers(0, 2**32 - 1), st.floats(-8.0, -1.0), st.floats(0.0, 5.0))
+@settings(max_examples=60, deadline=None)
+def test_the_covariance_is_positive_definite_however_near_parallel_the_rays(seed: int, baseline: float,
+                                                                           far: float) -> None:
+    # Two cameras 10^baseline units apart looking at points up to 10^far units away: the
+    # normal matrix is near singular along the rays. Its plain inverse came out indefinite
+    # in floating point (a third of such matrices at 1e-9..1e-2 rad between the rays); the
+    # covariance must be symmetric positive definite wherever it is given, and its weak
+    # direction the rays'.
+    rng = np.random.default_rng(seed)
+    b = 10.0**baseline
+    cams = [Camera(f"c{i}", np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]), None, np.eye(3),
+                   -np.array([b * i, 0.0, 0.0]), 640, 480) for i in range(2)]
+    depth = 5.0 * 10.0 ** rng.uniform(0, far, 20)
+    X = np.column_stack([rng.uniform(-0.2, 0.2, 20) * depth, rng.uniform(-0.2, 0.2, 20) * depth, depth])
+    uv = np.stack([c.project(X)[0] for c in cams], axis=1) + rng.normal(0, 0.3, (20, 2, 2))
+    a = rng.normal(size=(20, 4, 4))
+    cov = np.einsum("nij,nkj->nik", a, a) * 0.05 + 0.01 * np.eye(4)
+    result = intersect(cams, uv, covariance=cov, reject=False)
+    c = result.covariance
+    fin = np.isfinite(c).all(axis=(1, 2))
+    assert fin.any()
+    np.testing.assert_array_equal(c[fin], c[fin].transpose(0, 2, 1))
+    w, v = np.linalg.eigh(c[fin])
+    assert (w[:, 0] > 0).all()
+    ray = X[fin] / np.linalg.norm(X[fin], axis=1, keepdims=True)
+    assert np.median(np.abs(np.einsum("ni,ni->n", v[:, :, -1], ray))) > 0.9

@@ -271,3 +271,34 @@ def test_a_second_pass_takes_the_neighbours_drift_out_of_the_prediction():
     for bad in (0, -1, 1.5):
         with pytest.raises(ValueError, match="passes"):
             rigid_fusion(x, cov, pixel, seeded, history, passes=bad, **options)
+
+
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 14.0))
+@hsettings(max_examples=40, deadline=None)
+def test_fused_covariances_are_positive_definite_by_construction(seed, condition):
+    # Intersections whose covariance is 10^condition times longer along the rays than across
+    # (near-parallel rays), in any direction, with any disagreement from the prediction: the
+    # fused covariance is symmetric positive definite, below S, and equal to
+    # S - S (S + P)^-1 S where that is well conditioned.
+    rng = np.random.default_rng(seed)
+    m = 60
+    before = _limb(rng, m)
+    rot = Rotation.random(random_state=seed).as_matrix()
+    now = before @ rot.T + rng.normal(0, 0.1, 3)
+    ray = rng.normal(size=(m, 3))
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    across = (0.3 * PIXEL) ** 2
+    cov = across * np.eye(3) + across * (10.0**condition - 1.0) * np.einsum("ni,nj->nij", ray, ray)
+    x = now + rng.normal(0, 3 * PIXEL, now.shape)
+    pixel = np.full(m, PIXEL)
+    fused, fcov = rigid_fusion(x, cov, pixel, np.zeros(m, np.int64), {0: before}, neighbours=8, sigma=2.0)
+    np.testing.assert_array_equal(fcov, fcov.transpose(0, 2, 1))
+    w = np.linalg.eigvalsh(fcov)
+    assert (w[:, 0] > 0).all()
+    assert (np.linalg.eigvalsh(cov - fcov)[:, 0] > -1e-12 * np.linalg.eigvalsh(cov)[:, -1]).all()
+    if condition < 6:
+        f1, c1 = rigid_fusion(x, cov, pixel, np.zeros(m, np.int64), {0: before}, neighbours=8, sigma=2.0, gate=np.inf,
+                              passes=1)
+        p = (2.0 * PIXEL) ** 2 * np.eye(3)
+        plain = cov - np.einsum("nij,njk->nik", cov, np.linalg.solve(cov + p, cov))
+        np.testing.assert_allclose(c1, plain, rtol=1e-6, atol=1e-9 * across)

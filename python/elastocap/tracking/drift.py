@@ -38,7 +38,10 @@ def drift_covariance(covariance: NDArray[np.float64], pixel: NDArray[np.float64]
     f = np.asarray(recuts, float)
     factor = scale[0] + scale[1] * f
     extra = np.asarray(pixel, float) ** 2 * (variance[0] + variance[1] * f)
-    return covariance * factor[:, None, None] + extra[:, None, None] * np.eye(3)
+    # The symmetric part: both terms are then symmetric, and with ``S`` positive definite
+    # (the intersection's, by construction) and positive factors the sum is too.
+    sym = 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
+    return sym * factor[:, None, None] + extra[:, None, None] * np.eye(3)
 
 
 def weakest_sd(covariance: NDArray[np.float64], pixel: NDArray[np.float64]) -> NDArray[np.float64]:

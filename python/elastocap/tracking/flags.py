@@ -46,6 +46,13 @@ class TrackFlag(IntEnum):
         its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents, or its
         intersection's covariance is not positive definite (rays too near parallel for
         the inverse to mean anything): withheld (the tracker follows it on).
+    SLID : 13
+        Tracked, but farther across its rays from where the rigid motion of its
+        neighbours since its seeding frame puts it than ``settings.SLIDE`` pixel
+        equivalents plus ``settings.SLIDE_SPREAD`` times the neighbours' own residual to
+        that motion: it slid along the surface in both views of its pair, a few tenths of a
+        pixel a frame, which no one-frame check sees (:func:`~elastocap.tracking.rigidity.rigid_residuals`).
+        Withheld (the tracker follows it on), and on every later frame of the track.
     """
 
     TRACKED = 0
@@ -61,3 +68,4 @@ class TrackFlag(IntEnum):
     FEW_VIEWS = 10
     HIDDEN = 11
     UNCERTAIN = 12
+    SLID = 13

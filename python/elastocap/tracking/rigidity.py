@@ -42,12 +42,23 @@ with the neighbours' motion fitted to their fused positions, so that a neighbour
 depth drifted misleads its neighbours less (tuning seeds 0, 2, 3, 8, 9: 1.76 -> 1.70% and
 1.81 -> 1.67%).
 
+What the fusion leaves are mostly points that slid along the surface in both views of
+their pair (branch track14), a few tenths of a pixel a frame, which no one-frame check sees:
+:func:`rigid_residuals` measures each point's offset from its neighbours' rigid map since
+its seeding frame across its rays, and the neighbourhood's own held-out residual to that
+map, and the tracker withholds points too far off (flag SLID, ``settings.SLIDE``; branch
+track17: tuning seeds 0, 2, 3, kept 3-D beyond 5 px-eq 1.45 / 1.93 / 1.27% -> 0.90 / 1.08 /
+0.87%, through -1.2 / -1.0 / -0.4 points). Where the two disagree by several px-eq the
+prediction itself is mostly the one wrong (its error a median 6-21 px-eq there), so a point
+is withheld, never moved onto it.
+
 Only what is reported changes: the tracker follows its points from their intersections,
 and the views (so every image figure) are untouched.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -56,7 +67,7 @@ from scipy.spatial import cKDTree
 
 from elastocap.tracking import settings
 
-__all__ = ["rigid_fusion", "rigid_motions"]
+__all__ = ["rigid_fusion", "rigid_motions", "rigid_residuals"]
 
 
 def rigid_motions(a: NDArray[np.float64], b: NDArray[np.float64],
@@ -202,5 +213,86 @@ def _fuse(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArra
         total = s + prior
         gain = np.linalg.solve(total, s).transpose(0, 2, 1)  # S (S + P)^-1 (both symmetric)
         x_out[rows] = x[rows] + np.einsum("nij,nj->ni", gain, predicted - x[rows])
-        cov_out[rows] = s - np.einsum("nij,njk->nik", gain, s)
+        cov_out[rows] = _fused_covariance(s, prior[:, 0, 0])
     return x_out, cov_out
+
+
+def _fused_covariance(s: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(M, 3, 3) ``S - S (S + p I)^-1 S`` for symmetric positive definite ``s`` (M, 3, 3)
+    and an isotropic prior's variances ``p`` (M,), positive definite by construction: in
+    the eigenbasis of ``S`` each variance ``w`` becomes ``w p / (w + p)`` (no subtraction
+    of nearly equal numbers along the rays, where ``w`` is far above ``p``), ``w`` held at
+    least 1e-12 of the largest (an intersection rounded indefinite stays definite)."""
+    w, v = np.linalg.eigh(0.5 * (s + s.transpose(0, 2, 1)))
+    w = np.maximum(w, 1e-12 * np.maximum(w[:, -1:], 0.0))
+    fused = w * p[:, None] / (w + p[:, None])
+    fused = np.where(fused > 0, fused, np.finfo(float).tiny)
+    out = np.einsum("nik,nk,njk->nij", v, fused, v)
+    return 0.5 * (out + out.transpose(0, 2, 1))  # exactly symmetric
+
+
+class RigidResiduals(NamedTuple):
+    """Per point (N,), pixel equivalents, NaN where no prediction was made (seeded on this
+    frame, too few neighbours, not tracked): ``across`` the distance of the point from its
+    neighbours' rigid prediction across the direction to its cameras (a slide along the
+    surface seen alike in both views of a narrow pair), ``along`` the same along it (the
+    pair's depth, noisy by 1 px-eq per 0.1 px of disparity), ``spread`` the median distance
+    of the chosen neighbours themselves from the rigid motion fitted to them (how rigidly
+    the neighbourhood moved since the seeding frame); ``held_out`` the median distance of
+    each chosen neighbour from where the others' rigid motion puts it (leave one out: how
+    well the neighbourhood predicts a point it was not fitted to, which a thin limb's
+    nearly collinear neighbours do badly across its axis while fitting themselves well);
+    ``predicted`` (N, 3) world, the prediction itself."""
+
+    across: NDArray[np.float64]
+    along: NDArray[np.float64]
+    spread: NDArray[np.float64]
+    held_out: NDArray[np.float64]
+    predicted: NDArray[np.float64]
+
+
+def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
+                    pixel: NDArray[np.float64], towards: NDArray[np.float64], seeded: NDArray[np.int64],
+                    history: dict[int, NDArray[np.float64]], *, neighbours: int, both_frames: float = 0.0,
+                    candidates: int = 0, stretch: float = float("inf"), min_neighbours: int = 3) -> RigidResiduals:
+    """How far each point ``x`` (N, 3; NaN where not tracked) is from where its neighbours'
+    rigid motion since its seeding frame puts it (:class:`RigidResiduals`). The neighbours
+    are :func:`rigid_fusion`'s (the same arguments, chosen by ``x``); their motion is fitted
+    to ``moved`` (N, 3; e.g. the fused positions, whose depth drifted less). ``towards``
+    (N, 3) unit directions from the point to its cameras (their mean), ``pixel`` (N,) world
+    units per pixel at the point. The seeding frame is the track's whole life: a point
+    that slides a little on every frame passes every one-step check, but its offset from
+    the neighbourhood's rigid map grows."""
+    n = len(x)
+    across, along, spread, held_out = (np.full(n, np.nan) for _ in range(4))
+    prediction = np.full((n, 3), np.nan)
+    plans = _neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
+                             candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
+    for rows, near, weight, then, now in plans:
+        if now:
+            continue
+        r, t = rigid_motions(then[near], moved[near], weight)
+        predicted = np.einsum("nij,nj->ni", r, then[rows]) + t
+        prediction[rows] = predicted
+        d = x[rows] - predicted
+        u = towards[rows]
+        depth = np.einsum("ni,ni->n", d, u)
+        along[rows] = np.abs(depth) / pixel[rows]
+        across[rows] = np.linalg.norm(d - depth[:, None] * u, axis=1) / pixel[rows]
+        own = np.einsum("nij,nkj->nki", r, then[near]) + t[:, None] - moved[near]
+        res = np.where(weight > 0, np.linalg.norm(own, axis=2), np.nan) / pixel[rows][:, None]
+        spread[rows] = np.nanmedian(res, axis=1)  # every row has chosen neighbours
+        # Leave one out: K fits per point, each without one of its neighbours.
+        m, k = near.shape
+        w = np.repeat(weight[:, None, :], k, axis=1) * (1.0 - np.eye(k))[None]  # (M, K, K)
+        ok = (weight > 0) & (w.sum(axis=2) >= 3)
+        if ok.any():
+            i, j = np.nonzero(ok)
+            r1, t1 = rigid_motions(then[near[i]], moved[near[i]], w[i, j])
+            miss = np.einsum("nij,nj->ni", r1, then[near[i, j]]) + t1 - moved[near[i, j]]
+            loo = np.full((m, k), np.nan)
+            loo[i, j] = np.linalg.norm(miss, axis=1) / pixel[rows][i]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # rows without three neighbours
+                held_out[rows] = np.nanmedian(loo, axis=1)
+    return RigidResiduals(across, along, spread, held_out, prediction)

@@ -216,6 +216,20 @@ COVARIANCE_SCALE = 1.0
 # filters (the files hold no position for them), and the hidden views' frame counts
 # restart at zero on resume.
 UNCERTAIN_SD = float("inf")
+# Reported positions withheld as SLID (:mod:`elastocap.tracking.rigidity`,
+# ``rigid_residuals``): the intersection farther across its rays from where its neighbours'
+# rigid motion since its seeding frame puts it than SLIDE + SLIDE_SCALE times the
+# neighbours' own held-out residual to that motion, pixel equivalents; with SLIDE_STICKY on
+# every later frame of the track too. Infinite: off. Output only. Tuned offline on seeds 0,
+# 2, 3 against the true surface point (benches/README.md, branch track17): kept 3-D beyond
+# 5 px-eq 1.45 / 1.93 / 1.27% -> 0.90 / 1.08 / 0.87%, through 35.1 / 25.5 / 25.9% -> 33.8 /
+# 24.5 / 25.5% (4 + 1 x: 1.01 / 1.18 / 0.98%, through -0.7 / -0.5 / -0.4; 3 + 2 x: 1.11 /
+# 1.28 / 1.00%, -0.6 / -0.4 / -0.3; not sticky, 4 + 0.5 x: 1.05 / 1.24 / 0.98%, -1.2 /
+# -1.0 / -0.4). A quarter to a half of the positions withheld are beyond 5 px-eq, most
+# of the others beyond 2.
+SLIDE = 4.0
+SLIDE_SCALE = 0.5
+SLIDE_STICKY = True
 # The frame-to-frame step's failed views searched again (:mod:`elastocap.tracking.prediction`):
 # at the median displacement of the views of their RESEARCH_NEIGHBOURS nearest points in
 # 3-D (within RESEARCH_REACH pixel equivalents; at least RESEARCH_MIN_NEIGHBOURS), and

@@ -32,7 +32,7 @@ from elastocap.tracking.prediction import drop_breaking_views, research_failed_v
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
-from elastocap.tracking.rigidity import rigid_fusion
+from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.tracks import frame_file, read_frame
 from elastocap.tracking.views import facing_normals, intersect_views, surface_normals
@@ -71,6 +71,9 @@ class FrameTracker:
         # reported on such frames, for the neighbours' rigid motion since (settings.RIGID).
         self.seeded_at = np.zeros(0, np.int64)
         self.history: dict[int, NDArray[np.float64]] = {}
+        # Per point: found slid off its neighbours' rigid map (settings.SLIDE); withheld
+        # from then on.
+        self.slid = np.zeros(0, bool)
         self.texture: list[float] = []
         self.keep_texture = 0.0
 
@@ -116,6 +119,10 @@ class FrameTracker:
             if new.size:
                 self.seeded_at[new] = frame
                 self.history[frame] = _intersections(written)
+            found = np.flatnonzero(written["flags"] == TrackFlag.SLID)
+            if found.size:
+                self.slid = np.concatenate([self.slid, np.zeros(max(0, found.max() + 1 - len(self.slid)), bool)])
+                self.slid[found] = True
         if self.lost is not None:
             first = max(0, done - 1 - settings.REVIVE_FRAMES - 1)
             history = {chosen[j]: _intersections(read_frame(frame_file(out, chosen[j]))) for j in range(first, done)}
@@ -332,10 +339,13 @@ class FrameTracker:
         recuts = self.anchors.recuts(views) if self.anchors is not None else np.zeros(len(x), np.int64)
         pixel = pixel_size(self.cameras, x, views)
         xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
+        x_in, cov_in = x, xcov
         if settings.RIGID:
             x, xcov = rigid_fusion(x, xcov, pixel, self.seeded_at, self.history, neighbours=settings.RIGID_NEIGHBOURS,
                                    sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
                                    candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+        if np.isfinite(settings.SLIDE):
+            x, xcov, flags = self._withhold_slid(x_in, cov_in, x, xcov, flags, pixel, views)
         if settings.COVARIANCE_SCALE != 1.0:
             xcov = xcov * settings.COVARIANCE_SCALE
         if not np.isfinite(settings.UNCERTAIN_SD):
@@ -344,6 +354,32 @@ class FrameTracker:
             unsure = weakest_sd(xcov, pixel) > settings.UNCERTAIN_SD
         x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
         x[unsure], xcov[unsure], flags[unsure] = np.nan, np.nan, TrackFlag.UNCERTAIN
+        return x, xcov, flags
+
+    def _withhold_slid(self, x_in: NDArray[np.float64], cov_in: NDArray[np.float64], x: NDArray[np.float64],
+                       xcov: NDArray[np.float64], flags: NDArray[np.uint8], pixel: NDArray[np.float64],
+                       views: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
+        """Positions withheld as SLID (``settings.SLIDE``): the intersection ``x_in`` (N, 3)
+        farther across its rays from its neighbours' rigid map since its seeding frame
+        (fitted to the reported ``x``) than ``SLIDE + SLIDE_SCALE`` times the neighbours'
+        own held-out residual, pixel equivalents; with ``SLIDE_STICKY`` on every later
+        frame too (a slide does not come back)."""
+        towards = facing_normals(self.cameras, np.nan_to_num(x_in), views)
+        res = rigid_residuals(x_in, x, cov_in, pixel, towards, self.seeded_at, self.history,
+                              neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
+                              candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+        with np.errstate(invalid="ignore"):
+            slid = res.across > settings.SLIDE + settings.SLIDE_SCALE * np.nan_to_num(res.held_out)
+        if len(self.slid) < len(x):
+            self.slid = np.concatenate([self.slid, np.zeros(len(x) - len(self.slid), bool)])
+        if settings.SLIDE_STICKY:
+            slid |= self.slid[: len(x)]
+            self.slid[: len(x)] |= slid
+        slid &= np.isfinite(x).all(axis=1)
+        if not slid.any():
+            return x, xcov, flags
+        x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
+        x[slid], xcov[slid], flags[slid] = np.nan, np.nan, TrackFlag.SLID
         return x, xcov, flags
 
     def _forget(self) -> None:
