@@ -93,9 +93,11 @@ class FrameFit:
         of the coverage term) and ``unexplained`` (those no fitted surface node explains at
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
-        (anchored at it), ``tracks_unplaced`` (anchored at it where the model's nodes around
-        the tracked point do not span space: left out) and ``track_mahalanobis`` (their
-        mean Mahalanobis distance at the end, when any pulled).
+        (anchored at it), ``tracks_attached_ahead`` (of those, attached before the frame
+        was fitted: ``track_ahead``), ``tracks_unplaced`` (anchored at it where the model's
+        nodes around the tracked point do not span space: left out) and
+        ``track_mahalanobis`` (their mean Mahalanobis distance at the end, when any
+        pulled).
     """
 
     frame: int
