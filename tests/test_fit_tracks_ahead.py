@@ -9,17 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from elastocap import InvalidInputError, Tracks, fit_sequence
+from test_fit_tracks import _tracks
+
+from elastocap import InvalidInputError, fit_sequence
 from elastocap.elastic.tracks import TrackAttachments, rigid_carry
-from elastocap.tracking.flags import TrackFlag
-
-
-def _tracks(positions: np.ndarray, covariance: float = 1e-4) -> Tracks:
-    f, n = positions.shape[:2]
-    finite = np.isfinite(positions).all(axis=2)
-    covariances = np.where(finite[:, :, None, None], covariance * np.eye(3), np.nan)
-    flags = np.where(finite, TrackFlag.TRACKED, TrackFlag.LOW_CORRELATION).astype(np.uint8)
-    return Tracks(np.arange(f, dtype=np.int64), np.arange(n, dtype=np.int64), positions, covariances, flags)
 
 
 def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
