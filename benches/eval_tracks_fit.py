@@ -158,7 +158,7 @@ def main() -> None:
     if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
         lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
-        anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6])
+        anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6], int(args.options.get("track_ahead", 0)))
         part_drift(truth, tracks, frames, diagonal, curves)
 
 
@@ -242,12 +242,13 @@ def part_drift(truth, tracks, frames, diagonal, curves) -> None:
         print(f"  {name:12s} {100 * points:6.1f}% {without:8.2f} {with_:6.2f} {share:12.2f} {covered:5.2f}")
 
 
-def anchor_errors(model, truth, tracks, frames, diagonal, positions) -> None:
+def anchor_errors(model, truth, tracks, frames, diagonal, positions, ahead: int = 0) -> None:
     """Where the tracks are attached, by anchor frame: the distance between a track's
     material point at rest (its MLS weights over the fit's frame-0 nodes) and the true rest
     position of the surface point it was tracked on (the ground-truth point nearest its
     tracked position at its anchor frame, within 1% of the diagonal), median % of the
-    diagonal; attached as the fit does (relay 5) and without the relay, on the same fit."""
+    diagonal; attached as the fit does (relay 5, and ``track_ahead`` when the fit's options
+    set it) and without either, on the same fit."""
     from elastocap.elastic.fit import TRACK_RELAY
     from elastocap.elastic.tracks import TrackAttachments
 
@@ -255,8 +256,10 @@ def anchor_errors(model, truth, tracks, frames, diagonal, positions) -> None:
     bins = [(0, 1)] + [(lo, min(lo + 10, len(frames))) for lo in range(1, len(frames), 10)]
     rows = {}
     for relay in (TRACK_RELAY, 0):
-        attachments = TrackAttachments.build(tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing)
+        attachments = TrackAttachments.build(tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing,
+                                             ahead if relay else 0, spacing)
         for f in frames:
+            attachments.attach_ahead(f)
             attachments.attach(f, positions[f])
         n = np.flatnonzero(attachments.attached)
         anchor = attachments.anchor[n]
@@ -270,7 +273,8 @@ def anchor_errors(model, truth, tracks, frames, diagonal, positions) -> None:
             error[pick] = np.where(gap <= 0.01 * diagonal, e, np.nan)
         rows[relay] = [(np.nanmedian(error[(anchor >= lo) & (anchor < hi)]) if ((anchor >= lo) & (anchor < hi)).any() else np.nan,
                         int(((anchor >= lo) & (anchor < hi) & np.isfinite(error)).sum())) for lo, hi in bins]
-    print(f"anchor frames: median attachment error % of the diagonal (tracks), relay {TRACK_RELAY} / 0")
+    print(f"anchor frames: median attachment error % of the diagonal (tracks), relay {TRACK_RELAY}"
+          f"{f' and ahead {ahead}' if ahead else ''} / 0")
     for (lo, hi), a, b in zip(bins, rows[TRACK_RELAY], rows[0]):
         print(f"  {lo:3d}-{hi - 1:3d}: {a[0]:5.2f} / {b[0]:5.2f} ({a[1]})")
 

@@ -93,9 +93,11 @@ class FrameFit:
         of the coverage term) and ``unexplained`` (those no fitted surface node explains at
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
-        (anchored at it), ``tracks_unplaced`` (anchored at it where the model's nodes around
-        the tracked point do not span space: left out) and ``track_mahalanobis`` (their
-        mean Mahalanobis distance at the end, when any pulled).
+        (anchored at it), ``tracks_attached_ahead`` (of those, attached before the frame
+        was fitted: ``track_ahead``), ``tracks_unplaced`` (anchored at it where the model's
+        nodes around the tracked point do not span space: left out) and
+        ``track_mahalanobis`` (their mean Mahalanobis distance at the end, when any
+        pulled).
     """
 
     frame: int
@@ -217,6 +219,8 @@ def fit_sequence(
     track_scale: float = 10.0,
     track_relay: int = TRACK_RELAY,
     track_relay_radius: float | None = None,
+    track_ahead: int = 0,
+    track_ahead_tolerance: float | None = None,
     track_spread: float = TRACK_SPREAD,
     track_spread_age: float = TRACK_SPREAD_AGE,
     track_spread_radius: float | None = None,
@@ -351,6 +355,16 @@ def fit_sequence(
     track_relay_radius : float, optional
         Those older tracks must lie within this distance, world units (default 4 mean
         node spacings).
+    track_ahead : int
+        A track anchored at a frame other than the rest frame is attached before that
+        frame is fitted, through the rigid motion back to the rest frame of the
+        ``track_ahead`` older tracks tracked nearest to it there (within
+        ``track_relay_radius``), and pulls that frame too; where they do not move
+        rigidly, after the fit as ``track_relay`` says (:mod:`elastocap.elastic.tracks`;
+        0: off, the default).
+    track_ahead_tolerance : float, optional
+        The largest RMS residual of those older tracks' rigid motion, world units (default
+        one mean node spacing).
     track_spread : float
         The tracks' corrections (tracked position minus where the frame's start puts the
         material point) carried along the surface to the nodes around them, each pulled
@@ -422,8 +436,13 @@ def fit_sequence(
             raise InvalidInputError(f"{name} must be a finite positive number (track_spread may be 0), got {value}")
     if not (np.isfinite(relay_radius) and relay_radius > 0):
         raise InvalidInputError(f"track_relay_radius must be a finite positive number, got {track_relay_radius}")
+    if isinstance(track_ahead, bool) or not (isinstance(track_ahead, (int, np.integer)) and track_ahead >= 0):
+        raise InvalidInputError(f"track_ahead must be a non-negative int, got {track_ahead!r}")
+    ahead_tolerance = node_spacing if track_ahead_tolerance is None else float(track_ahead_tolerance)
+    if not (np.isfinite(ahead_tolerance) and ahead_tolerance > 0):
+        raise InvalidInputError(f"track_ahead_tolerance must be a finite positive number, got {track_ahead_tolerance}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
-        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius)
+        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius, int(track_ahead), ahead_tolerance)
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else _mask_field
@@ -463,6 +482,8 @@ def fit_sequence(
             surface = model.surface_nodes
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
+        # Late tracks that their older neighbours place at rest pull this frame already.
+        ahead = 0 if attachments is None else attachments.attach_ahead(frame)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
         pulling_tracks = 0 if pulling is None else len(pulling[0])
         if pulling is not None and track_spread > 0:
@@ -511,7 +532,8 @@ def fit_sequence(
             # Tracks pulling this frame, and tracks attached at it (anchored here).
             metrics["tracks"] = pulling_tracks
             unplaced = int(attachments.unplaced.sum())
-            metrics["tracks_attached"] = int(attachments.attach(frame, positions))
+            metrics["tracks_attached"] = int(attachments.attach(frame, positions)) + ahead
+            metrics["tracks_attached_ahead"] = ahead
             metrics["tracks_unplaced"] = int(attachments.unplaced.sum()) - unplaced
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume

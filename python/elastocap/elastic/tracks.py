@@ -20,6 +20,16 @@ sits at ``sum phi x`` in the fit but was tracked at ``X``, so the fit is off by 
 phi x`` around it. A new track is attached at its tracked position moved back by the
 median of that offset over its nearest older tracks (within a radius), that is at the
 material point the older tracks place there, not the one the drifted fit places there.
+
+With ``ahead`` (``fit_sequence(track_ahead=True)``, off by default) a late track is
+attached before its anchor frame is fitted, from the tracks alone: the older tracks tracked
+at that frame near it (their material points known at the rest frame) give the local rigid
+motion from that frame back to the rest frame (a least-squares rotation and translation,
+Kabsch), which carries the new track's tracked position to its material point at rest.
+Neither the drifted fit of the anchor frame nor its relay offsets enter, and the track
+pulls its anchor frame too. Where its older neighbours are too few, too close to a line,
+or not moving rigidly (a joint between them), the track is attached after the fit as
+above.
 """
 
 from __future__ import annotations
@@ -35,7 +45,7 @@ from elastocap._core import InvalidInputError
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
-__all__ = ["TrackAttachments", "check_tracks", "material_weights", "placeable_weights", "select_frames"]
+__all__ = ["TrackAttachments", "check_tracks", "material_weights", "placeable_weights", "rigid_carry", "select_frames"]
 
 # MLS support: c times the distance to the farthest of the k nodes (SPEC 4.1's c = 1.1),
 # enlarged by 1.25 where the moment matrix is ill-conditioned (as rust/mls.rs repairs).
@@ -166,13 +176,19 @@ class TrackAttachments:
     ``anchor[n]`` is the index (into ``tracks.frames``) of track n's frame nearest the rest
     frame (-1 without any position); ``neighbours`` / ``phi`` hold its attachment once that
     frame is fitted (``attached[n]``); ``unplaced[n]``: its anchor frame was fitted but no
-    material point could be placed there (never attached).
+    material point could be placed there (never attached); ``early[n]``: attached ahead of
+    its anchor frame's fit (module docs), so it pulls that frame too.
     """
 
     tracks: Tracks
     k: int
     relay: int = 0
     relay_radius: float = 0.0
+    ahead: int = 0
+    ahead_tolerance: float = 0.0
+    rest_frame: int = 0
+    rest_positions: NDArray[np.float64] | None = None
+    early: NDArray[np.bool_] = field(init=False)
     anchor: NDArray[np.int64] = field(init=False)
     neighbours: NDArray[np.int64] = field(init=False)
     phi: NDArray[np.float64] = field(init=False)
@@ -180,11 +196,15 @@ class TrackAttachments:
     unplaced: NDArray[np.bool_] = field(init=False)
 
     @classmethod
-    def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0) -> TrackAttachments:
+    def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0,
+              ahead: int = 0, ahead_tolerance: float = 0.0) -> TrackAttachments:
         """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point;
         ``relay`` older tracks (at most ``relay_radius`` away, world units) correct where a
-        new track is attached (module docs; 0: where the fit puts it)."""
-        self = cls(tracks, k, relay, relay_radius)
+        new track is attached (module docs; 0: where the fit puts it); ``ahead`` older
+        tracks (within ``relay_radius``) whose rigid motion back to the rest frame, when
+        they fit it to ``ahead_tolerance`` (RMS, world units), attaches a late track before
+        its anchor frame is fitted (:meth:`attach_ahead`; 0: off)."""
+        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame)
         tracked = tracks.flags == TrackFlag.TRACKED
         # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
         gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
@@ -195,6 +215,7 @@ class TrackAttachments:
         self.phi = np.zeros((n, k))
         self.attached = np.zeros(n, bool)
         self.unplaced = np.zeros(n, bool)
+        self.early = np.zeros(n, bool)
         return self
 
     def _row(self, frame: int) -> int | None:
@@ -203,11 +224,13 @@ class TrackAttachments:
 
     def attach(self, frame: int, positions: NDArray[np.float64]) -> int:
         """Attach the tracks anchored at ``frame`` to the model at its fitted ``positions``
-        (N, 3); returns how many."""
+        (N, 3); returns how many (not counting those attached ahead)."""
+        if frame == self.rest_frame:
+            self.rest_positions = np.array(positions, dtype=np.float64)
         row = self._row(frame)
         if row is None:
             return 0
-        which = np.flatnonzero(self.anchor == row)
+        which = np.flatnonzero((self.anchor == row) & ~self.attached)
         if len(which):
             points = self.tracks.positions[row, which] - self._offsets(row, which, positions)
             # A point whose nearest nodes do not span space (a track far off the model, its
@@ -218,6 +241,34 @@ class TrackAttachments:
             which = which[placed]
             self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
+        return len(which)
+
+    def attach_ahead(self, frame: int) -> int:
+        """Attach the tracks anchored at ``frame`` through the rigid motion of their older
+        neighbours back to the rest frame (module docs), before ``frame`` is fitted (the
+        rest frame must be attached); returns how many. Those it cannot place are left to
+        :meth:`attach` after the fit."""
+        row = self._row(frame)
+        if self.ahead <= 0 or row is None or self.rest_positions is None or frame == self.rest_frame:
+            return 0
+        which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
+        tracked = self.tracks.flags[row] == TrackFlag.TRACKED
+        old = np.flatnonzero(self.attached & tracked & (self.anchor != row))
+        m = max(self.ahead, 3)
+        if len(which) == 0 or len(old) < m:
+            return 0
+        moved = self.tracks.positions[row, old]
+        rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
+        new = self.tracks.positions[row, which]
+        rest_new, good = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance)
+        which, rest_new = which[good], rest_new[good]
+        if len(which) == 0:
+            return 0
+        neighbours, phi, placed = placeable_weights(rest_new, self.rest_positions, self.k)
+        which = which[placed]
+        self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
+        self.attached[which] = True
+        self.early[which] = True
         return len(which)
 
     def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -239,12 +290,17 @@ class TrackAttachments:
         offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
         return offsets
 
+    def _pulling(self, row: int) -> NDArray[np.bool_]:
+        """(N,) the attached tracks tracked at ``row`` that pull it: not anchored there,
+        unless attached ahead of its fit."""
+        return self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & ((self.anchor != row) | self.early)
+
     def frame_ages(self, frame: int) -> NDArray[np.float64]:
         """Frames between each track of :meth:`frame_arrays` (same order) and its anchor."""
         row = self._row(frame)
         if row is None:
             return np.zeros(0)
-        use = self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row)
+        use = self._pulling(row)
         return np.abs(self.tracks.frames[row] - self.tracks.frames[self.anchor[use]]).astype(np.float64)
 
     def frame_arrays(
@@ -257,7 +313,7 @@ class TrackAttachments:
         row = self._row(frame)
         if row is None:
             return None
-        use = self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row)
+        use = self._pulling(row)
         if not use.any():
             return None
         covariance = self.tracks.covariances[row, use]
@@ -268,6 +324,42 @@ class TrackAttachments:
             np.ascontiguousarray(self.tracks.positions[row, use]),
             np.ascontiguousarray(precision),
         )
+
+
+def rigid_carry(moved: NDArray[np.float64], rest: NDArray[np.float64], points: NDArray[np.float64], m: int,
+                radius: float, tolerance: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """``points`` (T, 3) carried by the rigid motion of their ``m`` nearest reference
+    points, which sit at ``moved`` (R, 3) and are to go to ``rest`` (R, 3): per point the
+    least-squares rotation and translation (Kabsch) of those neighbours, applied to it.
+
+    Returns the carried points (T, 3) and which are trusted (T,) bool: all ``m`` neighbours
+    within ``radius``, not near a line (second singular value of their spread at least a
+    tenth of the first: a rotation about the line is undetermined), and fitted by the rigid
+    motion to an RMS residual of at most ``tolerance`` (world units; larger: they do not
+    move together, e.g. a joint between them).
+    """
+    t = len(points)
+    carried = np.zeros((t, 3))
+    good = np.zeros(t, bool)
+    if t == 0 or len(moved) < m:
+        return carried, good
+    distance, nearest = cKDTree(moved).query(points, k=m)
+    distance, nearest = distance.reshape(t, m), nearest.reshape(t, m)
+    near = (distance <= radius).all(axis=1)
+    p, q = moved[nearest], rest[nearest]
+    pc, qc = p.mean(axis=1), q.mean(axis=1)
+    dp, dq = p - pc[:, None], q - qc[:, None]
+    u, s, vt = np.linalg.svd(np.einsum("tmi,tmj->tij", dp, dq))
+    # Proper rotations only: a reflection's last axis flipped back.
+    sign = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+    vt[:, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
+    rotation = np.einsum("tji,tkj->tik", vt, u)  # V U^T: dq ~ R dp
+    residual = np.sqrt(((np.einsum("tij,tmj->tmi", rotation, dp) - dq) ** 2).sum(axis=2).mean(axis=1))
+    spread = np.linalg.svd(dp, compute_uv=False)
+    planar = spread[:, 1] >= 0.1 * np.maximum(spread[:, 0], 1e-300)
+    good = near & planar & (residual <= tolerance)
+    carried = qc + np.einsum("tij,tj->ti", rotation, points - pc)
+    return carried, good
 
 
 def select_frames(tracks: Tracks, frames: Sequence[int]) -> Tracks:
