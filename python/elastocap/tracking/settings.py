@@ -238,5 +238,26 @@ RESEARCH_WIDE_RADIUS = 24
 # The second search's patch side, pixels (0: the step's): a forearm is about as wide as the
 # step's 15 px patch, whose corners then hold the surface behind it, which moves otherwise.
 RESEARCH_SIZE = 11
+# A stricter acceptance of the wide box's finds (branch track16; the wide box is what costs
+# the kept 3-D figure): the least correlation of a find there (None: the tracker's), and the
+# largest distance, pixels, of a find the intersection used from its projection (infinite:
+# the intersection's own bound; a farther find is dropped and its point intersected again).
+RESEARCH_WIDE_CORRELATION: float | None = None
+RESEARCH_WIDE_RESIDUAL = float("inf")
+# The frame-to-frame step's templates cut at depth edges (:mod:`elastocap.tracking.depth_weights`):
+# each camera's pixels take the depth of the nearest view it held on the previous frame
+# (within DEPTH_WEIGHTS_REACH pixels), and a view whose template holds pixels more than
+# DEPTH_WEIGHTS_TOLERANCE pixel equivalents nearer or farther than its point is matched with
+# them weighed zero (views grouped by depth in bins of DEPTH_WEIGHTS_BIN times the
+# tolerance, one Rust call per bin). With DEPTH_WEIGHTS_RESEARCH the second search
+# (RESEARCH) does the same.
+DEPTH_WEIGHTS = False
+DEPTH_WEIGHTS_TOLERANCE = 6.0
+DEPTH_WEIGHTS_REACH = 12.0
+DEPTH_WEIGHTS_BIN = 0.5
+# Half-width, pixels, of a band along the depth edges weighed zero for every view near one
+# (the labelling puts an edge half-way between two views; 0: no band).
+DEPTH_WEIGHTS_BAND = 0
+DEPTH_WEIGHTS_RESEARCH = True
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
