@@ -149,7 +149,7 @@ class DepthEdges:
     surface, and ``band_previous``, ``band_current`` (C lists of (H, W) bool, or None) the
     pixels near a depth edge (:func:`edge_band`), weighed zero for every view near one."""
 
-    def __init__(self, previous: list[NDArray[np.float32]], current: list[NDArray[np.float32]], z: NDArray[np.float64],
+    def __init__(self, previous: list[NDArray[np.float32]], current: list[NDArray[np.float32]] | None, z: NDArray[np.float64],
                  tolerance: NDArray[np.float64], band_previous: list[NDArray[np.bool_]] | None = None,
                  band_current: list[NDArray[np.bool_]] | None = None) -> None:
         self.previous, self.current, self.z, self.tolerance = previous, current, z, tolerance
@@ -159,13 +159,15 @@ class DepthEdges:
 def depth_edges(cameras: Sequence[Camera], uv: NDArray[np.float64], x_last: NDArray[np.float64],
                 x_before: NDArray[np.float64], masks_previous: Sequence[NDArray[np.bool_]],
                 masks_current: Sequence[NDArray[np.bool_]], *, reach: float, tolerance: float,
-                band: int = 0) -> DepthEdges:
+                band: int = 0, current: bool = True) -> DepthEdges:
     """The depth edges of a frame step from the views ``uv`` (N, C, 2) held on the previous
     frame and their points ``x_last`` (N, 3): the previous frame's depth images from them,
     the current frame's from the points moved on linearly (``2 x_last - x_before``, or
     ``x_last`` without a ``x_before``) and projected, the same views held. ``tolerance`` is
     in pixel equivalents (times the median footprint of a pixel at the camera's held points);
-    ``band`` the half-width, pixels, of the band along the edges weighed zero (0: none)."""
+    ``band`` the half-width, pixels, of the band along the edges weighed zero (0: none);
+    ``current`` False: no current frame's images (the forward-backward check weighed by
+    the masks alone)."""
     n, c = uv.shape[:2]
     moved = np.where(np.isfinite(x_before).all(axis=1, keepdims=True), 2 * x_last - x_before, x_last)
     held = np.isfinite(uv).all(axis=2) & np.isfinite(x_last).all(axis=1)[:, None]
@@ -179,12 +181,12 @@ def depth_edges(cameras: Sequence[Camera], uv: NDArray[np.float64], x_last: NDAr
             tol[k] = tolerance * float(np.median(z[rows, k])) / cam.K[0, 0]
             ahead[rows, k] = cam.project(moved[rows])[0]
     previous = depth_images(cameras, uv, x_last, masks_previous, reach)
-    current = depth_images(cameras, ahead, moved, masks_current, reach, occlusion=(0.5 * reach, tol))
+    now = depth_images(cameras, ahead, moved, masks_current, reach, occlusion=(0.5 * reach, tol)) if current else None
     if band <= 0:
-        return DepthEdges(previous, current, z, tol)
+        return DepthEdges(previous, now, z, tol)
     t = np.nan_to_num(tol, nan=np.inf)
-    return DepthEdges(previous, current, z, tol, [edge_band(d, t[k], band) for k, d in enumerate(previous)],
-                      [edge_band(d, t[k], band) for k, d in enumerate(current)])
+    return DepthEdges(previous, now, z, tol, [edge_band(d, t[k], band) for k, d in enumerate(previous)],
+                      None if now is None else [edge_band(d, t[k], band) for k, d in enumerate(now)])
 
 
 def track_step_by_depth(step: Callable[..., StepResult], last: NDArray[np.float64], before: NDArray[np.float64],
@@ -217,6 +219,11 @@ def track_step_by_depth(step: Callable[..., StepResult], last: NDArray[np.float6
     per_camera = [np.unique(bins[apart[:, k], k]) for k in range(c)]
     rounds = max(len(b) for b in per_camera)
     shape = [d.shape for d in edges.previous]
+    ahead = np.where(np.isfinite(before), 2 * last - before, last)
+    # Only the pixels a group's matches can read are cut (the rest of each image keeps
+    # ``weights``): the box around the views and their predictions, widened by the
+    # template's half-side and the search box.
+    margin = half + int(options.get("radius", 0)) + 2
     for r in range(rounds):
         rows = np.zeros((n, c), bool)
         wp, wc = [], []
@@ -231,15 +238,29 @@ def track_step_by_depth(step: Callable[..., StepResult], last: NDArray[np.float6
             rows[:, k] = apart[:, k] & (bins[:, k] == b)
             centre = (b + 0.5) * step_k[k]
             reach = edges.tolerance[k] + 0.5 * step_k[k]
+            at = np.concatenate([last[rows[:, k], k], ahead[rows[:, k], k]])
+            at = at[np.isfinite(at).all(axis=1)]
+            h, w = shape[k]
+            x0, y0 = np.clip(np.floor(at.min(axis=0)).astype(int) - margin, 0, [w, h])
+            x1, y1 = np.clip(np.ceil(at.max(axis=0)).astype(int) + margin + 1, 0, [w, h])
+            box = (slice(y0, y1), slice(x0, x1))
             with np.errstate(invalid="ignore"):
                 # NaN depths (no view near) are kept: nothing says they are another surface.
-                keep_p = ~(np.abs(edges.previous[k] - centre) > reach)
-                keep_c = ~(np.abs(edges.current[k] - centre) > reach)
-            if edges.band_previous is not None and edges.band_current is not None:
-                keep_p &= ~edges.band_previous[k]
-                keep_c &= ~edges.band_current[k]
-            wp.append(np.ascontiguousarray(base_p * keep_p, dtype=np.float32))
-            wc.append(np.ascontiguousarray(base_c * keep_c, dtype=np.float32))
+                keep_p = ~(np.abs(edges.previous[k][box] - centre) > reach)
+                keep_c = ~(np.abs(edges.current[k][box] - centre) > reach) if edges.current is not None else None
+            if edges.band_previous is not None:
+                keep_p &= ~edges.band_previous[k][box]
+            if edges.band_current is not None and keep_c is not None:
+                keep_c &= ~edges.band_current[k][box]
+            cut_p = np.array(base_p, dtype=np.float32, copy=True)
+            cut_p[box] *= keep_p
+            wp.append(cut_p)
+            if keep_c is None:
+                wc.append(base_c)
+            else:
+                cut_c = np.array(base_c, dtype=np.float32, copy=True)
+                cut_c[box] *= keep_c
+                wc.append(cut_c)
         these = np.where(rows[..., None], last, np.nan)
         p, f, cv, cr = step(these, before, weights=(wp, wc), **options)
         pos[rows], flags[rows], cov[rows], corr[rows] = p[rows], f[rows], cv[rows], cr[rows]

@@ -258,6 +258,9 @@ DEPTH_WEIGHTS_BIN = 0.5
 # Half-width, pixels, of a band along the depth edges weighed zero for every view near one
 # (the labelling puts an edge half-way between two views; 0: no band).
 DEPTH_WEIGHTS_BAND = 0
+# The forward-backward check's template (the current frame's) cut too, at the depth edges
+# of the points moved on linearly (False: by the masks alone).
+DEPTH_WEIGHTS_CURRENT = True
 DEPTH_WEIGHTS_RESEARCH = True
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

@@ -165,7 +165,7 @@ class FrameTracker:
                 # Templates that straddle a depth edge matched without the other surface.
                 edges = depth_edges(self.cameras, self.uv, self.x_last, self.x_before, self.masks, masks,
                                     reach=settings.DEPTH_WEIGHTS_REACH, tolerance=settings.DEPTH_WEIGHTS_TOLERANCE,
-                                    band=settings.DEPTH_WEIGHTS_BAND)
+                                    band=settings.DEPTH_WEIGHTS_BAND, current=settings.DEPTH_WEIGHTS_CURRENT)
                 uv, flags2d, cov2d, corr = track_step_by_depth(step, self.uv, self.uv_last, pair, edges, half=self.size // 2,
                                                                width=settings.DEPTH_WEIGHTS_BIN, **options)
             else:
