@@ -177,3 +177,62 @@ def test_a_view_searched_again_that_breaks_its_points_intersection_is_dropped_no
     assert np.isnan(uv[0, 0]).all() and flags[0, 0] == TrackFlag.EPIPOLAR and rejected2[0, 0] and not used2[0, 0]
     assert used2[0, 1:3].all()
     assert not np.isfinite(x2[1]).any() and np.isfinite(uv[1, 0]).all()
+
+
+def test_a_wide_box_find_farther_than_the_tolerance_from_its_point_is_dropped():
+    from elastocap.synth.capture import ring_rig
+    from elastocap.tracking.prediction import drop_far_views
+    from elastocap.tracking.views import intersect_views
+
+    cameras = ring_rig(8, width=640, height=480).cameras
+    truth = np.array([[0.05, 0.9, 0.02], [0.0, 1.0, 0.1], [0.02, 1.1, 0.0]])
+    uv = np.full((3, 8, 2), np.nan)
+    uv[:, :4] = np.stack([c.project(truth)[0] for c in cameras[:4]], axis=1)
+    # Camera 0's view 1 px off with an uncertain match: within the intersection's 1.5 px
+    # bound and not a blunder by its normalised residual, so it is kept.
+    uv[:, 0] += [1.0, 0.0]
+    cov = np.where(np.isfinite(uv)[..., None], np.eye(2) * 0.01, np.nan)
+    cov[:, 0] = np.eye(2)
+    x, xcov, used, rejected = intersect_views(cameras, uv, cov, max_residual=1.5, floor=0.1)
+    assert used[:, 0].all() and np.isfinite(x).all()
+    wide = np.zeros((3, 8), bool)
+    wide[0, 0] = wide[2, 0] = True
+    flags = np.zeros((3, 8), np.uint8)
+    x2, _, used2, rejected2 = drop_far_views(cameras, uv, cov, flags, wide, x, xcov, used, rejected, tolerance=0.3,
+                                             max_residual=1.5, floor=0.1)
+    np.testing.assert_allclose(x2[0], truth[0], atol=1e-6)
+    assert np.isnan(uv[0, 0]).all() and flags[0, 0] == TrackFlag.EPIPOLAR and rejected2[0, 0] and not used2[0, 0]
+    # Point 1's off view is the step's own (not suspect): kept.
+    np.testing.assert_array_equal(x2[1], x[1])
+    assert used2[1, 0] and flags[1, 0] == 0
+    # Point 2's off view was dropped too (its projection is farther than 0.3 px).
+    assert not used2[2, 0]
+    np.testing.assert_allclose(x2[2], truth[2], atol=1e-6)
+    # A tolerance the view meets keeps it.
+    uv3 = np.stack([c.project(truth)[0] for c in cameras[:4]], axis=1)
+    uv3 = np.concatenate([uv3, np.full((3, 4, 2), np.nan)], axis=1)
+    x3, xc3, u3, r3 = intersect_views(cameras, uv3, cov, max_residual=1.5, floor=0.1)
+    f3 = np.zeros((3, 8), np.uint8)
+    x4, _, u4, _ = drop_far_views(cameras, uv3, cov, f3, wide, x3, xc3, u3, r3, tolerance=0.3, max_residual=1.5, floor=0.1)
+    np.testing.assert_array_equal(x4, x3)
+    assert (u4 == u3).all() and not f3.any()
+
+
+def test_a_wide_box_find_below_the_wide_correlation_is_not_taken():
+    previous, current, last, truth = _scene()
+    before = np.full_like(last, np.nan)
+    step = _step(previous, current, last, before)
+    step[1][:] = np.where(step[1] == TrackFlag.TRACKED, TrackFlag.LOW_CORRELATION, step[1])
+    uv, flags, cov, corr = step
+    x_last = np.column_stack([last, np.zeros(len(last))])
+    common = dict(size=SIZE, radius=RADIUS, wide_radius=24, min_correlation=0.75, box_correlation=0.5,
+                  forward_backward=0.6, min_texture=0.0, max_iterations=8, weights=None, neighbours=8, min_neighbours=3)
+    out = research_failed_views([previous], [current], last[:, None], before[:, None], uv, flags, cov, corr, x_last,
+                                np.full(len(last), 40.0), **common)
+    wide = out.found & ~out.by_neighbours
+    assert wide.any()
+    # Above every find's correlation: the wide box takes none, so no neighbour lends motion either.
+    strict = research_failed_views([previous], [current], last[:, None], before[:, None], uv, flags, cov, corr, x_last,
+                                   np.full(len(last), 40.0), wide_correlation=float(np.nanmax(out.corr[wide])) + 1e-6,
+                                   **common)
+    assert not strict.found.any()

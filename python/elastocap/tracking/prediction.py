@@ -22,12 +22,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from elastocap import _core
 from elastocap.cameras import Camera
+from elastocap.tracking.depth_weights import DepthEdges, rust_step, track_step_by_depth
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.views import intersect_views
 
-__all__ = ["Research", "drop_breaking_views", "neighbour_predictions", "research_failed_views"]
+__all__ = ["Research", "drop_breaking_views", "drop_far_views", "neighbour_predictions", "research_failed_views"]
 
 # The frame-to-frame failures searched again (not the border: its box left the image).
 RESEARCHED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
@@ -108,7 +108,8 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
                           wide_radius: int, min_correlation: float, box_correlation: float, forward_backward: float,
                           min_texture: float, max_iterations: int,
                           weights: tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]] | None,
-                          neighbours: int, min_neighbours: int) -> Research:
+                          neighbours: int, min_neighbours: int, edges: DepthEdges | None = None,
+                          edge_width: float = 0.5, wide_correlation: float | None = None) -> Research:
     """The views the frame-to-frame step lost to a failed match (``RESEARCHED`` flags in
     ``flags2d``; ``last`` (N, C, 2) held) searched again by the same step
     (``_core.track_step``): first at their neighbours' prediction
@@ -117,26 +118,34 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
     ``before``), then the rest at the prediction of the neighbours found so far. A found
     view must reach ``min_correlation`` (the step's own check for the box's peak is
     ``box_correlation``). Inputs are not modified; ``radius`` 0 for ``wide_radius`` skips
-    the wide box."""
+    the wide box. With ``edges`` (:func:`elastocap.tracking.depth_weights.depth_edges`)
+    templates that straddle a depth edge are matched without the other surface
+    (:func:`~elastocap.tracking.depth_weights.track_step_by_depth`, bins of ``edge_width``).
+    ``wide_correlation``: the least correlation of a find in the wide box (None:
+    ``min_correlation``; a box that wide holds more look-alikes)."""
     uv, flags2d, cov2d, corr = uv.copy(), flags2d.copy(), cov2d.copy(), corr.copy()
     n, c = flags2d.shape
     found = np.zeros((n, c), bool)
     by_neighbours = np.zeros((n, c), bool)
     held = np.isfinite(last).all(axis=2)
+    step = rust_step(previous, current)
 
     def failed() -> NDArray[np.bool_]:
         return held & np.isin(flags2d, RESEARCHED)
 
-    def search(rows: NDArray[np.bool_], centre: NDArray[np.float64], box: int) -> NDArray[np.bool_]:
+    def search(rows: NDArray[np.bool_], centre: NDArray[np.float64], box: int,
+               least: float = min_correlation) -> NDArray[np.bool_]:
         # The step predicts 2 last - before: ``before`` set so that it predicts ``centre``.
         start = np.where(rows[..., None], last, np.nan)
         aim = np.where(rows[..., None], 2 * last - centre, np.nan)
-        pos, f2d, cv2d, cr = _core.track_step(
-            previous, current, np.ascontiguousarray(start.transpose(1, 0, 2)),
-            np.ascontiguousarray(aim.transpose(1, 0, 2)), size=size, radius=box, min_correlation=box_correlation,
-            forward_backward=forward_backward, min_texture=min_texture, max_iterations=max_iterations, weights=weights)
-        pos, f2d, cv2d, cr = pos.transpose(1, 0, 2), f2d.T, cv2d.transpose(1, 0, 2, 3), cr.T
-        good = rows & (f2d == TrackFlag.TRACKED) & (cr >= min_correlation)
+        options = dict(size=size, radius=box, min_correlation=box_correlation, forward_backward=forward_backward,
+                       min_texture=min_texture, max_iterations=max_iterations)
+        if edges is None:
+            pos, f2d, cv2d, cr = step(start, aim, weights=weights, **options)
+        else:
+            pos, f2d, cv2d, cr = track_step_by_depth(step, start, aim, weights, edges, half=size // 2, width=edge_width,
+                                                     **options)
+        good = rows & (f2d == TrackFlag.TRACKED) & (cr >= least)
         uv[good], cov2d[good], corr[good] = pos[good], cv2d[good], cr[good]
         flags2d[good] = TrackFlag.TRACKED
         found[good] = True
@@ -164,7 +173,7 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
         rows = failed()
         if rows.any():
             own = np.where(np.isfinite(before).all(axis=2, keepdims=True), 2 * last - before, last)
-            search(rows, own, wide_radius)
+            search(rows, own, wide_radius, min_correlation if wide_correlation is None else wide_correlation)
         by_neighbour_motion()
     return Research(uv, flags2d, cov2d, corr, found, by_neighbours)
 
@@ -190,4 +199,33 @@ def drop_breaking_views(cameras: Sequence[Camera], uv: NDArray[np.float64], cov2
     flags2d[drop] = TrackFlag.EPIPOLAR
     rx, rcov, rused, rrejected = intersect_views(cameras, uv[again], cov2d[again], max_residual=max_residual, floor=floor)
     x[again], xcov[again], used[again], rejected[again] = rx, rcov, rused, rrejected | drop[again]
+    return x, xcov, used, rejected
+
+
+def drop_far_views(cameras: Sequence[Camera], uv: NDArray[np.float64], cov2d: NDArray[np.float64],
+                   flags2d: NDArray[np.uint8], suspect: NDArray[np.bool_], x: NDArray[np.float64],
+                   xcov: NDArray[np.float64], used: NDArray[np.bool_], rejected: NDArray[np.bool_], *, tolerance: float,
+                   max_residual: float,
+                   floor: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+    """The ``suspect`` views (N, C; e.g. found in the second search's wide box) that the
+    intersection ``x`` used but that lie farther than ``tolerance`` pixels from its
+    projection dropped (NaN in ``uv`` and ``cov2d``, flagged EPIPOLAR, in place), and their
+    points intersected again from the rest: a look-alike found in a wide box and kept by
+    the intersection's looser ``max_residual`` pulls its point off the surface. Returns the
+    updated ``x``, ``xcov``, ``used`` and ``rejected``."""
+    n, c = suspect.shape
+    far = np.zeros((n, c), bool)
+    rows = np.flatnonzero((suspect & used).any(axis=1) & np.isfinite(x).all(axis=1))
+    for k, cam in enumerate(cameras):
+        these = rows[(suspect & used)[rows, k]]
+        if these.size:
+            far[these, k] = np.linalg.norm(cam.project(x[these])[0] - uv[these, k], axis=1) > tolerance
+    x, xcov, used, rejected = x.copy(), xcov.copy(), used.copy(), rejected.copy()
+    again = far.any(axis=1)
+    if not again.any():
+        return x, xcov, used, rejected
+    uv[far], cov2d[far] = np.nan, np.nan
+    flags2d[far] = TrackFlag.EPIPOLAR
+    rx, rcov, rused, rrejected = intersect_views(cameras, uv[again], cov2d[again], max_residual=max_residual, floor=floor)
+    x[again], xcov[again], used[again], rejected[again] = rx, rcov, rused, rrejected | far[again]
     return x, xcov, used, rejected

@@ -252,5 +252,36 @@ RESEARCH_WIDE_RADIUS = 24
 # The second search's patch side, pixels (0: the step's): a forearm is about as wide as the
 # step's 15 px patch, whose corners then hold the surface behind it, which moves otherwise.
 RESEARCH_SIZE = 11
+# A stricter acceptance of the wide box's finds (branch track16; the wide box is what costs
+# the kept 3-D figure): the least correlation of a find there (None: the tracker's), and the
+# largest distance, pixels, of a find the intersection used from its projection (infinite:
+# the intersection's own bound; a farther find is dropped and its point intersected again).
+# Unset: 0.85 and 0.5 px leave every figure within 0.03 point of RESEARCH alone on m0 and
+# m2 (kept 3-D 1.33 / 2.32% against 1.33 / 2.35%): the wide box's finds are not what costs
+# the kept 3-D figure (benches/README.md, branch track16).
+RESEARCH_WIDE_CORRELATION: float | None = None
+RESEARCH_WIDE_RESIDUAL = float("inf")
+# The frame-to-frame step's templates cut at depth edges (:mod:`elastocap.tracking.depth_weights`):
+# each camera's pixels take the depth of the nearest view it held on the previous frame
+# (within DEPTH_WEIGHTS_REACH pixels), and a view whose template holds pixels more than
+# DEPTH_WEIGHTS_TOLERANCE pixel equivalents nearer or farther than its point is matched with
+# them weighed zero (views grouped by depth in bins of DEPTH_WEIGHTS_BIN times the
+# tolerance, one Rust call per bin). With DEPTH_WEIGHTS_RESEARCH the second search
+# (RESEARCH) does the same. Off: on tuning capture m0 (benches/README.md, branch track16)
+# it does not lower the fast limbs' hazard (first / later step 0.419 / 0.093 -> 0.444 /
+# 0.102 with tolerance 10, no band) and costs "through" (35.07 -> 33.61%; with a 3 px band
+# 28.94%), for fewer kept positions beyond 5 px (3-D 1.45 -> 1.30%) and +40% CPU; beside
+# the second search it costs the kept 3-D figure on m2 (2.35 -> 2.54%).
+DEPTH_WEIGHTS = False
+DEPTH_WEIGHTS_TOLERANCE = 6.0
+DEPTH_WEIGHTS_REACH = 12.0
+DEPTH_WEIGHTS_BIN = 0.5
+# Half-width, pixels, of a band along the depth edges weighed zero for every view near one
+# (the labelling puts an edge half-way between two views; 0: no band).
+DEPTH_WEIGHTS_BAND = 0
+# The forward-backward check's template (the current frame's) cut too, at the depth edges
+# of the points moved on linearly (False: by the masks alone).
+DEPTH_WEIGHTS_CURRENT = True
+DEPTH_WEIGHTS_RESEARCH = True
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

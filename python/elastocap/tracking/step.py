@@ -18,17 +18,17 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elastocap import _core
 from elastocap.capture import Capture
 from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
+from elastocap.tracking.depth_weights import depth_edges, rust_step, track_step_by_depth
 from elastocap.tracking.filters import pixel_size, trajectory_flags
 from elastocap.tracking.drift import drift_covariance, not_positive_definite, weakest_sd
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
-from elastocap.tracking.prediction import drop_breaking_views, research_failed_views
+from elastocap.tracking.prediction import drop_breaking_views, drop_far_views, research_failed_views
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -63,6 +63,8 @@ class FrameTracker:
         self.grey: list[NDArray[np.float32]] | None = None
         # The previous frame's template weights (its masks as 0/1 floats), when used.
         self.weights: list[NDArray[np.float32]] | None = None
+        # The previous frame's masks (the depth edges' images, settings.DEPTH_WEIGHTS).
+        self.masks: list[NDArray[np.bool_]] | None = None
         self.anchors = Anchors(c, size) if options["anchor"] else None
         self.lost = Lost(settings.REVIVE_FRAMES) if options["revive"] else None
         # Per point and camera: consecutive frames its held view was predicted hidden.
@@ -129,6 +131,7 @@ class FrameTracker:
             self.lost.restore(last, history)
         self.grey, masks = self._read(chosen[done - 1])
         self.weights = self._weights(masks)
+        self.masks = masks
         if self.anchors is not None and "anchor_frame" in last:
             where_frames = last["anchor_frame"]
             for source in np.unique(where_frames[where_frames >= 0]):
@@ -156,14 +159,24 @@ class FrameTracker:
             corr = np.full((n, c), np.nan)
         shift = np.full((n, c), np.nan)
         researched = np.zeros((n, c), bool)
+        wide = np.zeros((n, c), bool)
         if not (first or n == 0 or self.grey is None):
-            pos, f2d, cv2d, cr = _core.track_step(
-                self.grey, grey, np.ascontiguousarray(self.uv.transpose(1, 0, 2)),
-                np.ascontiguousarray(self.uv_last.transpose(1, 0, 2)), size=self.size, radius=self.radius,
-                min_correlation=min(self.min_correlation, settings.BOX_CORRELATION), forward_backward=self.o["forward_backward"],
-                min_texture=self.keep_texture, max_iterations=settings.STEP_ITERATIONS,
-                weights=None if weights is None or self.weights is None else (self.weights, weights))
-            uv, flags2d, cov2d, corr = pos.transpose(1, 0, 2), f2d.T.copy(), cv2d.transpose(1, 0, 2, 3), cr.T
+            step = rust_step(self.grey, grey)
+            pair = None if weights is None or self.weights is None else (self.weights, weights)
+            options = dict(size=self.size, radius=self.radius,
+                           min_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
+                           forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                           max_iterations=settings.STEP_ITERATIONS)
+            edges = None
+            if settings.DEPTH_WEIGHTS and self.masks is not None:
+                # Templates that straddle a depth edge matched without the other surface.
+                edges = depth_edges(self.cameras, self.uv, self.x_last, self.x_before, self.masks, masks,
+                                    reach=settings.DEPTH_WEIGHTS_REACH, tolerance=settings.DEPTH_WEIGHTS_TOLERANCE,
+                                    band=settings.DEPTH_WEIGHTS_BAND, current=settings.DEPTH_WEIGHTS_CURRENT)
+                uv, flags2d, cov2d, corr = track_step_by_depth(step, self.uv, self.uv_last, pair, edges, half=self.size // 2,
+                                                               width=settings.DEPTH_WEIGHTS_BIN, **options)
+            else:
+                uv, flags2d, cov2d, corr = step(self.uv, self.uv_last, weights=pair, **options)
             # The box search only has to find the start (it does not model rotation or
             # scale); the least-squares match, which does, must reach the threshold.
             weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
@@ -181,9 +194,12 @@ class FrameTracker:
                     forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
                     max_iterations=settings.STEP_ITERATIONS,
                     weights=None if weights is None or self.weights is None else (self.weights, weights),
-                    neighbours=settings.RESEARCH_NEIGHBOURS, min_neighbours=settings.RESEARCH_MIN_NEIGHBOURS)
+                    neighbours=settings.RESEARCH_NEIGHBOURS, min_neighbours=settings.RESEARCH_MIN_NEIGHBOURS,
+                    edges=edges if settings.DEPTH_WEIGHTS_RESEARCH else None, edge_width=settings.DEPTH_WEIGHTS_BIN,
+                    wide_correlation=settings.RESEARCH_WIDE_CORRELATION)
                 uv, flags2d, cov2d, corr = found.uv, found.flags2d, found.cov2d, found.corr
                 researched = found.found
+                wide = found.found & ~found.by_neighbours
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=settings.ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
@@ -218,6 +234,11 @@ class FrameTracker:
         if researched.any():
             x, xcov, used, rejected = drop_breaking_views(self.cameras, uv, cov2d, flags2d, researched, x, xcov, used, rejected,
                                                           max_residual=self.o["max_residual"], floor=settings.FLOOR)
+        if np.isfinite(settings.RESEARCH_WIDE_RESIDUAL) and wide.any():
+            # The wide box's finds held to a tighter residual than the intersection's.
+            x, xcov, used, rejected = drop_far_views(self.cameras, uv, cov2d, flags2d, wide, x, xcov, used, rejected,
+                                                     tolerance=settings.RESEARCH_WIDE_RESIDUAL,
+                                                     max_residual=self.o["max_residual"], floor=settings.FLOOR)
         flags2d[rejected] = TrackFlag.EPIPOLAR
         set_aside = np.zeros((n, c), bool)
         if settings.HIDDEN_FRAMES and n:
@@ -298,6 +319,7 @@ class FrameTracker:
             self.lost.remember(frame, x)
         self.grey = grey
         self.weights = weights
+        self.masks = masks
         self.seeded_at = np.concatenate([self.seeded_at, np.full(total - len(self.seeded_at), -1, np.int64)])
         new = (self.seeded_at < 0) & np.isfinite(x).all(axis=1)
         self.seeded_at[new] = frame
