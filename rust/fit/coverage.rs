@@ -343,7 +343,7 @@ mod tests {
     fn each_sample_pulls_the_node_a_full_scan_finds() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut random_unit = |rng: &mut rand_chacha::ChaCha8Rng| {
+        let random_unit = |rng: &mut rand_chacha::ChaCha8Rng| {
             unit(&std::array::from_fn::<f64, 3, _>(|_| {
                 rng.random_range(-1.0..1.0)
             }))
