@@ -43,16 +43,23 @@ class TrackFlag(IntEnum):
         only: the Rust core's step does not set it).
     UNCERTAIN : 12
         Tracked, but its predicted standard deviation (the covariance with the drift of
-        its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents, or its
+        its views) exceeds ``settings.UNCERTAIN_SD`` pixel equivalents (after the rigid
+        fusion; ``settings.UNCERTAIN_DRIFT_SD`` before it), or its
         intersection's covariance is not positive definite (rays too near parallel for
         the inverse to mean anything): withheld (the tracker follows it on).
     SLID : 13
         Tracked, but farther across its rays from where the rigid motion of its
         neighbours since its seeding frame puts it than ``settings.SLIDE`` pixel
-        equivalents plus ``settings.SLIDE_SPREAD`` times the neighbours' own residual to
+        equivalents plus ``settings.SLIDE_SCALE`` times the neighbours' own residual to
         that motion: it slid along the surface in both views of its pair, a few tenths of a
         pixel a frame, which no one-frame check sees (:func:`~elastocap.tracking.rigidity.rigid_residuals`).
         Withheld (the tracker follows it on), and on every later frame of the track.
+    OUTSIDE : 14
+        Tracked, but its position projects farther than ``settings.OUTSIDE`` pixels
+        outside the silhouette of a camera whose image it falls in: off the surface, in
+        front of it, mostly along the rays of its own pair
+        (:func:`~elastocap.tracking.silhouette.outside_silhouettes`). Withheld on that frame
+        (the tracker follows it on).
     """
 
     TRACKED = 0
@@ -69,3 +76,4 @@ class TrackFlag(IntEnum):
     HIDDEN = 11
     UNCERTAIN = 12
     SLID = 13
+    OUTSIDE = 14

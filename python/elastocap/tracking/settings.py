@@ -230,6 +230,27 @@ UNCERTAIN_SD = float("inf")
 SLIDE = 4.0
 SLIDE_SCALE = 0.5
 SLIDE_STICKY = True
+# Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
+# farther than this many pixels outside the silhouette of a camera whose image they fall in
+# (any camera, not only those holding the point's views); infinite: off. Output only. Most
+# kept positions beyond 5 px-eq after the fusion and SLID are off along the rays, the
+# majority in front of the surface, and a camera seeing the limb from the side sees that
+# as a point beside its silhouette. Tuning seeds 0, 2, 3, 14, 15 against the true surface
+# point (benches/README.md, branch track18), main's reported positions and these on the same
+# runs: kept 3-D beyond 5 px-eq 0.90 / 1.08 / 0.87 / 0.83 / 2.32% -> 0.76 / 0.96 / 0.77 /
+# 0.66 / 2.22%, through_span -0.3 to -0.9 point (through, which a track's withheld first
+# frames do not count against, -0.02 to +0.4); 2 px: 0.71 / 0.97 / 0.76 / 0.62 / 2.16%, -0.5 to
+# -2.6 points of through; 4 px: 0.77 / 1.01 / 0.77 / 0.67 / 2.27%. Some 40-60% of the
+# positions withheld at 3 px are beyond 5 px-eq.
+OUTSIDE = 3.0
+# Positions whose drift covariance before the rigid fusion (``DRIFT_SCALE``: the views' anchor
+# cuts) has a standard deviation along its weakest direction above this many pixel
+# equivalents are withheld (flag UNCERTAIN); infinite: off. Unlike UNCERTAIN_SD (after the
+# fusion, which shrinks it towards the neighbours' prediction) it sees a neighbourhood whose
+# depth drifted together (seed 15's worst frames). Off: on the tuning seeds the kept 3-D
+# figure reaches 1% on seed 15 only near 3.5 px-eq, for some 4 points of through
+# (benches/README.md, track18).
+UNCERTAIN_DRIFT_SD = float("inf")
 # The frame-to-frame step's failed views searched again (:mod:`elastocap.tracking.prediction`):
 # at the median displacement of the views of their RESEARCH_NEIGHBOURS nearest points in
 # 3-D (within RESEARCH_REACH pixel equivalents; at least RESEARCH_MIN_NEIGHBOURS), and

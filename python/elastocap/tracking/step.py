@@ -34,6 +34,7 @@ from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
 from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
 from elastocap.tracking.seeding import seed_points
+from elastocap.tracking.silhouette import outside_silhouettes
 from elastocap.tracking.tracks import frame_file, read_frame
 from elastocap.tracking.views import facing_normals, intersect_views, surface_normals
 
@@ -117,10 +118,13 @@ class FrameTracker:
         self.seeded_at = np.full(n, -1, np.int64)
         for frame in chosen[:done]:
             written = read_frame(frame_file(out, frame))
-            new = np.flatnonzero((written["flags"] == TrackFlag.TRACKED) & (self.seeded_at[: len(written["flags"])] < 0))
+            # Seeded where first intersected, as the step counts it: a position withheld
+            # on its seeding frame (OUTSIDE) is not written but was seeded there.
+            crossed = _intersections(written)
+            new = np.flatnonzero(np.isfinite(crossed).all(axis=1) & (self.seeded_at[: len(crossed)] < 0))
             if new.size:
                 self.seeded_at[new] = frame
-                self.history[frame] = _intersections(written)
+                self.history[frame] = crossed
             found = np.flatnonzero(written["flags"] == TrackFlag.SLID)
             if found.size:
                 self.slid = np.concatenate([self.slid, np.zeros(max(0, found.max() + 1 - len(self.slid)), bool)])
@@ -348,9 +352,12 @@ class FrameTracker:
     def _reported(self, uv: NDArray[np.float64], x: NDArray[np.float64], xcov: NDArray[np.float64],
                   flags: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
         """The positions, covariances and flags written out: the covariance with the drift
-        of the views (``settings.DRIFT``), and the positions it says are too uncertain
-        withheld (``settings.UNCERTAIN_SD``; the state the next frame starts from keeps them),
-        as are positions whose intersection's covariance is not positive definite."""
+        of the views (``settings.DRIFT``), the positions fused with their neighbours' rigid
+        prediction (``settings.RIGID``), and withheld (the state the next frame starts from
+        keeps them): slid off that prediction (``settings.SLIDE``), outside a camera's
+        silhouette (``settings.OUTSIDE``), too uncertain before the fusion
+        (``settings.UNCERTAIN_DRIFT_SD``) or after it (``settings.UNCERTAIN_SD``), and
+        where the intersection's covariance is not positive definite."""
         broken = np.isfinite(x).all(axis=1) & not_positive_definite(xcov)
         if broken.any():
             x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
@@ -368,6 +375,20 @@ class FrameTracker:
                                    candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
         if np.isfinite(settings.SLIDE):
             x, xcov, flags = self._withhold_slid(x_in, cov_in, x, xcov, flags, pixel, views)
+        if np.isfinite(settings.OUTSIDE) and self.masks is not None:
+            outside = outside_silhouettes(self.cameras, self.masks, x, settings.OUTSIDE)
+            if outside.any():
+                x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
+                x[outside], xcov[outside], flags[outside] = np.nan, np.nan, TrackFlag.OUTSIDE
+        if np.isfinite(settings.UNCERTAIN_DRIFT_SD):
+            # The drift covariance before the fusion: the fusion shrinks it by the
+            # neighbours' prediction, which drifted with the point when the whole
+            # neighbourhood did.
+            with np.errstate(invalid="ignore"):
+                unsure = (weakest_sd(cov_in, pixel) > settings.UNCERTAIN_DRIFT_SD) & np.isfinite(x).all(axis=1)
+            if unsure.any():
+                x, xcov, flags = x.copy(), xcov.copy(), flags.copy()
+                x[unsure], xcov[unsure], flags[unsure] = np.nan, np.nan, TrackFlag.UNCERTAIN
         if settings.COVARIANCE_SCALE != 1.0:
             xcov = xcov * settings.COVARIANCE_SCALE
         if not np.isfinite(settings.UNCERTAIN_SD):
