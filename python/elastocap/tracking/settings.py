@@ -241,7 +241,9 @@ SLIDE_STICKY = True
 # 0.66 / 2.22%, through_span -0.3 to -0.9 point (through, which a track's withheld first
 # frames do not count against, -0.02 to +0.4); 2 px: 0.71 / 0.97 / 0.76 / 0.62 / 2.16%, -0.5 to
 # -2.6 points of through; 4 px: 0.77 / 1.01 / 0.77 / 0.67 / 2.27%. Some 40-60% of the
-# positions withheld at 3 px are beyond 5 px-eq.
+# positions withheld at 3 px are beyond 5 px-eq. Held out (seeds 16, 17): 1.07 / 1.21% ->
+# 0.88 / 1.05%, through_span -0.2 / -0.3 point. The elastic fit with tracks: within its
+# noise (seeds 1, 10, 18, 19: drift -0.18 to +0.19 point, two better, two worse).
 OUTSIDE = 3.0
 # Positions whose drift covariance before the rigid fusion (``DRIFT_SCALE``: the views' anchor
 # cuts) has a standard deviation along its weakest direction above this many pixel
