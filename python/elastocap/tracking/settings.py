@@ -283,5 +283,12 @@ DEPTH_WEIGHTS_BAND = 0
 # of the points moved on linearly (False: by the masks alone).
 DEPTH_WEIGHTS_CURRENT = True
 DEPTH_WEIGHTS_RESEARCH = True
+# The step's box search (which finds the match's start) weighs the template by the same
+# per-pixel weights the match gets (the masks, and with DEPTH_WEIGHTS the depth-edge cuts;
+# rust/track/weighted_ncc.rs): a template straddling a limb's edge is otherwise refused, or
+# started on the surface behind, before the weighted match can act (benches/README.md,
+# branch track16). Templates whose weights are all 1 are searched as before, to the bit.
+# False: main's plain box search.
+WEIGHTED_BOX = False
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
