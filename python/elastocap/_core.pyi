@@ -31,6 +31,7 @@ __all__ = [
     "lsm_match_patches",
     "TriangleMesh",
     "track_step",
+    "track_box_search",
     "track_ncc_at",
 ]
 

@@ -233,6 +233,38 @@ fn too_little_weight_is_searched_as_without_weights() {
     assert_eq!(plain_scores, scores);
 }
 
+/// The step's outputs (positions, flags, covariances, correlations).
+type Stepped = (Vec<[f64; 2]>, Vec<u8>, Vec<[f64; 4]>, Vec<f64>);
+
+/// One step of `last` from `previous` into `current` with the given weights and options.
+fn run_step(
+    images: [&ImageView<'_>; 2],
+    last: &[[f64; 2]],
+    before: &[[f64; 2]],
+    weights: [&ImageView<'_>; 2],
+    options: &TrackOptions,
+) -> Stepped {
+    let n = last.len();
+    let (mut positions, mut flags) = (vec![[0.0; 2]; n], vec![0u8; n]);
+    let (mut covariance, mut correlation) = (vec![[0.0; 4]; n], vec![0.0; n]);
+    track_camera(
+        images[0],
+        images[1],
+        last,
+        before,
+        Some(weights),
+        options,
+        CameraStep {
+            positions: &mut positions,
+            flags: &mut flags,
+            covariance: &mut covariance,
+            correlation: &mut correlation,
+        },
+    )
+    .unwrap();
+    (positions, flags, covariance, correlation)
+}
+
 #[test]
 fn the_step_with_the_weighted_box_tracks_the_limb_over_the_surface_behind() {
     // The whole step (box, weighted match, forward-backward) on the scene above, the limb's
@@ -244,9 +276,6 @@ fn the_step_with_the_weighted_box_tracks_the_limb_over_the_surface_behind() {
     let last: Vec<[f64; 2]> = (0..5).map(|k| [66.0, 30.0 + 10.0 * k as f64]).collect();
     let before = vec![[f64::NAN; 2]; last.len()];
     let run = |weighted_box: bool| {
-        let n = last.len();
-        let (mut positions, mut flags) = (vec![[0.0; 2]; n], vec![0u8; n]);
-        let (mut covariance, mut correlation) = (vec![[0.0; 4]; n], vec![0.0; n]);
         let options = TrackOptions {
             radius: 6,
             min_correlation: 0.5,
@@ -258,21 +287,7 @@ fn the_step_with_the_weighted_box_tracks_the_limb_over_the_surface_behind() {
                 ..TrackOptions::default().matching
             },
         };
-        track_camera(
-            &ta,
-            &tb,
-            &last,
-            &before,
-            Some([&wa, &wb]),
-            &options,
-            CameraStep {
-                positions: &mut positions,
-                flags: &mut flags,
-                covariance: &mut covariance,
-                correlation: &mut correlation,
-            },
-        )
-        .unwrap();
+        let (positions, flags, _, _) = run_step([&ta, &tb], &last, &before, [&wa, &wb], &options);
         (positions, flags)
     };
     let on_limb = |p: [f64; 2], x: [f64; 2]| (p[0] - x[0] - 4.0).hypot(p[1] - x[1] + 3.0) < 0.3;
@@ -301,28 +316,11 @@ fn the_step_ignores_weights_of_one_in_the_box() {
     let last = [[40.0, 40.0], [60.5, 50.2], [80.0, 60.0]];
     let before = [[38.0, 41.5], [f64::NAN; 2], [78.0, 62.0]];
     let run = |weighted_box: bool| {
-        let (mut positions, mut flags) = (vec![[0.0; 2]; 3], vec![0u8; 3]);
-        let (mut covariance, mut correlation) = (vec![[0.0; 4]; 3], vec![0.0; 3]);
         let options = TrackOptions {
             weighted_box,
             ..TrackOptions::default()
         };
-        track_camera(
-            &ta,
-            &tb,
-            &last,
-            &before,
-            Some([&to, &to]),
-            &options,
-            CameraStep {
-                positions: &mut positions,
-                flags: &mut flags,
-                covariance: &mut covariance,
-                correlation: &mut correlation,
-            },
-        )
-        .unwrap();
-        (positions, flags, covariance, correlation)
+        run_step([&ta, &tb], &last, &before, [&to, &to], &options)
     };
     let (p0, f0, c0, r0) = run(false);
     let (p1, f1, c1, r1) = run(true);
