@@ -14,14 +14,18 @@
 //! `elastocap.tracking`).
 //!
 //! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
-//! `step` (one frame of one camera), `flags` (why a point is not tracked).
+//! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
+//! one camera), `flags` (why a point is not tracked).
 
 mod flags;
 mod ncc;
 mod step;
 #[cfg(test)]
 mod tests;
+mod weighted_ncc;
+#[cfg(test)]
+mod weighted_tests;
 
 pub use flags::Flag;
-pub use ncc::{ncc_at, NccBest};
+pub use ncc::{box_search_scores, ncc_at, NccBest};
 pub use step::{track_camera, CameraStep, TrackOptions};

@@ -135,3 +135,25 @@ def test_straddling_is_a_depth_difference_beyond_the_tolerance_within_the_patch(
     assert not got[1] or 20 + half >= 40
     # NaN depths (nothing known) never straddle.
     assert not straddling(np.full((60, 60), np.nan, np.float32), uv, np.array([z, z]), half, 0.1).any()
+
+
+def test_the_weighted_box_search_holds_the_limbs_edge_points_the_plain_box_refuses():
+    # The same cut, with the box search weighed as the match is (`weighted_box`, settings.WEIGHTED_BOX):
+    # the rim's points the plain box search refused are held too, the others as they were.
+    previous, current, last, before, truth, x_last, x_before, on_limb = _scene()
+    masks = [np.ones((H, W), bool)]
+    ones = [np.ones((H, W), np.float32)]
+    step = rust_step([previous], [current])
+    edges = depth_edges([CAMERA], last, x_last, x_before, masks, masks, reach=12.0, tolerance=6.0, band=4)
+    runs = [track_step_by_depth(step, last, before, (ones, ones), edges, half=SIZE // 2, width=0.5,
+                                **OPTIONS, weighted_box=weighted) for weighted in (False, True)]
+    (pos, flags, _, corr), (wpos, wflags, _, wcorr) = runs
+    cut, boxed = _held(pos, flags, corr, truth), _held(wpos, wflags, wcorr, truth)
+    axis = on_limb & (np.abs(last[:, 0, 0] - 0.5 * sum(LIMB)) < 1)
+    rim = on_limb & ~axis
+    assert boxed[rim].mean() > cut[rim].mean() and boxed[rim].mean() > 0.95
+    assert np.median(np.linalg.norm(wpos[rim & boxed, 0] - truth[rim & boxed], axis=1)) < 0.1
+    assert boxed[~on_limb].sum() >= cut[~on_limb].sum() and boxed[axis].mean() >= cut[axis].mean()
+    # Views with no depth edge in their patch (weights all 1): the plain search, to the bit.
+    far = ~on_limb & (np.abs(last[:, 0, 0] - 0.5 * sum(LIMB)) > 40)
+    np.testing.assert_array_equal(wpos[far], pos[far])

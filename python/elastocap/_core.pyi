@@ -1,5 +1,6 @@
 """Type stubs of the Rust extension (checked by ``python -m mypy.stubtest elastocap._core``)."""
 
+from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 from typing import Any
@@ -30,6 +31,7 @@ __all__ = [
     "lsm_match_patches",
     "TriangleMesh",
     "track_step",
+    "track_box_search",
     "track_ncc_at",
 ]
 
@@ -391,7 +393,18 @@ def track_step(
     min_texture: float = 0.0,
     shift_only_iterations: int = 1,
     weights: tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]] | None = None,
+    weighted_box: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.uint8], NDArray[np.float64], NDArray[np.float64]]: ...
+def track_box_search(
+    template: NDArray[np.float32],
+    point: Sequence[float],
+    search: NDArray[np.float32],
+    prediction: Sequence[float],
+    *,
+    size: int = 15,
+    radius: int = 6,
+    weights: NDArray[np.float32] | None = None,
+) -> tuple[tuple[float, float], float, NDArray[np.float64]] | None: ...
 def track_ncc_at(
     template: NDArray[np.float32],
     points: NDArray[np.float64],

@@ -1,14 +1,14 @@
 //! Binding of point tracking: one frame of every camera, and correlation at candidates.
 
 use numpy::{
-    PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    IntoPyArray, PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
     PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
-use crate::track::{ncc_at, track_camera, CameraStep, TrackOptions};
+use crate::track::{box_search_scores, ncc_at, track_camera, CameraStep, TrackOptions};
 
 fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
     let shape = image.shape();
@@ -31,11 +31,13 @@ type Step<'py> = (
 /// positions `last` and `before` (C, N, 2) in the previous two frames. `weights`, when
 /// given, is `(previous_weights, current_weights)`: per camera a float32 image of the
 /// frame's size with the template pixels' weights (the silhouette masks, 0 to 1).
+/// `weighted_box`: the box search correlates with the previous frame's weights too (a
+/// template whose weights are all 1 is searched as without).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (previous, current, last, before, *, size=11, radius=4,
     min_correlation=0.8, forward_backward=0.3, max_iterations=15, min_texture=0.0,
-    shift_only_iterations=1, weights=None))]
+    shift_only_iterations=1, weights=None, weighted_box=false))]
 fn track_step<'py>(
     py: Python<'py>,
     previous: Vec<PyReadonlyArray2<'py, f32>>,
@@ -53,6 +55,7 @@ fn track_step<'py>(
         Vec<PyReadonlyArray2<'py, f32>>,
         Vec<PyReadonlyArray2<'py, f32>>,
     )>,
+    weighted_box: bool,
 ) -> PyResult<Step<'py>> {
     let c = previous.len();
     if current.len() != c {
@@ -122,6 +125,7 @@ fn track_step<'py>(
         radius,
         min_correlation,
         forward_backward,
+        weighted_box,
     };
     let positions = PyArray3::<f64>::zeros(py, [c, n, 2], false);
     let flags = PyArray2::<u8>::zeros(py, [c, n], false);
@@ -206,7 +210,65 @@ fn track_ncc_at<'py>(
     Ok(scores)
 }
 
+/// The tracker's box search of one point: the template patch (side `size`) around
+/// `point` in `template` searched in `search` over integer shifts up to `radius` around
+/// `prediction`; `weights` (an image of `template`'s shape, 0 to 1) weighs the template's
+/// pixels (the weighted correlation). `None` when a patch leaves its image or the template
+/// is flat, else `(centre (2,), score, scores (2 radius + 1, 2 radius + 1))`: the sub-pixel
+/// best centre, its correlation, and the correlation at every shift (row: shift down).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (template, point, search, prediction, *, size=15, radius=6, weights=None))]
+fn track_box_search<'py>(
+    py: Python<'py>,
+    template: PyReadonlyArray2<'py, f32>,
+    point: [f64; 2],
+    search: PyReadonlyArray2<'py, f32>,
+    prediction: [f64; 2],
+    size: usize,
+    radius: usize,
+    weights: Option<PyReadonlyArray2<'py, f32>>,
+) -> PyResult<Option<([f64; 2], f64, Bound<'py, PyArray2<f64>>)>> {
+    let t = view(&template, "template")?;
+    let s = view(&search, "search")?;
+    if size < 3 || size % 2 == 0 || size > 255 {
+        return Err(invalid_input(format!(
+            "size must be an odd integer from 3 to 255, got {size}"
+        )));
+    }
+    if radius > 64 {
+        return Err(invalid_input(format!(
+            "radius must be at most 64 pixels, got {radius}"
+        )));
+    }
+    let w = match &weights {
+        Some(w) => {
+            let w = view(w, "weights")?;
+            if w.width != t.width || w.height != t.height {
+                return Err(invalid_input(format!(
+                    "weights must have the template's shape, ({}, {}), got ({}, {})",
+                    t.height, t.width, w.height, w.width
+                )));
+            }
+            Some(w)
+        }
+        None => None,
+    };
+    let found = super::detach(py, || {
+        box_search_scores(&t, point, &s, prediction, size, radius, w.as_ref())
+    });
+    Ok(match found {
+        None => None,
+        Some((best, scores)) => {
+            let shifts = 2 * radius + 1;
+            let array = scores.into_pyarray(py).reshape([shifts, shifts])?;
+            Some((best.centre, best.score, array))
+        }
+    })
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(track_box_search, m)?)?;
     m.add_function(wrap_pyfunction!(track_step, m)?)?;
     m.add_function(wrap_pyfunction!(track_ncc_at, m)?)
 }

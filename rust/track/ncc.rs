@@ -72,23 +72,32 @@ pub struct NccBest {
 }
 
 /// Shifts per row of the box search's fast path (radius up to 7).
-const LANES: usize = 16;
+pub(super) const LANES: usize = 16;
 
 /// Per-worker scratch of the box search.
 #[derive(Debug, Default)]
 pub(crate) struct BoxScratch {
-    template: Vec<f32>,
+    pub(super) template: Vec<f32>,
     window: Vec<f32>,
     padded: Vec<f32>,
     sum: Vec<f64>,
     square: Vec<f64>,
     pub(crate) scores: Vec<f64>,
     dots: Vec<f32>,
+    /// The template's weights and the weighted search's buffers
+    /// ([`super::weighted_ncc`]).
+    pub(super) weighted: super::weighted_ncc::WeightedScratch,
 }
 
 /// Searches the template patch (side `size`, around `point` in `template_image`) in
 /// `search` over integer shifts up to `radius` around `prediction`. `None` when a patch
 /// or the window leaves its image, or the template is flat.
+///
+/// `weights`, when given, is an image of the template image's size whose values (0 to 1,
+/// read bilinearly at the template's pixels, NaN as 0) weigh the template's pixels: the
+/// correlation is then the weighted one ([`super::weighted_ncc`]), so pixels of weight 0
+/// (the surface behind a limb's edge, cut by the caller) play no part in finding the
+/// start. A template whose weights are all 1 is searched exactly as without weights.
 pub(crate) fn box_search(
     template_image: &ImageView<'_>,
     point: [f64; 2],
@@ -96,11 +105,58 @@ pub(crate) fn box_search(
     prediction: [f64; 2],
     size: usize,
     radius: usize,
+    weights: Option<&ImageView<'_>>,
     scratch: &mut BoxScratch,
 ) -> Option<NccBest> {
     if !sample_window(template_image, point, size, &mut scratch.template) {
         return None;
     }
+    if let Some(weights) = weights {
+        if !super::weighted_ncc::all_ones(weights, point, size, &mut scratch.weighted) {
+            return super::weighted_ncc::weighted_box_search(
+                search, prediction, size, radius, scratch,
+            );
+        }
+    }
+    box_search_sampled(search, prediction, size, radius, scratch)
+}
+
+/// The box search of one point (see [`box_search`]), with the scores of every shift,
+/// `(2 radius + 1)^2` row-major (rows: shifts down, columns: shifts right; `None` as in
+/// [`box_search`]). For tests, benches and the binding; the tracker calls the search per
+/// point with a scratch per worker.
+#[allow(clippy::too_many_arguments)]
+pub fn box_search_scores(
+    template_image: &ImageView<'_>,
+    point: [f64; 2],
+    search: &ImageView<'_>,
+    prediction: [f64; 2],
+    size: usize,
+    radius: usize,
+    weights: Option<&ImageView<'_>>,
+) -> Option<(NccBest, Vec<f64>)> {
+    let mut scratch = BoxScratch::default();
+    let best = box_search(
+        template_image,
+        point,
+        search,
+        prediction,
+        size,
+        radius,
+        weights,
+        &mut scratch,
+    )?;
+    Some((best, scratch.scores))
+}
+
+/// [`box_search`] of the template already sampled into `scratch.template`, unweighted.
+pub(super) fn box_search_sampled(
+    search: &ImageView<'_>,
+    prediction: [f64; 2],
+    size: usize,
+    radius: usize,
+    scratch: &mut BoxScratch,
+) -> Option<NccBest> {
     let template = normalised(&scratch.template)?;
     let side = size + 2 * radius;
     if !sample_window(search, prediction, side, &mut scratch.window) {
@@ -188,8 +244,21 @@ pub(crate) fn box_search(
             }
         }
     }
+    Some(refine(&scratch.scores, best_at, best, prediction, radius))
+}
+
+/// The best shift `best_at` (row, column) of the `(2 radius + 1)^2` `scores` (row-major)
+/// refined to sub-pixel by a parabola through it and its four neighbours.
+pub(super) fn refine(
+    scores: &[f64],
+    best_at: (usize, usize),
+    best: f64,
+    prediction: [f64; 2],
+    radius: usize,
+) -> NccBest {
+    let shifts = 2 * radius + 1;
     let (r, c) = best_at;
-    let at = |r: usize, c: usize| scratch.scores[r * shifts + c];
+    let at = |r: usize, c: usize| scores[r * shifts + c];
     let vertex = |minus: f64, centre: f64, plus: f64| {
         let curvature = minus - 2.0 * centre + plus;
         if curvature < 0.0 {
@@ -208,18 +277,18 @@ pub(crate) fn box_search(
     } else {
         0.0
     };
-    Some(NccBest {
+    NccBest {
         centre: [
             prediction[0] + (c as f64 - radius as f64) + du,
             prediction[1] + (r as f64 - radius as f64) + dv,
         ],
         score: best,
-    })
+    }
 }
 
 /// The dot products of the template (`size x size`, mean-free) with the `LANES` windows
 /// starting at the first `LANES` columns of `rows` (`size` rows of stride `size + LANES`).
-fn row_of_shifts(rows: &[f32], template: &[f32], size: usize) -> [f32; LANES] {
+pub(super) fn row_of_shifts(rows: &[f32], template: &[f32], size: usize) -> [f32; LANES] {
     #[cfg(target_arch = "x86_64")]
     if crate::lsm::wide() {
         // SAFETY: `wide` checked that the CPU has AVX2 and FMA.

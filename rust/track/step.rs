@@ -27,6 +27,10 @@ pub struct TrackOptions {
     pub min_correlation: f64,
     /// Largest distance between the start and the forward-backward match, pixels.
     pub forward_backward: f64,
+    /// Whether the box search weighs the template by the previous frame's weights (the
+    /// ones the forward match gets; [`super::weighted_ncc`]); without weights, or a
+    /// template whose weights are all 1, the search is the plain one either way.
+    pub weighted_box: bool,
 }
 
 impl Default for TrackOptions {
@@ -39,6 +43,7 @@ impl Default for TrackOptions {
             radius: 4,
             min_correlation: 0.8,
             forward_backward: 0.3,
+            weighted_box: false,
         }
     }
 }
@@ -132,6 +137,11 @@ pub fn track_camera(
     out.correlation.fill(f64::NAN);
 
     // Box search around the linear prediction.
+    let box_weights = if options.weighted_box {
+        weights.map(|w| w[0])
+    } else {
+        None
+    };
     let searched: Vec<(u8, [f64; 2])> = (0..n)
         .into_par_iter()
         .map_init(BoxScratch::default, |scratch, p| {
@@ -152,6 +162,7 @@ pub fn track_camera(
                 prediction,
                 size,
                 options.radius,
+                box_weights,
                 scratch,
             ) {
                 None => (Flag::ImageBorder as u8, x),

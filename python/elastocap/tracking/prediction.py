@@ -109,7 +109,8 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
                           min_texture: float, max_iterations: int,
                           weights: tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]] | None,
                           neighbours: int, min_neighbours: int, edges: DepthEdges | None = None,
-                          edge_width: float = 0.5, wide_correlation: float | None = None) -> Research:
+                          edge_width: float = 0.5, wide_correlation: float | None = None,
+                          weighted_box: bool = False) -> Research:
     """The views the frame-to-frame step lost to a failed match (``RESEARCHED`` flags in
     ``flags2d``; ``last`` (N, C, 2) held) searched again by the same step
     (``_core.track_step``): first at their neighbours' prediction
@@ -122,7 +123,8 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
     templates that straddle a depth edge are matched without the other surface
     (:func:`~elastocap.tracking.depth_weights.track_step_by_depth`, bins of ``edge_width``).
     ``wide_correlation``: the least correlation of a find in the wide box (None:
-    ``min_correlation``; a box that wide holds more look-alikes)."""
+    ``min_correlation``; a box that wide holds more look-alikes). ``weighted_box``: the box
+    search weighs the template as the match does (``_core.track_step``'s option)."""
     uv, flags2d, cov2d, corr = uv.copy(), flags2d.copy(), cov2d.copy(), corr.copy()
     n, c = flags2d.shape
     found = np.zeros((n, c), bool)
@@ -139,7 +141,7 @@ def research_failed_views(previous: list[NDArray[np.float32]], current: list[NDA
         start = np.where(rows[..., None], last, np.nan)
         aim = np.where(rows[..., None], 2 * last - centre, np.nan)
         options = dict(size=size, radius=box, min_correlation=box_correlation, forward_backward=forward_backward,
-                       min_texture=min_texture, max_iterations=max_iterations)
+                       min_texture=min_texture, max_iterations=max_iterations, weighted_box=weighted_box)
         if edges is None:
             pos, f2d, cv2d, cr = step(start, aim, weights=weights, **options)
         else:

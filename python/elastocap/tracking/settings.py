@@ -306,5 +306,17 @@ DEPTH_WEIGHTS_BAND = 0
 # of the points moved on linearly (False: by the masks alone).
 DEPTH_WEIGHTS_CURRENT = True
 DEPTH_WEIGHTS_RESEARCH = True
+# The step's box search (which finds the match's start) weighs the template by the same
+# per-pixel weights the match gets (the masks, and with DEPTH_WEIGHTS the depth-edge cuts;
+# rust/track/weighted_ncc.rs): a template straddling a limb's edge is otherwise refused, or
+# started on the surface behind, before the weighted match can act (benches/README.md,
+# branch track16). Templates whose weights are all 1 are searched as before, to the bit.
+# False: main's plain box search. Off (benches/README.md, branch track19): with the truth's
+# box and part labels it finds 3% more of the fast limbs' lost views beyond the weighted
+# match; beside DEPTH_WEIGHTS on tuning m0 / m2 / m3 it moves through by -0.10 / -0.23 /
+# -0.17 points and leaves the fast limbs' first-step hazard unchanged (the prediction, not
+# the patch, loses that step); held out (m16 / m17, DW + this against main) through -1.06 /
+# -0.09, kept 3-D beyond 5 px-eq +0.14 / -0.36 points.
+WEIGHTED_BOX = False
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)

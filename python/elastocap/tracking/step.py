@@ -170,7 +170,7 @@ class FrameTracker:
             options = dict(size=self.size, radius=self.radius,
                            min_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
                            forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
-                           max_iterations=settings.STEP_ITERATIONS)
+                           max_iterations=settings.STEP_ITERATIONS, weighted_box=settings.WEIGHTED_BOX)
             edges = None
             if settings.DEPTH_WEIGHTS and self.masks is not None:
                 # Templates that straddle a depth edge matched without the other surface.
@@ -200,7 +200,7 @@ class FrameTracker:
                     weights=None if weights is None or self.weights is None else (self.weights, weights),
                     neighbours=settings.RESEARCH_NEIGHBOURS, min_neighbours=settings.RESEARCH_MIN_NEIGHBOURS,
                     edges=edges if settings.DEPTH_WEIGHTS_RESEARCH else None, edge_width=settings.DEPTH_WEIGHTS_BIN,
-                    wide_correlation=settings.RESEARCH_WIDE_CORRELATION)
+                    wide_correlation=settings.RESEARCH_WIDE_CORRELATION, weighted_box=settings.WEIGHTED_BOX)
                 uv, flags2d, cov2d, corr = found.uv, found.flags2d, found.cov2d, found.corr
                 researched = found.found
                 wide = found.found & ~found.by_neighbours
