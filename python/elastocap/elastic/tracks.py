@@ -35,6 +35,7 @@ above.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -188,7 +189,16 @@ class TrackAttachments:
     ahead_tolerance: float = 0.0
     rest_frame: int = 0
     rest_positions: NDArray[np.float64] | None = None
+    ahead_check: float = 0.0
+    ahead_chain: int = 0
+    ahead_age: bool = False
+    relayed_weight: float = 1.0
+    relay_memory: int = 0
+    ahead_memory: bool = False
     early: NDArray[np.bool_] = field(init=False)
+    last_offset: NDArray[np.float64] = field(init=False)
+    last_frame: NDArray[np.int64] = field(init=False)
+    origin: NDArray[np.float64] = field(init=False)
     anchor: NDArray[np.int64] = field(init=False)
     neighbours: NDArray[np.int64] = field(init=False)
     phi: NDArray[np.float64] = field(init=False)
@@ -197,14 +207,17 @@ class TrackAttachments:
 
     @classmethod
     def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0,
-              ahead: int = 0, ahead_tolerance: float = 0.0) -> TrackAttachments:
+              ahead: int = 0, ahead_tolerance: float = 0.0, ahead_check: float = 0.0, ahead_chain: int = 0,
+              ahead_age: bool = False, relayed_weight: float = 1.0, relay_memory: int = 0,
+              ahead_memory: bool = False) -> TrackAttachments:
         """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point;
         ``relay`` older tracks (at most ``relay_radius`` away, world units) correct where a
         new track is attached (module docs; 0: where the fit puts it); ``ahead`` older
         tracks (within ``relay_radius``) whose rigid motion back to the rest frame, when
         they fit it to ``ahead_tolerance`` (RMS, world units), attaches a late track before
         its anchor frame is fitted (:meth:`attach_ahead`; 0: off)."""
-        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame)
+        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame, None, float(ahead_check),
+                   int(ahead_chain), bool(ahead_age), float(relayed_weight), int(relay_memory), bool(ahead_memory))
         tracked = tracks.flags == TrackFlag.TRACKED
         # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
         gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
@@ -216,6 +229,13 @@ class TrackAttachments:
         self.attached = np.zeros(n, bool)
         self.unplaced = np.zeros(n, bool)
         self.early = np.zeros(n, bool)
+        # Each attached track's last tracked frame and how far the fit was off at its
+        # material point there (tracked position minus fitted one): ``relay_memory``.
+        self.last_offset = np.zeros((n, 3))
+        self.last_frame = np.full(n, np.iinfo(np.int64).min // 2, np.int64)
+        # The frame a track's trust in the spread is aged from: its anchor frame, for a
+        # track attached ahead (with ``ahead_age``) the mean of its carriers' (module docs).
+        self.origin = np.where(self.anchor >= 0, tracks.frames[np.maximum(self.anchor, 0)], rest_frame).astype(np.float64)
         return self
 
     def _row(self, frame: int) -> int | None:
@@ -241,46 +261,107 @@ class TrackAttachments:
             which = which[placed]
             self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
+        if self.relay_memory > 0:
+            seen = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED))
+            fitted = np.einsum("tk,tkd->td", self.phi[seen], positions[self.neighbours[seen]])
+            self.last_offset[seen] = self.tracks.positions[row, seen] - fitted
+            self.last_frame[seen] = frame
         return len(which)
 
-    def attach_ahead(self, frame: int) -> int:
+    def attach_ahead(self, frame: int, start: NDArray[np.float64] | None = None) -> int:
         """Attach the tracks anchored at ``frame`` through the rigid motion of their older
         neighbours back to the rest frame (module docs), before ``frame`` is fitted (the
         rest frame must be attached); returns how many. Those it cannot place are left to
-        :meth:`attach` after the fit."""
+        :meth:`attach` after the fit.
+
+        With ``ahead_check`` and the frame's ``start`` (N, 3), a carry is dropped (left to
+        the relay after the fit) where it lands farther than ``ahead_check`` (world units,
+        at rest) from the material point the relay's offsets, measured on ``start``, give
+        the track. With ``ahead_chain``, up to that many more passes follow in which the
+        tracks just attached ahead at this frame carry the others too (a limb whose tracks
+        all start here is carried from its older end)."""
         row = self._row(frame)
         if self.ahead <= 0 or row is None or self.rest_positions is None or frame == self.rest_frame:
             return 0
-        which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
         tracked = self.tracks.flags[row] == TrackFlag.TRACKED
-        old = np.flatnonzero(self.attached & tracked & (self.anchor != row))
         m = max(self.ahead, 3)
-        if len(which) == 0 or len(old) < m:
-            return 0
-        moved = self.tracks.positions[row, old]
-        rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
-        new = self.tracks.positions[row, which]
-        rest_new, good = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance)
-        which, rest_new = which[good], rest_new[good]
-        if len(which) == 0:
-            return 0
-        neighbours, phi, placed = placeable_weights(rest_new, self.rest_positions, self.k)
-        which = which[placed]
-        self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
-        self.attached[which] = True
-        self.early[which] = True
-        return len(which)
+        total = 0
+        for _ in range(1 + max(self.ahead_chain, 0)):
+            which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
+            # Carriers: the older tracks attached, and (from the second pass) this frame's
+            # tracks attached ahead in the passes before.
+            old = np.flatnonzero(self.attached & tracked & ((self.anchor != row) | self.early))
+            moved = self.tracks.positions[row, old]
+            if self.ahead_memory and start is not None:
+                # Tracks lost in the last frames carry too, where the start and their last
+                # offset from the fit put them (``relay_memory``).
+                lost = self._lost(row)
+                old = np.concatenate([old, lost])
+                moved = np.concatenate([moved, np.einsum("tk,tkd->td", self.phi[lost], start[self.neighbours[lost]])
+                                        + self.last_offset[lost]])
+            if len(which) == 0 or len(old) < m:
+                break
+            rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
+            new = self.tracks.positions[row, which]
+            rest_new, good, carriers = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance,
+                                                   neighbours=True)
+            if self.ahead_check > 0 and start is not None:
+                relayed, known = self._relay_rest(row, which, start)
+                good &= ~known | (np.linalg.norm(rest_new - relayed, axis=1) <= self.ahead_check)
+            which, rest_new, carriers = which[good], rest_new[good], carriers[good]
+            if len(which) == 0:
+                break
+            neighbours, phi, placed = placeable_weights(rest_new, self.rest_positions, self.k)
+            which, carriers = which[placed], carriers[placed]
+            self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
+            self.attached[which] = True
+            self.early[which] = True
+            if self.ahead_age:
+                # A carried track is as far from the rest frame's evidence as its carriers.
+                self.origin[which] = self.origin[old[carriers]].mean(axis=1)
+            total += len(which)
+        return total
 
-    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _relay_rest(self, row: int, which: NDArray[np.int64],
+                    positions: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(len(which), 3) the material points at rest that the relay gives the tracks
+        ``which`` on the fit ``positions`` of frame ``row``, and which it gives one (enough
+        older tracks near, nodes spanning space) (len(which),) bool."""
+        offsets, near = self._offsets(row, which, positions, with_near=True)
+        neighbours, phi, placed = placeable_weights(self.tracks.positions[row, which] - offsets, positions, self.k)
+        assert self.rest_positions is not None
+        return np.einsum("tk,tkd->td", phi, self.rest_positions[neighbours]), near & placed
+
+    def _lost(self, row: int) -> NDArray[np.int64]:
+        """The attached tracks not tracked at ``row`` whose last tracked frame lies at most
+        ``relay_memory`` frames before it, on the rest frame's side."""
+        frame = int(self.tracks.frames[row])
+        gap = (frame - self.last_frame) * np.sign(frame - self.rest_frame)
+        here = self.tracks.flags[row] == TrackFlag.TRACKED
+        return np.flatnonzero(self.attached & ~here & (gap > 0) & (gap <= self.relay_memory))
+
+    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64], with_near: bool = False):
         """(len(which), 3): how far the fit ``positions`` of frame ``row`` is off around
         the new tracks ``which``, from the older tracks tracked there (module docs); 0
-        where fewer than ``relay`` lie within ``relay_radius``."""
+        where fewer than ``relay`` lie within ``relay_radius`` (with ``with_near``, also
+        which do, (len(which),) bool)."""
         offsets = np.zeros((len(which), 3))
-        old = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row))
-        if self.relay <= 0 or len(old) < self.relay:
-            return offsets
-        tracked = self.tracks.positions[row, old]
+        near = np.zeros(len(which), bool)
+        here = self.tracks.flags[row] == TrackFlag.TRACKED
+        old = np.flatnonzero(self.attached & here & (self.anchor != row))
         placed = np.einsum("tk,tkd->td", self.phi[old], positions[self.neighbours[old]])
+        tracked = self.tracks.positions[row, old]
+        if self.relay_memory > 0:
+            # Tracks lost in the last ``relay_memory`` frames (on the rest frame's side of
+            # this one) relay too, with the offset they last had, placed where it puts their
+            # material point now: on a fast limb whose tracks all ended and were re-seeded
+            # here, no track tracked here is older than this frame.
+            lost = self._lost(row)
+            fitted = np.einsum("tk,tkd->td", self.phi[lost], positions[self.neighbours[lost]])
+            placed = np.concatenate([placed, fitted])
+            tracked = np.concatenate([tracked, fitted + self.last_offset[lost]])
+        if self.relay <= 0 or len(tracked) < self.relay:
+            return (offsets, near) if with_near else offsets
         distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.relay)
         # k = 1 gives 1-D answers.
         distance, nearest = distance.reshape(len(which), self.relay), nearest.reshape(len(which), self.relay)
@@ -288,7 +369,7 @@ class TrackAttachments:
         # The median, not the mean: a track the tracker's filters kept on a wrong match
         # must not move its neighbours' anchors.
         offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
-        return offsets
+        return (offsets, near) if with_near else offsets
 
     def _pulling(self, row: int) -> NDArray[np.bool_]:
         """(N,) the attached tracks tracked at ``row`` that pull it: not anchored there,
@@ -301,7 +382,7 @@ class TrackAttachments:
         if row is None:
             return np.zeros(0)
         use = self._pulling(row)
-        return np.abs(self.tracks.frames[row] - self.tracks.frames[self.anchor[use]]).astype(np.float64)
+        return np.abs(self.tracks.frames[row] - self.origin[use]).astype(np.float64)
 
     def frame_arrays(
         self, frame: int, sigma: float
@@ -318,6 +399,11 @@ class TrackAttachments:
             return None
         covariance = self.tracks.covariances[row, use]
         precision = np.linalg.inv(0.5 * (covariance + covariance.transpose(0, 2, 1)) + sigma**2 * np.eye(3))
+        if self.relayed_weight != 1.0:
+            # Tracks attached after their (late) anchor frame's fit, where only the relay
+            # says where their material is: trusted less.
+            relayed = (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
+            precision[relayed] *= self.relayed_weight
         return (
             np.ascontiguousarray(self.neighbours[use]),
             np.ascontiguousarray(self.phi[use]),
@@ -327,7 +413,7 @@ class TrackAttachments:
 
 
 def rigid_carry(moved: NDArray[np.float64], rest: NDArray[np.float64], points: NDArray[np.float64], m: int,
-                radius: float, tolerance: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+                radius: float, tolerance: float, neighbours: bool = False) -> Any:
     """``points`` (T, 3) carried by the rigid motion of their ``m`` nearest reference
     points, which sit at ``moved`` (R, 3) and are to go to ``rest`` (R, 3): per point the
     least-squares rotation and translation (Kabsch) of those neighbours, applied to it.
@@ -336,13 +422,14 @@ def rigid_carry(moved: NDArray[np.float64], rest: NDArray[np.float64], points: N
     within ``radius``, not near a line (second singular value of their spread at least a
     tenth of the first: a rotation about the line is undetermined), and fitted by the rigid
     motion to an RMS residual of at most ``tolerance`` (world units; larger: they do not
-    move together, e.g. a joint between them).
+    move together, e.g. a joint between them); with ``neighbours``, also the indices
+    (into ``moved``) of each point's ``m`` neighbours, (T, m) int.
     """
     t = len(points)
     carried = np.zeros((t, 3))
     good = np.zeros(t, bool)
     if t == 0 or len(moved) < m:
-        return carried, good
+        return (carried, good, np.zeros((t, m), np.int64)) if neighbours else (carried, good)
     distance, nearest = cKDTree(moved).query(points, k=m)
     distance, nearest = distance.reshape(t, m), nearest.reshape(t, m)
     near = (distance <= radius).all(axis=1)
@@ -359,7 +446,7 @@ def rigid_carry(moved: NDArray[np.float64], rest: NDArray[np.float64], points: N
     planar = spread[:, 1] >= 0.1 * np.maximum(spread[:, 0], 1e-300)
     good = near & planar & (residual <= tolerance)
     carried = qc + np.einsum("tij,tj->ti", rotation, points - pc)
-    return carried, good
+    return (carried, good, nearest) if neighbours else (carried, good)
 
 
 def select_frames(tracks: Tracks, frames: Sequence[int]) -> Tracks:
