@@ -30,13 +30,30 @@ Neither the drifted fit of the anchor frame nor its relay offsets enter, and the
 pulls its anchor frame too. Where its older neighbours are too few, too close to a line,
 or not moving rigidly (a joint between them), the track is attached after the fit as
 above.
+
+Options of the carry and the relay (``fit_sequence``'s ``track_ahead_check``,
+``track_relay_memory``, ``track_ahead_memory``, ``track_ahead_chain``, ``track_ahead_age``,
+``track_relayed_weight``; all off by default; benches/README.md, trackfit8):
+
+- **The check against the relay**: a carry whose material point lies far from the relay's
+  (measured on the frame's start, before the fit) is dropped. On the textured capture the
+  carries more than 4 node spacings from the relay's point are 20% of the diagonal off (a
+  neighbourhood whose rigid motion passes the residual test but carries the track
+  elsewhere); up to that the carry is the better of the two.
+- **Memory**: tracks lost in the last frames relay (and optionally carry) with the offset
+  from the fit they had when last tracked: a fast limb's tracks end together and are
+  re-seeded together, so no track tracked in the new tracks' frame is older than they are.
+- **Chains**: tracks just carried carry the others of their frame (worse on the textured
+  capture: the hops extrapolate the rigid motion).
+- **Age**: a carried track ages in the spread from its carriers' anchors.
+- **Relayed weight**: the tracks only the relay placed weigh less.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -340,7 +357,7 @@ class TrackAttachments:
         here = self.tracks.flags[row] == TrackFlag.TRACKED
         return np.flatnonzero(self.attached & ~here & (gap > 0) & (gap <= self.relay_memory))
 
-    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64], with_near: bool = False):
+    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64], with_near: bool = False) -> Any:
         """(len(which), 3): how far the fit ``positions`` of frame ``row`` is off around
         the new tracks ``which``, from the older tracks tracked there (module docs); 0
         where fewer than ``relay`` lie within ``relay_radius`` (with ``with_near``, also
