@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_fit_tracks import _tracks
-from test_fit_tracks_ahead import _rotation
+from test_fit_tracks_ahead import _rotation, _turning_ball
 
 from elastocap import InvalidInputError, fit_sequence
 from elastocap.elastic.tracks import TrackAttachments
@@ -122,28 +122,15 @@ def test_a_carried_track_is_aged_from_its_carriers_anchors_and_chains_carry_from
 
 
 def test_the_new_options_in_the_fit_and_their_bad_values() -> None:
-    import trimesh
-
-    from elastocap import ElasticModel
-    from elastocap.elastic.fit import target_field
-
-    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
-    field = target_field(ball)
-    model = ElasticModel.from_mesh(ball, n_nodes=300)
-    rng = np.random.default_rng(5)
-    points = rng.normal(size=(80, 3))
-    points *= 0.5 / np.linalg.norm(points, axis=1, keepdims=True)
-    positions = np.stack([points @ _rotation(np.array([0.0, 0, 1]), 6 * f).T for f in range(3)])
-    positions[0, 40:] = np.nan
-    tracks = _tracks(positions)
+    model, field, tracks = _turning_ball()
     plain = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6)
     # Every option at a value that changes nothing on this sequence: the same fit.
     same = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6, track_ahead_check=10.0, track_relay_memory=1,
                         track_ahead_memory=True, track_relayed_weight=1.0)
     for f in range(3):
         np.testing.assert_allclose(same.fits[f].positions, plain.fits[f].positions, atol=1e-12)
-    # The relayed tracks' weight: none relayed here (all carried or at rest) but frame 2's
-    # weights halve nothing; at weight 0 the tracks relayed after frame 1's fit pull nothing.
+    # Without the carry the late tracks are attached by the relay after frame 1's fit; at
+    # weight 0 they do not pull frame 2.
     relayed = fit_sequence(model, [field] * 3, tracks=tracks, track_relayed_weight=0.0, track_spread=0.0)
     unweighted = fit_sequence(model, [field] * 3, tracks=tracks, track_spread=0.0)
     assert not np.allclose(relayed.fits[2].positions, unweighted.fits[2].positions)
