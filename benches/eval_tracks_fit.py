@@ -158,7 +158,7 @@ def main() -> None:
     if args.diagnose and not (args.with_only or args.without_only):
         diagnose(truth, tracks, frames, diagonal, curves)
         lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
-        anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6], int(args.options.get("track_ahead", 0)))
+        anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6], args.options)
         part_drift(truth, tracks, frames, diagonal, curves)
 
 
@@ -242,24 +242,31 @@ def part_drift(truth, tracks, frames, diagonal, curves) -> None:
         print(f"  {name:12s} {100 * points:6.1f}% {without:8.2f} {with_:6.2f} {share:12.2f} {covered:5.2f}")
 
 
-def anchor_errors(model, truth, tracks, frames, diagonal, positions, ahead: int = 0) -> None:
+def anchor_errors(model, truth, tracks, frames, diagonal, positions, options: dict | None = None) -> None:
     """Where the tracks are attached, by anchor frame: the distance between a track's
     material point at rest (its MLS weights over the fit's frame-0 nodes) and the true rest
     position of the surface point it was tracked on (the ground-truth point nearest its
     tracked position at its anchor frame, within 1% of the diagonal), median % of the
-    diagonal; attached as the fit does (relay 5, and ``track_ahead`` when the fit's options
-    set it) and without either, on the same fit."""
+    diagonal; attached as the fit does (relay 5, and ``track_ahead`` / ``track_ahead_tolerance``
+    / ``track_ahead_check`` / ``track_ahead_chain`` / ``track_relay_memory`` when the fit's
+    ``options`` set them; the frame's start for ``track_ahead_check`` is the fit's
+    constant-velocity prediction, as the fit's) and without either, on the same fit."""
     from elastocap.elastic.fit import TRACK_RELAY
     from elastocap.elastic.tracks import TrackAttachments
 
     spacing = float(np.mean(model.volumes) ** (1 / 3))
+    options = options or {}
+    ahead = int(options.get("track_ahead", 0))
     bins = [(0, 1)] + [(lo, min(lo + 10, len(frames))) for lo in range(1, len(frames), 10)]
     rows = {}
     for relay in (TRACK_RELAY, 0):
-        attachments = TrackAttachments.build(tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing,
-                                             ahead if relay else 0, spacing)
-        for f in frames:
-            attachments.attach_ahead(f)
+        attachments = TrackAttachments.build(
+            tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing, ahead if relay else 0,
+            float(options.get("track_ahead_tolerance") or spacing), float(options.get("track_ahead_check", 0.0)),
+            int(options.get("track_ahead_chain", 0)), relay_memory=int(options.get("track_relay_memory", 0)) if relay else 0)
+        for i, f in enumerate(frames):
+            start = positions[frames[max(i - 1, 0)]] if i < 2 else 2 * positions[frames[i - 1]] - positions[frames[i - 2]]
+            attachments.attach_ahead(f, start)
             attachments.attach(f, positions[f])
         n = np.flatnonzero(attachments.attached)
         anchor = attachments.anchor[n]

@@ -87,7 +87,9 @@ def test_a_late_track_is_attached_ahead_at_its_true_material_point_on_a_rigidly_
     assert np.linalg.norm(material[0] - new, axis=1).max() > 0.01
 
 
-def test_track_ahead_in_the_fit_and_its_bad_values() -> None:
+def _turning_ball() -> tuple:
+    """A ball (300 nodes) and 80 tracked points on it turning 6 degrees a frame about z over
+    3 frames, half of them seen only from frame 1 on (late tracks): (model, field, tracks)."""
     import trimesh
 
     from elastocap import ElasticModel
@@ -101,9 +103,12 @@ def test_track_ahead_in_the_fit_and_its_bad_values() -> None:
     points *= 0.5 / np.linalg.norm(points, axis=1, keepdims=True)
     turn = [_rotation(np.array([0.0, 0, 1]), 6 * f) for f in range(3)]
     positions = np.stack([points @ r.T for r in turn])
-    # Half of the points seen only from frame 1 on: late tracks.
     positions[0, 40:] = np.nan
-    tracks = _tracks(positions)
+    return model, field, _tracks(positions)
+
+
+def test_track_ahead_in_the_fit_and_its_bad_values() -> None:
+    model, field, tracks = _turning_ball()
     fit = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6)
     # Those whose six older neighbours lie within the relay radius (4 node spacings).
     ahead = fit.fits[1].metrics["tracks_attached_ahead"]

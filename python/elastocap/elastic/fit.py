@@ -221,6 +221,12 @@ def fit_sequence(
     track_relay_radius: float | None = None,
     track_ahead: int = 0,
     track_ahead_tolerance: float | None = None,
+    track_ahead_check: float = 0.0,
+    track_ahead_chain: int = 0,
+    track_ahead_age: bool = False,
+    track_relayed_weight: float = 1.0,
+    track_relay_memory: int = 0,
+    track_ahead_memory: bool = False,
     track_spread: float = TRACK_SPREAD,
     track_spread_age: float = TRACK_SPREAD_AGE,
     track_spread_radius: float | None = None,
@@ -365,6 +371,27 @@ def fit_sequence(
     track_ahead_tolerance : float, optional
         The largest RMS residual of those older tracks' rigid motion, world units (default
         one mean node spacing).
+    track_ahead_check : float
+        A track carried ahead whose material point at rest lies farther than this (world
+        units) from where the relay's offsets, measured on the frame's start, put it is
+        left to the relay after the fit (a neighbourhood attached wrong that moves rigidly
+        carries its tracks far off; 0: no check, the default).
+    track_ahead_chain : int
+        Passes after the first in which the tracks just attached ahead carry the other
+        tracks anchored at the same frame (0, the default: only older tracks carry).
+    track_ahead_age : bool
+        A track attached ahead is aged in the spread (``track_spread_age``) from the mean
+        anchor frame of the tracks that carried it, not from its own (default False).
+    track_relayed_weight : float
+        Weight, relative to the others, of the tracks attached after their late anchor
+        frame's fit (by the relay alone; default 1).
+    track_relay_memory : int
+        Tracks lost in up to this many frames before (on the rest frame's side) relay too,
+        with the offset from the fit they had in their last tracked frame (0, the default:
+        only tracks tracked in the frame relay).
+    track_ahead_memory : bool
+        Those tracks lost in the last ``track_relay_memory`` frames carry late tracks ahead
+        too, placed where the frame's start and their last offset put them (default False).
     track_spread : float
         The tracks' corrections (tracked position minus where the frame's start puts the
         material point) carried along the surface to the nodes around them, each pulled
@@ -374,7 +401,11 @@ def fit_sequence(
         5.58% -> 4.66% and 4.91% -> 4.49% (held-out seeds 2 and 3).
     track_spread_age : float
         Frames from its anchor over which a track's trust in the spread falls by e
-        (default 15).
+        (default 15). Textured fast capture (benches/README.md, trackfit8): 30 alone is
+        worse than 15 (the relayed tracks' errors spread longer), 30 with ``track_ahead``
+        6, ``track_ahead_tolerance`` 0.5 and ``track_ahead_check`` 3 node spacings and
+        ``track_relay_memory`` 2 lowers the drift ratio on all six seeds measured (e.g.
+        0.571 -> 0.504, held out 0.500 -> 0.441); options, off by default.
     track_spread_radius : float, optional
         A track's reach in the spread, geodesic on the surface at the start, world units
         (default 4 mean node spacings).
@@ -441,8 +472,18 @@ def fit_sequence(
     ahead_tolerance = node_spacing if track_ahead_tolerance is None else float(track_ahead_tolerance)
     if not (np.isfinite(ahead_tolerance) and ahead_tolerance > 0):
         raise InvalidInputError(f"track_ahead_tolerance must be a finite positive number, got {track_ahead_tolerance}")
+    if not (np.isfinite(track_ahead_check) and track_ahead_check >= 0):
+        raise InvalidInputError(f"track_ahead_check must be a finite number >= 0, got {track_ahead_check}")
+    if isinstance(track_ahead_chain, bool) or not (isinstance(track_ahead_chain, (int, np.integer)) and track_ahead_chain >= 0):
+        raise InvalidInputError(f"track_ahead_chain must be a non-negative int, got {track_ahead_chain!r}")
+    if isinstance(track_relay_memory, bool) or not (isinstance(track_relay_memory, (int, np.integer)) and track_relay_memory >= 0):
+        raise InvalidInputError(f"track_relay_memory must be a non-negative int, got {track_relay_memory!r}")
+    if not (np.isfinite(track_relayed_weight) and track_relayed_weight >= 0):
+        raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
-        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius, int(track_ahead), ahead_tolerance)
+        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius, int(track_ahead), ahead_tolerance,
+        float(track_ahead_check), int(track_ahead_chain), bool(track_ahead_age), float(track_relayed_weight),
+        int(track_relay_memory), bool(track_ahead_memory))
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else _mask_field
@@ -483,7 +524,7 @@ def fit_sequence(
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
         # Late tracks that their older neighbours place at rest pull this frame already.
-        ahead = 0 if attachments is None else attachments.attach_ahead(frame)
+        ahead = 0 if attachments is None else attachments.attach_ahead(frame, start)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
         pulling_tracks = 0 if pulling is None else len(pulling[0])
         if pulling is not None and track_spread > 0:

@@ -30,29 +30,41 @@ Neither the drifted fit of the anchor frame nor its relay offsets enter, and the
 pulls its anchor frame too. Where its older neighbours are too few, too close to a line,
 or not moving rigidly (a joint between them), the track is attached after the fit as
 above.
+
+Options of the carry and the relay (``fit_sequence``'s ``track_ahead_check``,
+``track_relay_memory``, ``track_ahead_memory``, ``track_ahead_chain``, ``track_ahead_age``,
+``track_relayed_weight``; all off by default; benches/README.md, trackfit8):
+
+- **The check against the relay**: a carry whose material point lies far from the relay's
+  (measured on the frame's start, before the fit) is dropped. On the textured capture the
+  carries more than 4 node spacings from the relay's point are 20% of the diagonal off (a
+  neighbourhood whose rigid motion passes the residual test but carries the track
+  elsewhere); up to that the carry is the better of the two.
+- **Memory**: tracks lost in the last frames relay (and optionally carry) with the offset
+  from the fit they had when last tracked: a fast limb's tracks end together and are
+  re-seeded together, so no track tracked in the new tracks' frame is older than they are.
+- **Chains**: tracks just carried carry the others of their frame (worse on the textured
+  capture: the hops extrapolate the rigid motion).
+- **Age**: a carried track ages in the spread from its carriers' anchors.
+- **Relayed weight**: the tracks only the relay placed weigh less.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from elastocap._core import InvalidInputError
+from elastocap.elastic.track_weights import material_weights, placeable_weights, rigid_carry
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
 
 __all__ = ["TrackAttachments", "check_tracks", "material_weights", "placeable_weights", "rigid_carry", "select_frames"]
-
-# MLS support: c times the distance to the farthest of the k nodes (SPEC 4.1's c = 1.1),
-# enlarged by 1.25 where the moment matrix is ill-conditioned (as rust/mls.rs repairs).
-_SUPPORT_FACTOR = 1.1
-_ENLARGEMENT = 1.25
-_RCOND_MIN = 1e-3
-
 
 def check_tracks(tracks: Tracks | None, frames: Sequence[int]) -> Tracks | None:
     """``tracks`` checked against the targets' ``frames``: None for no tracks (None, no
@@ -97,78 +109,6 @@ def check_tracks(tracks: Tracks | None, frames: Sequence[int]) -> Tracks | None:
     return tracks
 
 
-def _spline(r: NDArray[np.float64]) -> NDArray[np.float64]:
-    """SPEC 4.2's cubic spline w(r), r >= 0."""
-    return np.where(r <= 0.5, 2 / 3 - 4 * r**2 + 4 * r**3, np.where(r <= 1, 4 / 3 * (1 - r) ** 3, 0.0))
-
-
-def material_weights(points: NDArray[np.float64], nodes: NDArray[np.float64], k: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """MLS shape functions of ``nodes`` evaluated at ``points`` (SPEC 4.2, linear basis).
-
-    Raises :class:`InvalidInputError` when the nodes around a point do not span space
-    (:func:`placeable_weights` leaves such points out instead).
-
-    Parameters
-    ----------
-    points : (T, 3) float64
-        Where to evaluate, world units.
-    nodes : (N, 3) float64
-        Node positions, world units.
-    k : int
-        Nodes per point (the nearest ones), at most N.
-
-    Returns
-    -------
-    neighbours : (T, k) int64
-    phi : (T, k) float64
-        ``phi @ nodes[neighbours]`` reproduces ``points`` (linear reproduction) and rows sum
-        to 1.
-    """
-    neighbours, phi, ok = _mls(points, nodes, k)
-    if not ok.all():
-        raise InvalidInputError(f"tracks: the nodes around {int((~ok).sum())} tracked points do not span space (MLS weights undefined)")
-    return neighbours, phi
-
-
-def placeable_weights(points: NDArray[np.float64], nodes: NDArray[np.float64],
-                      k: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
-    """:func:`material_weights` of the points whose nodes span space, and which points
-    those are (``(T,) bool``; the others' rows of ``phi`` are zero) instead of an error."""
-    return _mls(points, nodes, k)
-
-
-def _mls(points: NDArray[np.float64], nodes: NDArray[np.float64],
-         k: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
-    k = min(k, len(nodes))
-    distance, neighbours = cKDTree(nodes).query(points, k=k)
-    neighbours = np.asarray(neighbours, np.int64).reshape(len(points), k)
-    distance = np.asarray(distance).reshape(len(points), k)
-    support = _SUPPORT_FACTOR * np.maximum(distance.max(axis=1), 1e-12)
-    phi = np.zeros((len(points), k))
-    todo = np.arange(len(points))
-    for _ in range(5):
-        offset = (nodes[neighbours[todo]] - points[todo, None, :]) / support[todo, None, None]
-        weight = _spline(np.abs(offset)).prod(axis=2)
-        basis = np.concatenate([np.ones(offset.shape[:2] + (1,)), offset], axis=2)
-        moments = np.einsum("tk,tki,tkj->tij", weight, basis, basis)
-        diagonal = np.sqrt(np.maximum(np.einsum("tii->ti", moments), 1e-300))
-        scaled = moments / diagonal[:, :, None] / diagonal[:, None, :]
-        ok = 1 / np.linalg.cond(scaled) >= _RCOND_MIN
-        unit = np.zeros((len(todo), 4))
-        unit[:, 0] = 1
-        gamma = np.zeros((len(todo), 4))
-        if ok.any():
-            gamma[ok] = np.linalg.solve(moments[ok], unit[ok][:, :, None])[:, :, 0]
-        phi[todo[ok]] = weight[ok] * np.einsum("tki,ti->tk", basis[ok], gamma[ok])
-        todo = todo[~ok]
-        if len(todo) == 0:
-            break
-        support[todo] *= _ENLARGEMENT
-    placed = np.ones(len(points), bool)
-    placed[todo] = False
-    return neighbours, phi, placed
-
-
 @dataclass
 class TrackAttachments:
     """The tracks of a fit and the material points they are attached to.
@@ -188,7 +128,16 @@ class TrackAttachments:
     ahead_tolerance: float = 0.0
     rest_frame: int = 0
     rest_positions: NDArray[np.float64] | None = None
+    ahead_check: float = 0.0
+    ahead_chain: int = 0
+    ahead_age: bool = False
+    relayed_weight: float = 1.0
+    relay_memory: int = 0
+    ahead_memory: bool = False
     early: NDArray[np.bool_] = field(init=False)
+    last_offset: NDArray[np.float64] = field(init=False)
+    last_frame: NDArray[np.int64] = field(init=False)
+    origin: NDArray[np.float64] = field(init=False)
     anchor: NDArray[np.int64] = field(init=False)
     neighbours: NDArray[np.int64] = field(init=False)
     phi: NDArray[np.float64] = field(init=False)
@@ -197,14 +146,17 @@ class TrackAttachments:
 
     @classmethod
     def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0,
-              ahead: int = 0, ahead_tolerance: float = 0.0) -> TrackAttachments:
+              ahead: int = 0, ahead_tolerance: float = 0.0, ahead_check: float = 0.0, ahead_chain: int = 0,
+              ahead_age: bool = False, relayed_weight: float = 1.0, relay_memory: int = 0,
+              ahead_memory: bool = False) -> TrackAttachments:
         """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point;
         ``relay`` older tracks (at most ``relay_radius`` away, world units) correct where a
         new track is attached (module docs; 0: where the fit puts it); ``ahead`` older
         tracks (within ``relay_radius``) whose rigid motion back to the rest frame, when
         they fit it to ``ahead_tolerance`` (RMS, world units), attaches a late track before
         its anchor frame is fitted (:meth:`attach_ahead`; 0: off)."""
-        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame)
+        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame, None, float(ahead_check),
+                   int(ahead_chain), bool(ahead_age), float(relayed_weight), int(relay_memory), bool(ahead_memory))
         tracked = tracks.flags == TrackFlag.TRACKED
         # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
         gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
@@ -216,6 +168,13 @@ class TrackAttachments:
         self.attached = np.zeros(n, bool)
         self.unplaced = np.zeros(n, bool)
         self.early = np.zeros(n, bool)
+        # Each attached track's last tracked frame and how far the fit was off at its
+        # material point there (tracked position minus fitted one): ``relay_memory``.
+        self.last_offset = np.zeros((n, 3))
+        self.last_frame = np.full(n, np.iinfo(np.int64).min // 2, np.int64)
+        # The frame a track's trust in the spread is aged from: its anchor frame, for a
+        # track attached ahead (with ``ahead_age``) the mean of its carriers' (module docs).
+        self.origin = np.where(self.anchor >= 0, tracks.frames[np.maximum(self.anchor, 0)], rest_frame).astype(np.float64)
         return self
 
     def _row(self, frame: int) -> int | None:
@@ -241,46 +200,107 @@ class TrackAttachments:
             which = which[placed]
             self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
+        if self.relay_memory > 0:
+            seen = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED))
+            fitted = np.einsum("tk,tkd->td", self.phi[seen], positions[self.neighbours[seen]])
+            self.last_offset[seen] = self.tracks.positions[row, seen] - fitted
+            self.last_frame[seen] = frame
         return len(which)
 
-    def attach_ahead(self, frame: int) -> int:
+    def attach_ahead(self, frame: int, start: NDArray[np.float64] | None = None) -> int:
         """Attach the tracks anchored at ``frame`` through the rigid motion of their older
         neighbours back to the rest frame (module docs), before ``frame`` is fitted (the
         rest frame must be attached); returns how many. Those it cannot place are left to
-        :meth:`attach` after the fit."""
+        :meth:`attach` after the fit.
+
+        With ``ahead_check`` and the frame's ``start`` (N, 3), a carry is dropped (left to
+        the relay after the fit) where it lands farther than ``ahead_check`` (world units,
+        at rest) from the material point the relay's offsets, measured on ``start``, give
+        the track. With ``ahead_chain``, up to that many more passes follow in which the
+        tracks just attached ahead at this frame carry the others too (a limb whose tracks
+        all start here is carried from its older end)."""
         row = self._row(frame)
         if self.ahead <= 0 or row is None or self.rest_positions is None or frame == self.rest_frame:
             return 0
-        which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
         tracked = self.tracks.flags[row] == TrackFlag.TRACKED
-        old = np.flatnonzero(self.attached & tracked & (self.anchor != row))
         m = max(self.ahead, 3)
-        if len(which) == 0 or len(old) < m:
-            return 0
-        moved = self.tracks.positions[row, old]
-        rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
-        new = self.tracks.positions[row, which]
-        rest_new, good = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance)
-        which, rest_new = which[good], rest_new[good]
-        if len(which) == 0:
-            return 0
-        neighbours, phi, placed = placeable_weights(rest_new, self.rest_positions, self.k)
-        which = which[placed]
-        self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
-        self.attached[which] = True
-        self.early[which] = True
-        return len(which)
+        total = 0
+        for _ in range(1 + max(self.ahead_chain, 0)):
+            which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
+            # Carriers: the older tracks attached, and (from the second pass) this frame's
+            # tracks attached ahead in the passes before.
+            old = np.flatnonzero(self.attached & tracked & ((self.anchor != row) | self.early))
+            moved = self.tracks.positions[row, old]
+            if self.ahead_memory and start is not None:
+                # Tracks lost in the last frames carry too, where the start and their last
+                # offset from the fit put them (``relay_memory``).
+                lost = self._lost(row)
+                old = np.concatenate([old, lost])
+                moved = np.concatenate([moved, np.einsum("tk,tkd->td", self.phi[lost], start[self.neighbours[lost]])
+                                        + self.last_offset[lost]])
+            if len(which) == 0 or len(old) < m:
+                break
+            rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
+            new = self.tracks.positions[row, which]
+            rest_new, good, carriers = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance,
+                                                   neighbours=True)
+            if self.ahead_check > 0 and start is not None:
+                relayed, known = self._relay_rest(row, which, start)
+                good &= ~known | (np.linalg.norm(rest_new - relayed, axis=1) <= self.ahead_check)
+            which, rest_new, carriers = which[good], rest_new[good], carriers[good]
+            if len(which) == 0:
+                break
+            neighbours, phi, placed = placeable_weights(rest_new, self.rest_positions, self.k)
+            which, carriers = which[placed], carriers[placed]
+            self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
+            self.attached[which] = True
+            self.early[which] = True
+            if self.ahead_age:
+                # A carried track is as far from the rest frame's evidence as its carriers.
+                self.origin[which] = self.origin[old[carriers]].mean(axis=1)
+            total += len(which)
+        return total
 
-    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _relay_rest(self, row: int, which: NDArray[np.int64],
+                    positions: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(len(which), 3) the material points at rest that the relay gives the tracks
+        ``which`` on the fit ``positions`` of frame ``row``, and which it gives one (enough
+        older tracks near, nodes spanning space) (len(which),) bool."""
+        offsets, near = self._offsets(row, which, positions, with_near=True)
+        neighbours, phi, placed = placeable_weights(self.tracks.positions[row, which] - offsets, positions, self.k)
+        assert self.rest_positions is not None
+        return np.einsum("tk,tkd->td", phi, self.rest_positions[neighbours]), near & placed
+
+    def _lost(self, row: int) -> NDArray[np.int64]:
+        """The attached tracks not tracked at ``row`` whose last tracked frame lies at most
+        ``relay_memory`` frames before it, on the rest frame's side."""
+        frame = int(self.tracks.frames[row])
+        gap = (frame - self.last_frame) * np.sign(frame - self.rest_frame)
+        here = self.tracks.flags[row] == TrackFlag.TRACKED
+        return np.flatnonzero(self.attached & ~here & (gap > 0) & (gap <= self.relay_memory))
+
+    def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64], with_near: bool = False) -> Any:
         """(len(which), 3): how far the fit ``positions`` of frame ``row`` is off around
         the new tracks ``which``, from the older tracks tracked there (module docs); 0
-        where fewer than ``relay`` lie within ``relay_radius``."""
+        where fewer than ``relay`` lie within ``relay_radius`` (with ``with_near``, also
+        which do, (len(which),) bool)."""
         offsets = np.zeros((len(which), 3))
-        old = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row))
-        if self.relay <= 0 or len(old) < self.relay:
-            return offsets
-        tracked = self.tracks.positions[row, old]
+        near = np.zeros(len(which), bool)
+        here = self.tracks.flags[row] == TrackFlag.TRACKED
+        old = np.flatnonzero(self.attached & here & (self.anchor != row))
         placed = np.einsum("tk,tkd->td", self.phi[old], positions[self.neighbours[old]])
+        tracked = self.tracks.positions[row, old]
+        if self.relay_memory > 0:
+            # Tracks lost in the last ``relay_memory`` frames (on the rest frame's side of
+            # this one) relay too, with the offset they last had, placed where it puts their
+            # material point now: on a fast limb whose tracks all ended and were re-seeded
+            # here, no track tracked here is older than this frame.
+            lost = self._lost(row)
+            fitted = np.einsum("tk,tkd->td", self.phi[lost], positions[self.neighbours[lost]])
+            placed = np.concatenate([placed, fitted])
+            tracked = np.concatenate([tracked, fitted + self.last_offset[lost]])
+        if self.relay <= 0 or len(tracked) < self.relay:
+            return (offsets, near) if with_near else offsets
         distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.relay)
         # k = 1 gives 1-D answers.
         distance, nearest = distance.reshape(len(which), self.relay), nearest.reshape(len(which), self.relay)
@@ -288,7 +308,7 @@ class TrackAttachments:
         # The median, not the mean: a track the tracker's filters kept on a wrong match
         # must not move its neighbours' anchors.
         offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
-        return offsets
+        return (offsets, near) if with_near else offsets
 
     def _pulling(self, row: int) -> NDArray[np.bool_]:
         """(N,) the attached tracks tracked at ``row`` that pull it: not anchored there,
@@ -301,7 +321,7 @@ class TrackAttachments:
         if row is None:
             return np.zeros(0)
         use = self._pulling(row)
-        return np.abs(self.tracks.frames[row] - self.tracks.frames[self.anchor[use]]).astype(np.float64)
+        return np.abs(self.tracks.frames[row] - self.origin[use]).astype(np.float64)
 
     def frame_arrays(
         self, frame: int, sigma: float
@@ -318,48 +338,17 @@ class TrackAttachments:
             return None
         covariance = self.tracks.covariances[row, use]
         precision = np.linalg.inv(0.5 * (covariance + covariance.transpose(0, 2, 1)) + sigma**2 * np.eye(3))
+        if self.relayed_weight != 1.0:
+            # Tracks attached after their (late) anchor frame's fit, where only the relay
+            # says where their material is: trusted less.
+            relayed = (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
+            precision[relayed] *= self.relayed_weight
         return (
             np.ascontiguousarray(self.neighbours[use]),
             np.ascontiguousarray(self.phi[use]),
             np.ascontiguousarray(self.tracks.positions[row, use]),
             np.ascontiguousarray(precision),
         )
-
-
-def rigid_carry(moved: NDArray[np.float64], rest: NDArray[np.float64], points: NDArray[np.float64], m: int,
-                radius: float, tolerance: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """``points`` (T, 3) carried by the rigid motion of their ``m`` nearest reference
-    points, which sit at ``moved`` (R, 3) and are to go to ``rest`` (R, 3): per point the
-    least-squares rotation and translation (Kabsch) of those neighbours, applied to it.
-
-    Returns the carried points (T, 3) and which are trusted (T,) bool: all ``m`` neighbours
-    within ``radius``, not near a line (second singular value of their spread at least a
-    tenth of the first: a rotation about the line is undetermined), and fitted by the rigid
-    motion to an RMS residual of at most ``tolerance`` (world units; larger: they do not
-    move together, e.g. a joint between them).
-    """
-    t = len(points)
-    carried = np.zeros((t, 3))
-    good = np.zeros(t, bool)
-    if t == 0 or len(moved) < m:
-        return carried, good
-    distance, nearest = cKDTree(moved).query(points, k=m)
-    distance, nearest = distance.reshape(t, m), nearest.reshape(t, m)
-    near = (distance <= radius).all(axis=1)
-    p, q = moved[nearest], rest[nearest]
-    pc, qc = p.mean(axis=1), q.mean(axis=1)
-    dp, dq = p - pc[:, None], q - qc[:, None]
-    u, s, vt = np.linalg.svd(np.einsum("tmi,tmj->tij", dp, dq))
-    # Proper rotations only: a reflection's last axis flipped back.
-    sign = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
-    vt[:, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
-    rotation = np.einsum("tji,tkj->tik", vt, u)  # V U^T: dq ~ R dp
-    residual = np.sqrt(((np.einsum("tij,tmj->tmi", rotation, dp) - dq) ** 2).sum(axis=2).mean(axis=1))
-    spread = np.linalg.svd(dp, compute_uv=False)
-    planar = spread[:, 1] >= 0.1 * np.maximum(spread[:, 0], 1e-300)
-    good = near & planar & (residual <= tolerance)
-    carried = qc + np.einsum("tij,tj->ti", rotation, points - pc)
-    return carried, good
 
 
 def select_frames(tracks: Tracks, frames: Sequence[int]) -> Tracks:
