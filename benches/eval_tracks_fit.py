@@ -248,22 +248,27 @@ def anchor_errors(model, truth, tracks, frames, diagonal, positions, options: di
     position of the surface point it was tracked on (the ground-truth point nearest its
     tracked position at its anchor frame, within 1% of the diagonal), median % of the
     diagonal; attached as the fit does (relay 5, and ``track_ahead`` / ``track_ahead_tolerance``
-    / ``track_ahead_check`` / ``track_ahead_chain`` / ``track_relay_memory`` when the fit's
-    ``options`` set them; the frame's start for ``track_ahead_check`` is the fit's
+    / ``track_ahead_check`` / ``track_ahead_chain`` / ``track_relay_memory`` as the fit's
+    ``options`` set them or its defaults; the frame's start for ``track_ahead_check`` is the fit's
     constant-velocity prediction, as the fit's) and without either, on the same fit."""
-    from elastocap.elastic.fit import TRACK_RELAY
+    from elastocap.elastic.fit import (TRACK_AHEAD, TRACK_AHEAD_CHECK, TRACK_AHEAD_TOLERANCE, TRACK_RELAY,
+                                       TRACK_RELAY_MEMORY)
     from elastocap.elastic.tracks import TrackAttachments
 
     spacing = float(np.mean(model.volumes) ** (1 / 3))
     options = options or {}
-    ahead = int(options.get("track_ahead", 0))
+    ahead = int(options.get("track_ahead", TRACK_AHEAD))
+    tolerance = options.get("track_ahead_tolerance")
+    check = options.get("track_ahead_check")
+    tolerance = TRACK_AHEAD_TOLERANCE * spacing if tolerance is None else float(tolerance)
+    check = TRACK_AHEAD_CHECK * spacing if check is None else float(check)
     bins = [(0, 1)] + [(lo, min(lo + 10, len(frames))) for lo in range(1, len(frames), 10)]
     rows = {}
     for relay in (TRACK_RELAY, 0):
         attachments = TrackAttachments.build(
             tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing, ahead if relay else 0,
-            float(options.get("track_ahead_tolerance") or spacing), float(options.get("track_ahead_check", 0.0)),
-            int(options.get("track_ahead_chain", 0)), relay_memory=int(options.get("track_relay_memory", 0)) if relay else 0)
+            tolerance, check, int(options.get("track_ahead_chain", 0)),
+            relay_memory=int(options.get("track_relay_memory", TRACK_RELAY_MEMORY)) if relay else 0)
         for i, f in enumerate(frames):
             start = positions[frames[max(i - 1, 0)]] if i < 2 else 2 * positions[frames[i - 1]] - positions[frames[i - 2]]
             attachments.attach_ahead(f, start)

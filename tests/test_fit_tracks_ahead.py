@@ -115,8 +115,11 @@ def test_track_ahead_in_the_fit_and_its_bad_values() -> None:
     assert ahead >= 30
     assert fit.fits[1].metrics["tracks"] == 40 + ahead
     assert fit.fits[1].metrics["tracks_attached"] == 40
-    plain = fit_sequence(model, [field] * 3, tracks=tracks)
+    plain = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=0)
     assert plain.fits[1].metrics["tracks"] == 40
+    # The carry is on by default.
+    default = fit_sequence(model, [field] * 3, tracks=tracks)
+    assert default.fits[1].metrics["tracks_attached_ahead"] >= 30
     for value in (-1, 1.5, True):
         with pytest.raises(InvalidInputError, match="track_ahead"):
             fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=value)

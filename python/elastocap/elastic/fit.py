@@ -70,7 +70,21 @@ TRACK_RELAY = 5
 # 1 / 15, 6.36% at 1 / 30; with the final guard 6.33% at 1 / 15, none lost (held out:
 # seeds 2 and 3 5.58 -> 4.66%, 4.91 -> 4.49%).
 TRACK_SPREAD = 1.0
-TRACK_SPREAD_AGE = 15.0
+# 30 frames rather than 15 once late tracks are carried ahead (below): alone, 30 is worse
+# than 15 (benches/README.md, trackfit8: the relayed tracks' errors spread longer).
+TRACK_SPREAD_AGE = 30.0
+# Late tracks carried to the rest frame ahead of their anchor frame's fit (elastic/tracks.py):
+# how many older tracks carry one, the largest RMS residual of their rigid motion and the
+# farthest a carry may land from the relay's place (both in mean node spacings), and the
+# frames a lost track still relays. Textured fast capture (benches/README.md, trackfit8 and
+# session 20's lead section), drift ratio with / without tracks against the carry off and
+# spread age 15: tuning seeds 1 / 10 / 14 / 15 0.492 / 0.547 / 0.571 / 0.328 -> 0.464 /
+# 0.501 / 0.504 / 0.325, held out 18 / 19 0.500 / 0.429 -> 0.441 / 0.423; no frame lost. A
+# check of 1 spacing throws good carries away; beyond 4 the carries are 20% of the diagonal off.
+TRACK_AHEAD = 6
+TRACK_AHEAD_TOLERANCE = 0.5
+TRACK_AHEAD_CHECK = 3.0
+TRACK_RELAY_MEMORY = 2
 
 
 @dataclass(frozen=True)
@@ -219,13 +233,13 @@ def fit_sequence(
     track_scale: float = 10.0,
     track_relay: int = TRACK_RELAY,
     track_relay_radius: float | None = None,
-    track_ahead: int = 0,
+    track_ahead: int = TRACK_AHEAD,
     track_ahead_tolerance: float | None = None,
-    track_ahead_check: float = 0.0,
+    track_ahead_check: float | None = None,
     track_ahead_chain: int = 0,
     track_ahead_age: bool = False,
     track_relayed_weight: float = 1.0,
-    track_relay_memory: int = 0,
+    track_relay_memory: int = TRACK_RELAY_MEMORY,
     track_ahead_memory: bool = False,
     track_spread: float = TRACK_SPREAD,
     track_spread_age: float = TRACK_SPREAD_AGE,
@@ -367,15 +381,16 @@ def fit_sequence(
         ``track_ahead`` older tracks tracked nearest to it there (within
         ``track_relay_radius``), and pulls that frame too; where they do not move
         rigidly, after the fit as ``track_relay`` says (:mod:`elastocap.elastic.tracks`;
-        0: off, the default).
+        0: off; default 6, ``TRACK_AHEAD``).
     track_ahead_tolerance : float, optional
         The largest RMS residual of those older tracks' rigid motion, world units (default
-        one mean node spacing).
-    track_ahead_check : float
+        half a mean node spacing, ``TRACK_AHEAD_TOLERANCE``).
+    track_ahead_check : float, optional
         A track carried ahead whose material point at rest lies farther than this (world
         units) from where the relay's offsets, measured on the frame's start, put it is
         left to the relay after the fit (a neighbourhood attached wrong that moves rigidly
-        carries its tracks far off; 0: no check, the default).
+        carries its tracks far off; 0: no check; default 3 mean node spacings,
+        ``TRACK_AHEAD_CHECK``).
     track_ahead_chain : int
         Passes after the first in which the tracks just attached ahead carry the other
         tracks anchored at the same frame (0, the default: only older tracks carry).
@@ -387,8 +402,8 @@ def fit_sequence(
         frame's fit (by the relay alone; default 1).
     track_relay_memory : int
         Tracks lost in up to this many frames before (on the rest frame's side) relay too,
-        with the offset from the fit they had in their last tracked frame (0, the default:
-        only tracks tracked in the frame relay).
+        with the offset from the fit they had in their last tracked frame (0: only tracks
+        tracked in the frame relay; default 2, ``TRACK_RELAY_MEMORY``).
     track_ahead_memory : bool
         Those tracks lost in the last ``track_relay_memory`` frames carry late tracks ahead
         too, placed where the frame's start and their last offset put them (default False).
@@ -401,11 +416,11 @@ def fit_sequence(
         5.58% -> 4.66% and 4.91% -> 4.49% (held-out seeds 2 and 3).
     track_spread_age : float
         Frames from its anchor over which a track's trust in the spread falls by e
-        (default 15). Textured fast capture (benches/README.md, trackfit8): 30 alone is
-        worse than 15 (the relayed tracks' errors spread longer), 30 with ``track_ahead``
-        6, ``track_ahead_tolerance`` 0.5 and ``track_ahead_check`` 3 node spacings and
-        ``track_relay_memory`` 2 lowers the drift ratio on all six seeds measured (e.g.
-        0.571 -> 0.504, held out 0.500 -> 0.441); options, off by default.
+        (default 30, ``TRACK_SPREAD_AGE``). Textured fast capture (benches/README.md,
+        trackfit8): 30 alone is worse than 15 (the relayed tracks' errors spread longer);
+        30 with the defaults of ``track_ahead``, ``track_ahead_tolerance``,
+        ``track_ahead_check`` and ``track_relay_memory`` lowers the drift ratio on all six
+        seeds measured (e.g. 0.571 -> 0.504, held out 0.500 -> 0.441).
     track_spread_radius : float, optional
         A track's reach in the spread, geodesic on the surface at the start, world units
         (default 4 mean node spacings).
@@ -469,10 +484,11 @@ def fit_sequence(
         raise InvalidInputError(f"track_relay_radius must be a finite positive number, got {track_relay_radius}")
     if isinstance(track_ahead, bool) or not (isinstance(track_ahead, (int, np.integer)) and track_ahead >= 0):
         raise InvalidInputError(f"track_ahead must be a non-negative int, got {track_ahead!r}")
-    ahead_tolerance = node_spacing if track_ahead_tolerance is None else float(track_ahead_tolerance)
+    ahead_tolerance = TRACK_AHEAD_TOLERANCE * node_spacing if track_ahead_tolerance is None else float(track_ahead_tolerance)
     if not (np.isfinite(ahead_tolerance) and ahead_tolerance > 0):
         raise InvalidInputError(f"track_ahead_tolerance must be a finite positive number, got {track_ahead_tolerance}")
-    if not (np.isfinite(track_ahead_check) and track_ahead_check >= 0):
+    ahead_check = TRACK_AHEAD_CHECK * node_spacing if track_ahead_check is None else float(track_ahead_check)
+    if not (np.isfinite(ahead_check) and ahead_check >= 0):
         raise InvalidInputError(f"track_ahead_check must be a finite number >= 0, got {track_ahead_check}")
     if isinstance(track_ahead_chain, bool) or not (isinstance(track_ahead_chain, (int, np.integer)) and track_ahead_chain >= 0):
         raise InvalidInputError(f"track_ahead_chain must be a non-negative int, got {track_ahead_chain!r}")
@@ -482,7 +498,7 @@ def fit_sequence(
         raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
         tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius, int(track_ahead), ahead_tolerance,
-        float(track_ahead_check), int(track_ahead_chain), bool(track_ahead_age), float(track_relayed_weight),
+        ahead_check, int(track_ahead_chain), bool(track_ahead_age), float(track_relayed_weight),
         int(track_relay_memory), bool(track_ahead_memory))
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     rest_volume = model.enclosed_measure(model.nodes)
