@@ -139,7 +139,9 @@ class SequentialAnchors:
         self.part = np.zeros(n, np.int64)
         self.offset = np.zeros((n, 3))
 
-    def observations(self, frame: int) -> tuple[NDArray[np.float64], ...] | None:
+    def observations(
+        self, frame: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
         """``anchored`` for ``frame``: the attached tracks tracked there (None if none)."""
         if frame not in self.frames:
             return None

@@ -166,12 +166,12 @@ def _stereo(args: argparse.Namespace) -> int:
     volume = None
     if args.volume is not None:
         try:
-            volume = [float(x) for x in args.volume.split(",")]
+            corners = [float(x) for x in args.volume.split(",")]
         except ValueError:
             raise InvalidInputError(f"--volume must be six numbers x0,y0,z0,x1,y1,z1, got {args.volume!r}") from None
-        if len(volume) != 6:
+        if len(corners) != 6:
             raise InvalidInputError(f"--volume must be six numbers x0,y0,z0,x1,y1,z1, got {args.volume!r}")
-        volume = [volume[:3], volume[3:]]
+        volume = [corners[:3], corners[3:]]
     written = run_stereo_stage(
         capture, Path(args.out), frames=parse_frames(args.frames, capture.frames), volume=volume, step=args.step,
         pictures=not args.no_pictures, progress=not args.quiet,

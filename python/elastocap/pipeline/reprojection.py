@@ -82,7 +82,7 @@ def core_pixels(mask: NDArray[np.bool_], band: int) -> NDArray[np.bool_]:
     reach = np.arange(-band, band + 1)
     disc = ((reach[:, None] ** 2 + reach[None, :] ** 2) <= band * band).astype(np.uint8)
     inside = mask.astype(np.uint8)
-    return (cv2.erode(inside, disc) | cv2.erode(1 - inside, disc)).astype(bool)
+    return np.logical_or(cv2.erode(inside, disc), cv2.erode(1 - inside, disc))
 
 
 def _compare(rendered: NDArray[np.bool_], mask: NDArray[np.bool_]) -> Reprojection:

@@ -61,7 +61,7 @@ def trajectory_picture(capture: Capture, tracks: Tracks, *, camera: str | None =
     uv[~np.isfinite(window).all(axis=2)] = np.nan
     for j in range(n):
         path = uv[:, j]
-        ok = np.isfinite(path).all(axis=1)
+        ok = np.asarray(np.isfinite(path).all(axis=1))
         if ok.sum() >= 2:
             cv2.polylines(image, [np.round(path[ok]).astype(np.int32)], False, tuple(int(v) for v in colours[j]), 1, cv2.LINE_AA)
         if ok[-1]:

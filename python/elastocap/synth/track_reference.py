@@ -63,7 +63,7 @@ class SurfaceReference(NamedTuple):
 
 def _seed_cameras(views: NDArray[np.float64]) -> NDArray[np.int64]:
     """(N,) the camera whose view (N, C, 2) lies on a pixel centre (-1: none)."""
-    on_centre = np.isfinite(views).all(axis=2) & (np.abs(views - np.round(views)) < 1e-9).all(axis=2)
+    on_centre = np.asarray(np.isfinite(views).all(axis=2) & (np.abs(views - np.round(views)) < 1e-9).all(axis=2))
     # Two views on pixel centres would need a sub-pixel match to land on one exactly.
     return np.where(on_centre.any(axis=1), np.argmax(on_centre, axis=1), -1)
 
