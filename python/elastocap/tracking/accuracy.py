@@ -84,7 +84,7 @@ def track_accuracy(tracks: Tracks, cameras: Sequence[Camera], truth: NDArray[np.
     error3d = np.full((f, n), np.nan)
     m = truth.shape[1]
     part_ = np.zeros(m, np.int64) if part is None else np.asarray(part)
-    usable = np.ones(m, bool) if material is None else np.asarray(material, bool).all(axis=0)
+    usable = np.ones(m, bool) if material is None else np.all(np.asarray(material, bool), axis=0)
     if reference is not None:
         reference = np.asarray(reference, dtype=np.float64)
         if reference.shape != (f, n, 3):

@@ -55,7 +55,7 @@ def _occluded(uv: NDArray[np.float64], z: NDArray[np.float64], radius: float, to
     distance, near = cKDTree(uv).query(uv, k=k, distance_upper_bound=radius)
     found = np.isfinite(distance)
     zn = np.where(found, z[np.minimum(near, len(uv) - 1)], np.inf)
-    return (zn < z[:, None] - tolerance).any(axis=1)
+    return np.any(zn < z[:, None] - tolerance, axis=1)
 
 
 def depth_images(cameras: Sequence[Camera], uv: NDArray[np.float64], x: NDArray[np.float64],
@@ -170,7 +170,7 @@ def depth_edges(cameras: Sequence[Camera], uv: NDArray[np.float64], x_last: NDAr
     the masks alone)."""
     n, c = uv.shape[:2]
     moved = np.where(np.isfinite(x_before).all(axis=1, keepdims=True), 2 * x_last - x_before, x_last)
-    held = np.isfinite(uv).all(axis=2) & np.isfinite(x_last).all(axis=1)[:, None]
+    held = np.all(np.isfinite(uv), axis=2) & np.all(np.isfinite(x_last), axis=1)[:, None]
     z = np.full((n, c), np.nan)
     tol = np.full(c, np.nan)
     ahead = np.full_like(uv, np.nan)
@@ -211,7 +211,8 @@ def track_step_by_depth(step: Callable[..., StepResult], last: NDArray[np.float6
                 depth = np.where(edges.band_previous[k], np.inf, depth).astype(np.float32)
             apart[:, k] = straddling(depth, last[:, k], edges.z[:, k], half, edges.tolerance[k])
     plain = np.where(apart[..., None], np.nan, last)
-    pos, flags, cov, corr = (a.copy() for a in step(plain, before, weights=weights, **options))
+    pos, flags, cov, corr = step(plain, before, weights=weights, **options)
+    pos, flags, cov, corr = pos.copy(), flags.copy(), cov.copy(), corr.copy()
     if not apart.any():
         return pos, flags, cov, corr
     step_k = width * edges.tolerance

@@ -61,7 +61,7 @@ def not_positive_definite(covariance: NDArray[np.float64]) -> NDArray[np.bool_]:
     input (held-out seed 4 of branch trackfit4: one position of 58,490 with an eigenvalue of
     -2.8e-3 m^2). Rows entirely NaN (not tracked) are False."""
     covariance = np.asarray(covariance, dtype=np.float64)
-    finite = np.isfinite(covariance).all(axis=(1, 2))
+    finite = np.all(np.isfinite(covariance), axis=(1, 2))
     out = ~finite & np.isfinite(covariance).any(axis=(1, 2))
     if finite.any():
         c = covariance[finite]

@@ -78,7 +78,7 @@ def end_hidden_views(tracker: FrameTracker, masks: list[NDArray[np.bool_]], uv: 
     intersected again. Returns ``uv``, ``cov2d``, ``x``, ``xcov``, ``used`` after it and
     the views set aside (N, C)."""
     n, c = uv.shape[:2]
-    held = used & np.isfinite(x).all(axis=1)[:, None]
+    held = used & np.all(np.isfinite(x), axis=1)[:, None]
     hidden = hidden_views(tracker.cameras, masks, x, held, tracker.normals, facing=settings.HIDDEN_FACING)
     tracker.hidden = hidden_run(tracker.hidden, hidden)
     end = hidden & (tracker.hidden >= settings.HIDDEN_FRAMES)
@@ -103,4 +103,4 @@ def end_hidden_views(tracker: FrameTracker, masks: list[NDArray[np.bool_]], uv: 
     x, xcov, used = x.copy(), xcov.copy(), used.copy()
     x[rows], xcov[rows], used[rows] = rx, rcov, rused
     flags2d[rows] = np.where(rrejected, TrackFlag.EPIPOLAR, flags2d[rows])
-    return uv, cov2d, x, xcov, used, set_aside & np.isfinite(x).all(axis=1)[:, None]
+    return uv, cov2d, x, xcov, used, set_aside & np.all(np.isfinite(x), axis=1)[:, None]

@@ -47,15 +47,15 @@ def reacquire(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: lis
     if settings.PREDICT_VISIBILITY:
         # Only the cameras that can see the point: its surface facing them and no
         # tracked point in front of it.
-        asked = np.isfinite(targets).all(axis=2)
+        asked = np.all(np.isfinite(targets), axis=2)
         targets[asked & ~predicted_visible(tracker.cameras, masks, anchor, normals, x, asked)] = np.nan
     score = np.where(np.isfinite(uv[..., 0]), np.nan_to_num(corr, nan=0.0) + 1.0, -1.0)
     reference = np.argmax(score, axis=1)
-    rows = np.flatnonzero(np.isfinite(targets).all(axis=2).any(axis=1))
+    rows = np.flatnonzero(np.any(np.all(np.isfinite(targets), axis=2), axis=1))
     if rows.size:
         matched, mcov = spatial_match(grey, reference[rows], uv[rows, reference[rows]], targets[rows],
                                       size=tracker.size, min_correlation=tracker.min_correlation,
-                                      tolerance=settings.REACQUIRE_TOLERANCE + 2.0 * single[rows],
+                                      tolerance=settings.REACQUIRE_TOLERANCE + np.where(single[rows], 2.0, 0.0),
                                       min_texture=float(min(tracker.texture)), cameras=tracker.cameras,
                                       points=anchor[rows], normals=normals[rows],
                                       weights=weights)
@@ -67,7 +67,7 @@ def reacquire(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: lis
                 points=anchor[rows], normals=normals[rows], size=tracker.size, radius=settings.REACQUIRE_RADIUS,
                 min_correlation=tracker.min_correlation, box_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION),
                 forward_backward=tracker.o["forward_backward"],
-                tolerance=settings.REACQUIRE_SEARCH_TOLERANCE + 2.0 * single[rows],
+                tolerance=settings.REACQUIRE_SEARCH_TOLERANCE + np.where(single[rows], 2.0, 0.0),
                 min_texture=float(min(tracker.texture)), max_iterations=settings.REACQUIRE_ITERATIONS, weights=weights)
             matched = np.where(np.isfinite(searched), searched, matched)
             mcov = np.where(np.isfinite(scov), scov, mcov)
@@ -88,6 +88,6 @@ def reacquire(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: lis
         if back.size:
             bx, bcov, bused, _ = intersect_views(tracker.cameras, uv[back], cov2d[back],
                                                  max_residual=tracker.o["max_residual"], floor=settings.FLOOR)
-            ok = np.isfinite(bx).all(axis=1)
+            ok = np.all(np.isfinite(bx), axis=1)
             x[back[ok]], xcov[back[ok]], flags[back[ok]] = bx[ok], bcov[ok], TrackFlag.TRACKED
             uv[back] = np.where((bused & ok[:, None])[..., None], uv[back], np.nan)

@@ -216,7 +216,7 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     assert tracker.lost is not None and tracker.anchors is not None
     n, c = uv.shape[:2]
     tracker.lost.grow(n)
-    left = np.isfinite(uv[..., 0]).any(axis=1)
+    left = np.any(np.isfinite(uv[..., 0]), axis=1)
     if settings.REVIVE_LAST_PATCH and tracker.grey is not None and tracker.lost.history:
         # The anchors of the points lost now cut again from their last tracked frame (the
         # image and views the step started from): an anchor's patch cut long ago shows the
@@ -229,7 +229,7 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     rows = rows[(rows < n) & ~left[rows]]
     if rows.size == 0:
         return x, x_state
-    tracked = np.isfinite(x).all(axis=1)
+    tracked = np.all(np.isfinite(x), axis=1)
     pixel = pixel_size(tracker.cameras, tracker.lost.x[rows], tracker.anchors.held[rows])
     predicted = tracker.lost.predict(rows, np.where(tracked[:, None], x, np.nan), seeded=tracker.seeded_at,
                                      seeds=tracker.history, pixel=pixel)
@@ -244,7 +244,7 @@ def revive(tracker: FrameTracker, frame: int, grey: list[NDArray[np.float32]], m
     starts = np.full((n, c, 2), np.nan)
     for k in range(c):
         t = targets[:, k]
-        seen = np.isfinite(t).all(axis=1)
+        seen = np.all(np.isfinite(t), axis=1)
         iu = np.clip(np.round(np.nan_to_num(t[:, 0])).astype(int), 0, masks[k].shape[1] - 1)
         iv = np.clip(np.round(np.nan_to_num(t[:, 1])).astype(int), 0, masks[k].shape[0] - 1)
         ok = seen & masks[k][iv, iu] & tracker.anchors.held[rows, k]

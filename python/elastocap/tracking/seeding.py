@@ -125,7 +125,7 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
     t = near[:, None] + (far - near)[:, None] * np.linspace(0, 1, _DEPTHS)[None, :]
     fine = origins[:, None, :] + t[..., None] * dirs[:, None, :]
     inside = _inside_hull(fine.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _DEPTHS)
-    inside &= hull.any(axis=1)[:, None]
+    inside &= np.any(hull, axis=1)[:, None]
     return fine, inside
 
 

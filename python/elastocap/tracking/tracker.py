@@ -182,7 +182,7 @@ def track_points(
     backward = as_count("backward", backward, minimum=0)
     if not -1 <= float(min_correlation) <= 1:
         raise InvalidInputError(f"min_correlation must lie in [-1, 1], got {min_correlation!r}")
-    options = dict(
+    options: dict[str, Any] = dict(
         forward_backward=as_positive("forward_backward", forward_backward),
         max_residual=as_positive("max_residual", max_residual),
         min_views=as_count("min_views", min_views, minimum=2),

@@ -86,7 +86,8 @@ def write_frame(out: str | Path, frame: int, arrays: dict[str, NDArray[np.generi
     handle, scratch = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".npz")
     try:
         with os.fdopen(handle, "wb") as file:
-            np.savez(file, **arrays)
+            # numpy's stub types the keywords against savez's own allow_pickle flag.
+            np.savez(file, **arrays)  # type: ignore[arg-type]
         os.replace(scratch, path)
     except BaseException:
         Path(scratch).unlink(missing_ok=True)

@@ -118,7 +118,7 @@ def spatial_match(
     n, c = targets.shape[:2]
     uv = np.full((n, c, 2), np.nan)
     cov = np.full((n, c, 2, 2), np.nan)
-    wanted = np.isfinite(targets).all(axis=2)
+    wanted = np.all(np.isfinite(targets), axis=2)
     tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
     for r in range(c):
         for k in range(c):
@@ -204,7 +204,7 @@ def spatial_search(
     n, c = targets.shape[:2]
     uv = np.full((n, c, 2), np.nan)
     cov = np.full((n, c, 2, 2), np.nan)
-    wanted = np.isfinite(targets).all(axis=2)
+    wanted = np.all(np.isfinite(targets), axis=2)
     tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
     side = size + 6
     for r in range(c):
@@ -251,7 +251,7 @@ def intersect_views(
     whose residual exceeds ``max_residual`` pixels. Returns points (N, 3), covariances
     (N, 3, 3), the used views (N, C) and the views rejected as inconsistent (N, C)."""
     n, c = uv.shape[:2]
-    observed = np.isfinite(uv).all(axis=2) & np.isfinite(cov).all(axis=(2, 3))
+    observed = np.all(np.isfinite(uv), axis=2) & np.all(np.isfinite(cov), axis=(2, 3))
     sigma = np.where(observed[..., None, None], np.nan_to_num(cov) + floor**2 * np.eye(2), np.nan)
     obs = np.where(observed[..., None], uv, np.nan)
     points = np.full((n, 3), np.nan)

@@ -58,7 +58,7 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
     """
     n, c = where.shape
     out = np.zeros((n, c), bool)
-    where = where & np.isfinite(points).all(axis=1)[:, None] & np.isfinite(normals).all(axis=1)[:, None]
+    where = where & np.all(np.isfinite(points), axis=1)[:, None] & np.all(np.isfinite(normals), axis=1)[:, None]
     occluders = cloud[np.isfinite(cloud).all(axis=1)]
     for k, (cam, mask) in enumerate(zip(cameras, masks)):
         rows = np.flatnonzero(where[:, k])
