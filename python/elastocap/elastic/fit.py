@@ -244,6 +244,7 @@ def fit_sequence(
     track_spread: float = TRACK_SPREAD,
     track_spread_age: float = TRACK_SPREAD_AGE,
     track_spread_radius: float | None = None,
+    track_spread_relayed: float = 1.0,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -424,6 +425,12 @@ def fit_sequence(
     track_spread_radius : float, optional
         A track's reach in the spread, geodesic on the surface at the start, world units
         (default 4 mean node spacings).
+    track_spread_relayed : float
+        A factor on the spread's trust in the tracks attached by the relay alone (anchored
+        away from the rest frame and not carried ahead; 0: they pull their own material
+        point but do not spread; default 1). On a fast limb the relay attaches new tracks
+        where the drifted fit puts them, and the spread carries that error to every node
+        around them (benches/README.md, trackfit9).
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -494,6 +501,8 @@ def fit_sequence(
         raise InvalidInputError(f"track_ahead_chain must be a non-negative int, got {track_ahead_chain!r}")
     if isinstance(track_relay_memory, bool) or not (isinstance(track_relay_memory, (int, np.integer)) and track_relay_memory >= 0):
         raise InvalidInputError(f"track_relay_memory must be a non-negative int, got {track_relay_memory!r}")
+    if not (np.isfinite(track_spread_relayed) and track_spread_relayed >= 0):
+        raise InvalidInputError(f"track_spread_relayed must be a finite number >= 0, got {track_spread_relayed}")
     if not (np.isfinite(track_relayed_weight) and track_relayed_weight >= 0):
         raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
@@ -546,7 +555,9 @@ def fit_sequence(
         if pulling is not None and track_spread > 0:
             pulling = spread_pulls(pulling, attachments.frame_ages(frame), start, model.surface_nodes,
                                    model.surface_faces, share=float(track_spread), age=float(track_spread_age),
-                                   radius=spread_radius, sigma=sigma)
+                                   radius=spread_radius, sigma=sigma,
+                                   trust=None if track_spread_relayed == 1.0 else
+                                   np.where(attachments.frame_relayed(frame), float(track_spread_relayed), 1.0))
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
                        stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,

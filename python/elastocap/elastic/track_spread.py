@@ -81,7 +81,7 @@ def surface_geodesics(positions: NDArray[np.float64], surface_nodes: NDArray[np.
 
 def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[np.float64],
                  surface_nodes: NDArray[np.int64], surface_faces: NDArray[np.int64], *, share: float, age: float,
-                 radius: float, sigma: float) -> TrackArrays:
+                 radius: float, sigma: float, trust: NDArray[np.float64] | None = None) -> TrackArrays:
     """The track term's arrays of a frame (:meth:`TrackAttachments.frame_arrays`) with the
     tracks' corrections spread over the surface (module docs) appended as one-node rows.
 
@@ -103,6 +103,9 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         Geodesic reach of a track, world units (> 0).
     sigma : float
         The track term's sigma_0, world units.
+    trust : (T,) float, optional
+        A factor on each track's trust in the spread (default 1; 0: the track pulls its
+        own material point but does not spread).
     """
     for name, value in (("share", share), ("age", age), ("radius", radius), ("sigma", sigma)):
         if not (np.isfinite(value) and value > 0):
@@ -114,7 +117,10 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         raise InvalidInputError(f"track spread: {len(ages)} ages for {len(targets)} tracks")
     placed = np.einsum("tk,tkd->td", phi, start[nodes])
     correction = targets - placed
-    trust = np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
+    trust_factor = np.ones(len(targets)) if trust is None else np.asarray(trust, np.float64)
+    if trust_factor.shape != (len(targets),) or not (np.isfinite(trust_factor).all() and (trust_factor >= 0).all()):
+        raise InvalidInputError(f"track spread: trust must be {len(targets)} finite numbers >= 0")
+    trust = trust_factor * np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
     trust *= np.clip(1 - np.einsum("ti,ti->t", correction, correction) / (GUARD * radius) ** 2, 0, None) ** 2
     # A track's source on the surface graph: the surface node among its own MLS nodes
     # nearest its material point (the globally nearest one may be on a limb touching it).

@@ -315,6 +315,17 @@ class TrackAttachments:
         unless attached ahead of its fit."""
         return self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & ((self.anchor != row) | self.early)
 
+    def frame_relayed(self, frame: int) -> NDArray[np.bool_]:
+        """Which tracks of :meth:`frame_arrays` (same order) were attached by the relay
+        alone: anchored after (or before) the rest frame and not carried ahead, so that
+        their material point is only as good as the fit of their anchor frame and the
+        relay's offsets there."""
+        row = self._row(frame)
+        if row is None:
+            return np.zeros(0, bool)
+        use = self._pulling(row)
+        return (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
+
     def frame_ages(self, frame: int) -> NDArray[np.float64]:
         """Frames between each track of :meth:`frame_arrays` (same order) and its anchor."""
         row = self._row(frame)
@@ -341,8 +352,7 @@ class TrackAttachments:
         if self.relayed_weight != 1.0:
             # Tracks attached after their (late) anchor frame's fit, where only the relay
             # says where their material is: trusted less.
-            relayed = (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
-            precision[relayed] *= self.relayed_weight
+            precision[self.frame_relayed(frame)] *= self.relayed_weight
         return (
             np.ascontiguousarray(self.neighbours[use]),
             np.ascontiguousarray(self.phi[use]),
