@@ -27,6 +27,11 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   track term's own Cauchy weight of ``d`` does (half at 10 sigma_0, a quarter of the
   reach), also damped the fast limbs' good tracks: frames lost on the tuning seed 0 -> 2
   (benches/README.md, trackfit3).
+- **Optionally, by how it was attached** (``trust``, a factor per track;
+  ``fit_sequence(track_spread_relayed=)``, off): a track attached by the relay alone on a fast
+  limb's drifted fit has a wrong material point, and its spread drags every node around it
+  the same wrong way (seed 14's right hand, benches/README.md, trackfit9); on the trunk the
+  same tracks' spread holds the surface (seed 19), so it stays on by default.
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
