@@ -112,3 +112,36 @@ def test_relayed_tracks_attached_wrong_drag_the_surface_less_without_their_sprea
     for value in (-0.5, np.nan, np.inf):
         with pytest.raises(InvalidInputError, match="track_spread_relayed"):
             fit_sequence(model, [field] * 3, track_spread_relayed=value, **options)
+
+
+def test_relayed_tracks_among_many_older_ones_keep_their_spread() -> None:
+    """``track_spread_relayed_dense``: on the turning ball each late track has older tracks
+    within the relay radius at its anchor frame (counted as a k-d tree would), so a
+    threshold of 1 leaves every relayed track its spread (the default's fit to the bit) and
+    one above any count takes it from all of them (``track_spread_relayed``'s fit to the
+    bit); between, the fit is neither. Bad values refused."""
+    model, field, tracks = _turning_ball()
+    spacing = float(np.mean(model.volumes) ** (1 / 3))
+    attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], 5, 4 * spacing)
+    attachments.attach(0, model.nodes)
+    attachments.count_older(1)
+    late = tracks.positions[1, 40:]
+    expected = (np.linalg.norm(late[:, None] - tracks.positions[1, None, :40], axis=2) <= 4 * spacing).sum(axis=1)
+    np.testing.assert_array_equal(attachments.older_near[40:], expected)
+    assert expected.min() >= 1 and expected.max() < 40
+    np.testing.assert_array_equal(attachments.older_near[:40], 0)
+    options = dict(tracks=tracks, track_ahead=0)
+    default = fit_sequence(model, [field] * 3, **options)
+    without = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, **options)
+    kept = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, track_spread_relayed_dense=1, **options)
+    dropped = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, track_spread_relayed_dense=40, **options)
+    middle = fit_sequence(model, [field] * 3, track_spread_relayed=0.0,
+                          track_spread_relayed_dense=int(np.median(expected)), **options)
+    for f in range(3):
+        np.testing.assert_array_equal(kept.fits[f].positions, default.fits[f].positions)
+        np.testing.assert_array_equal(dropped.fits[f].positions, without.fits[f].positions)
+    assert not np.allclose(middle.fits[2].positions, default.fits[2].positions)
+    assert not np.allclose(middle.fits[2].positions, without.fits[2].positions)
+    for value in (-1, 1.5, True):
+        with pytest.raises(InvalidInputError, match="track_spread_relayed_dense"):
+            fit_sequence(model, [field] * 3, track_spread_relayed_dense=value, **options)

@@ -31,7 +31,8 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   ``fit_sequence(track_spread_relayed=)``, off): a track attached by the relay alone on a fast
   limb's drifted fit has a wrong material point, and its spread drags every node around it
   the same wrong way (seed 14's right hand, benches/README.md, trackfit9); on the trunk the
-  same tracks' spread holds the surface (seed 19), so it stays on by default.
+  same tracks' spread holds the surface (seed 19), so it stays on by default
+  (``track_spread_relayed_dense`` keeps it for relayed tracks among many older ones).
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
