@@ -244,6 +244,8 @@ def fit_sequence(
     track_spread: float = TRACK_SPREAD,
     track_spread_age: float = TRACK_SPREAD_AGE,
     track_spread_radius: float | None = None,
+    track_spread_relayed: float = 1.0,
+    track_spread_relayed_dense: int = 0,
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -424,6 +426,17 @@ def fit_sequence(
     track_spread_radius : float, optional
         A track's reach in the spread, geodesic on the surface at the start, world units
         (default 4 mean node spacings).
+    track_spread_relayed : float
+        A factor on the spread's trust in the tracks attached by the relay alone (anchored
+        away from the rest frame and not carried ahead; 0: they pull their own material
+        point but do not spread; default 1). On a fast limb the relay attaches new tracks
+        where the drifted fit puts them, and the spread carries that error to every node
+        around them (benches/README.md, trackfit9).
+    track_spread_relayed_dense : int
+        With ``track_spread_relayed``: a relayed track that had at least this many older
+        tracks tracked within the relay radius at its anchor frame (the trunk, where the
+        relay is accurate) keeps its full spread; only the others (a fast limb whose tracks
+        all ended) get the factor (0, the default: every relayed track gets it).
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -494,6 +507,11 @@ def fit_sequence(
         raise InvalidInputError(f"track_ahead_chain must be a non-negative int, got {track_ahead_chain!r}")
     if isinstance(track_relay_memory, bool) or not (isinstance(track_relay_memory, (int, np.integer)) and track_relay_memory >= 0):
         raise InvalidInputError(f"track_relay_memory must be a non-negative int, got {track_relay_memory!r}")
+    if not (np.isfinite(track_spread_relayed) and track_spread_relayed >= 0):
+        raise InvalidInputError(f"track_spread_relayed must be a finite number >= 0, got {track_spread_relayed}")
+    if isinstance(track_spread_relayed_dense, bool) or not (
+            isinstance(track_spread_relayed_dense, (int, np.integer)) and track_spread_relayed_dense >= 0):
+        raise InvalidInputError(f"track_spread_relayed_dense must be a non-negative int, got {track_spread_relayed_dense!r}")
     if not (np.isfinite(track_relayed_weight) and track_relayed_weight >= 0):
         raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
@@ -520,6 +538,8 @@ def fit_sequence(
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
             starts[frame] = result.fits[frame].positions
             if attachments is not None:
+                if track_spread_relayed_dense > 0:
+                    attachments.count_older(frame)
                 attachments.attach(frame, result.fits[frame].positions)
             continue
         if neighbour is None:
@@ -539,6 +559,8 @@ def fit_sequence(
             surface = model.surface_nodes
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
+        if attachments is not None and track_spread_relayed_dense > 0:
+            attachments.count_older(frame)
         # Late tracks that their older neighbours place at rest pull this frame already.
         ahead = 0 if attachments is None else attachments.attach_ahead(frame, start)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
@@ -546,7 +568,12 @@ def fit_sequence(
         if pulling is not None and track_spread > 0:
             pulling = spread_pulls(pulling, attachments.frame_ages(frame), start, model.surface_nodes,
                                    model.surface_faces, share=float(track_spread), age=float(track_spread_age),
-                                   radius=spread_radius, sigma=sigma)
+                                   radius=spread_radius, sigma=sigma,
+                                   trust=None if track_spread_relayed == 1.0 else
+                                   np.where(attachments.frame_relayed(frame)
+                                            & ((track_spread_relayed_dense == 0)
+                                               | (attachments.frame_older_near(frame) < track_spread_relayed_dense)),
+                                            float(track_spread_relayed), 1.0))
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
                        stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,

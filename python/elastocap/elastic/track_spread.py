@@ -27,6 +27,12 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   track term's own Cauchy weight of ``d`` does (half at 10 sigma_0, a quarter of the
   reach), also damped the fast limbs' good tracks: frames lost on the tuning seed 0 -> 2
   (benches/README.md, trackfit3).
+- **Optionally, by how it was attached** (``trust``, a factor per track;
+  ``fit_sequence(track_spread_relayed=)``, off): a track attached by the relay alone on a fast
+  limb's drifted fit has a wrong material point, and its spread drags every node around it
+  the same wrong way (seed 14's right hand, benches/README.md, trackfit9); on the trunk the
+  same tracks' spread holds the surface (seed 19), so it stays on by default
+  (``track_spread_relayed_dense`` keeps it for relayed tracks among many older ones).
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
@@ -81,7 +87,7 @@ def surface_geodesics(positions: NDArray[np.float64], surface_nodes: NDArray[np.
 
 def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[np.float64],
                  surface_nodes: NDArray[np.int64], surface_faces: NDArray[np.int64], *, share: float, age: float,
-                 radius: float, sigma: float) -> TrackArrays:
+                 radius: float, sigma: float, trust: NDArray[np.float64] | None = None) -> TrackArrays:
     """The track term's arrays of a frame (:meth:`TrackAttachments.frame_arrays`) with the
     tracks' corrections spread over the surface (module docs) appended as one-node rows.
 
@@ -103,6 +109,9 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         Geodesic reach of a track, world units (> 0).
     sigma : float
         The track term's sigma_0, world units.
+    trust : (T,) float, optional
+        A factor on each track's trust in the spread (default 1; 0: the track pulls its
+        own material point but does not spread).
     """
     for name, value in (("share", share), ("age", age), ("radius", radius), ("sigma", sigma)):
         if not (np.isfinite(value) and value > 0):
@@ -114,7 +123,10 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         raise InvalidInputError(f"track spread: {len(ages)} ages for {len(targets)} tracks")
     placed = np.einsum("tk,tkd->td", phi, start[nodes])
     correction = targets - placed
-    trust = np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
+    trust_factor = np.ones(len(targets)) if trust is None else np.asarray(trust, np.float64)
+    if trust_factor.shape != (len(targets),) or not (np.isfinite(trust_factor).all() and (trust_factor >= 0).all()):
+        raise InvalidInputError(f"track spread: trust must be {len(targets)} finite numbers >= 0")
+    trust = trust_factor * np.exp(-np.asarray(ages, np.float64) / age) * sigma**2 * np.einsum("tii->t", precisions) / 3
     trust *= np.clip(1 - np.einsum("ti,ti->t", correction, correction) / (GUARD * radius) ** 2, 0, None) ** 2
     # A track's source on the surface graph: the surface node among its own MLS nodes
     # nearest its material point (the globally nearest one may be on a limb touching it).

@@ -135,6 +135,7 @@ class TrackAttachments:
     relay_memory: int = 0
     ahead_memory: bool = False
     early: NDArray[np.bool_] = field(init=False)
+    older_near: NDArray[np.int64] = field(init=False)
     last_offset: NDArray[np.float64] = field(init=False)
     last_frame: NDArray[np.int64] = field(init=False)
     origin: NDArray[np.float64] = field(init=False)
@@ -175,6 +176,9 @@ class TrackAttachments:
         # The frame a track's trust in the spread is aged from: its anchor frame, for a
         # track attached ahead (with ``ahead_age``) the mean of its carriers' (module docs).
         self.origin = np.where(self.anchor >= 0, tracks.frames[np.maximum(self.anchor, 0)], rest_frame).astype(np.float64)
+        # How many older attached tracks were tracked within ``relay_radius`` of each track
+        # at its anchor frame when it was attached there (:meth:`count_older`).
+        self.older_near = np.zeros(n, np.int64)
         return self
 
     def _row(self, frame: int) -> int | None:
@@ -315,6 +319,41 @@ class TrackAttachments:
         unless attached ahead of its fit."""
         return self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & ((self.anchor != row) | self.early)
 
+    def frame_relayed(self, frame: int) -> NDArray[np.bool_]:
+        """Which tracks of :meth:`frame_arrays` (same order) were attached by the relay
+        alone: anchored after (or before) the rest frame and not carried ahead, so that
+        their material point is only as good as the fit of their anchor frame and the
+        relay's offsets there."""
+        row = self._row(frame)
+        if row is None:
+            return np.zeros(0, bool)
+        use = self._pulling(row)
+        return (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
+
+    def count_older(self, frame: int) -> None:
+        """Record, for the tracks anchored at ``frame`` not yet attached, how many older
+        attached tracks are tracked within ``relay_radius`` of them there
+        (``older_near``): few on a fast limb whose tracks all ended (94-96% of the relayed
+        tracks with under 20 are on the fast limbs of the textured capture; benches/README.md,
+        trackfit9), many on the trunk. Call before :meth:`attach_ahead` / :meth:`attach`."""
+        row = self._row(frame)
+        if row is None:
+            return
+        which = np.flatnonzero((self.anchor == row) & ~self.attached)
+        old = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED) & (self.anchor != row))
+        if len(which) == 0 or len(old) == 0:
+            return
+        near = cKDTree(self.tracks.positions[row, old]).query_ball_point(self.tracks.positions[row, which],
+                                                                          self.relay_radius, return_length=True)
+        self.older_near[which] = near
+
+    def frame_older_near(self, frame: int) -> NDArray[np.int64]:
+        """``older_near`` of the tracks of :meth:`frame_arrays` (same order)."""
+        row = self._row(frame)
+        if row is None:
+            return np.zeros(0, np.int64)
+        return self.older_near[self._pulling(row)]
+
     def frame_ages(self, frame: int) -> NDArray[np.float64]:
         """Frames between each track of :meth:`frame_arrays` (same order) and its anchor."""
         row = self._row(frame)
@@ -341,8 +380,7 @@ class TrackAttachments:
         if self.relayed_weight != 1.0:
             # Tracks attached after their (late) anchor frame's fit, where only the relay
             # says where their material is: trusted less.
-            relayed = (self.tracks.frames[self.anchor[use]] != self.rest_frame) & ~self.early[use]
-            precision[relayed] *= self.relayed_weight
+            precision[self.frame_relayed(frame)] *= self.relayed_weight
         return (
             np.ascontiguousarray(self.neighbours[use]),
             np.ascontiguousarray(self.phi[use]),
