@@ -237,7 +237,8 @@ class FitCore:
         track_weight: float = 1.0,
         track_sigma: float = 1.0,
         track_scale: float = 10.0,
-    ) -> tuple[NDArray[np.float64], dict[str, float | int | bool | dict[str, float]]]: ...
+    # The metrics mix numbers, flags and per-term dicts ("terms"): read by key.
+    ) -> tuple[NDArray[np.float64], dict[str, Any]]: ...
 
 @final
 class BodySkeleton:

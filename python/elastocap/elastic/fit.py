@@ -480,9 +480,9 @@ def fit_sequence(
     for name, value in (("stop_fraction", stop_fraction), ("staged_stop_fraction", staged_stop_fraction)):
         if not (np.isfinite(value) and 0 <= value < 1):
             raise InvalidInputError(f"{name} must be in [0, 1), got {value}")
-    for name, value in (("track_weight", track_weight), ("track_scale", track_scale), ("track_sigma", track_sigma)):
-        if value is not None and not (np.isfinite(value) and value >= 0 and (name == "track_weight" or value > 0)):
-            raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {value}")
+    for name, given in (("track_weight", track_weight), ("track_scale", track_scale), ("track_sigma", track_sigma)):
+        if given is not None and not (np.isfinite(given) and given >= 0 and (name == "track_weight" or given > 0)):
+            raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {given}")
     node_spacing = float(np.mean(model.volumes) ** (1 / 3))
     sigma = 0.25 * node_spacing if track_sigma is None else float(track_sigma)
     if isinstance(track_relay, bool) or not (isinstance(track_relay, (int, np.integer)) and track_relay >= 0):
@@ -565,7 +565,7 @@ def fit_sequence(
         ahead = 0 if attachments is None else attachments.attach_ahead(frame, start)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
         pulling_tracks = 0 if pulling is None else len(pulling[0])
-        if pulling is not None and track_spread > 0:
+        if pulling is not None and attachments is not None and track_spread > 0:
             pulling = spread_pulls(pulling, attachments.frame_ages(frame), start, model.surface_nodes,
                                    model.surface_faces, share=float(track_spread), age=float(track_spread_age),
                                    radius=spread_radius, sigma=sigma,
