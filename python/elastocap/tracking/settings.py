@@ -320,3 +320,17 @@ DEPTH_WEIGHTS_RESEARCH = True
 WEIGHTED_BOX = False
 # The frame-to-frame failures a view's anchor may rescue.
 RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
+# The step's box centred where the neighbourhood's rigid 3-D motion (rotation included)
+# carries each view (tracking/rigid_prediction.py), instead of the linear prediction, for
+# the views named by RIGID_PREDICTION: "new" (views with no position on the frame before:
+# new seeds, whose linear prediction is no motion at all, and views re-acquired in a
+# camera) or "all". None: main's linear prediction. Neighbours: the RIGID_PREDICTION_NEIGHBOURS
+# points tracked on both last frames nearest to the point within RIGID_PREDICTION_REACH
+# pixels-equivalent at its depth, at least RIGID_PREDICTION_MIN_NEIGHBOURS of them.
+# Offline on main's tracks of tuning m0 (benches/README.md, branch track21) the fast limbs'
+# lost new views are predicted within the box's 6 px radius 3.9% of the time linearly and
+# 27% / 36% by this at a reach of 60 / 100; the old views' linear prediction is the better.
+RIGID_PREDICTION: str | None = None
+RIGID_PREDICTION_NEIGHBOURS = 8
+RIGID_PREDICTION_MIN_NEIGHBOURS = 4
+RIGID_PREDICTION_REACH = 60.0
