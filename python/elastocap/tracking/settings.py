@@ -334,6 +334,8 @@ RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATC
 # +0.0 to +3.9 points on the seven tuning seeds, +0.95 / +0.81 held out (m20 / m21), but
 # through with RMS <= 0.5 px -0.10 / -0.01 on m3 / m17 and kept 3-D beyond 5 px-eq +0.01 to
 # +0.03 on four tuning seeds: short of a default by the brief's line, the lead's candidate.
+# The elastic fit's drift ratio with its tracks: lower on fit seeds 1, 14, 15 and held-out
+# 23, higher on 10 (+0.020) and held-out 22 (+0.010).
 RIGID_PREDICTION: str | None = None
 RIGID_PREDICTION_NEIGHBOURS = 8
 RIGID_PREDICTION_MIN_NEIGHBOURS = 4
