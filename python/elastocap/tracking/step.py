@@ -32,6 +32,7 @@ from elastocap.tracking.prediction import drop_breaking_views, drop_far_views, r
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
+from elastocap.tracking.rigid_prediction import predicting_before, rigid_predictions
 from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
 from elastocap.tracking.seeding import seed_points
 from elastocap.tracking.silhouette import outside_silhouettes
@@ -151,6 +152,27 @@ class FrameTracker:
                 self.anchors.cuts[: len(where_frames)] = last["anchor_cuts"]
         self._forget()
         return done
+    def _before(self) -> NDArray[np.float64]:
+        """(N, C, 2) the views' positions on the frame before as the Rust step reads them
+        (it predicts ``2 uv - before``, ``uv`` without one): ``uv_last``, or with
+        ``settings.RIGID_PREDICTION`` set so that the chosen views are predicted by their
+        neighbourhood's rigid 3-D motion (:mod:`elastocap.tracking.rigid_prediction`)."""
+        if settings.RIGID_PREDICTION is None or len(self.uv) == 0:
+            return self.uv_last
+        held = np.isfinite(self.uv[..., 0])
+        pixel = pixel_size(self.cameras, self.x_last, held)
+        prediction = rigid_predictions(self.cameras, self.uv, self.x_last, self.x_before, pixel,
+                                       neighbours=settings.RIGID_PREDICTION_NEIGHBOURS,
+                                       min_neighbours=settings.RIGID_PREDICTION_MIN_NEIGHBOURS,
+                                       reach=settings.RIGID_PREDICTION_REACH)
+        if settings.RIGID_PREDICTION == "all":
+            use = held
+        elif settings.RIGID_PREDICTION == "new":
+            use = held & ~np.isfinite(self.uv_last[..., 0])
+        else:
+            raise ValueError(f"RIGID_PREDICTION must be None, 'new' or 'all', not {settings.RIGID_PREDICTION!r}")
+        return predicting_before(self.uv, self.uv_last, prediction, use)
+
     def step(self, frame: int, *, first: bool, reseed: bool, bare: int = 0) -> dict[str, NDArray[np.generic]]:
         grey, masks = self._read(frame)
         weights = self._weights(masks)
@@ -166,6 +188,7 @@ class FrameTracker:
         wide = np.zeros((n, c), bool)
         if not (first or n == 0 or self.grey is None):
             step = rust_step(self.grey, grey)
+            before = self._before()
             pair = None if weights is None or self.weights is None else (self.weights, weights)
             options = dict(size=self.size, radius=self.radius,
                            min_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
@@ -177,10 +200,10 @@ class FrameTracker:
                 edges = depth_edges(self.cameras, self.uv, self.x_last, self.x_before, self.masks, masks,
                                     reach=settings.DEPTH_WEIGHTS_REACH, tolerance=settings.DEPTH_WEIGHTS_TOLERANCE,
                                     band=settings.DEPTH_WEIGHTS_BAND, current=settings.DEPTH_WEIGHTS_CURRENT)
-                uv, flags2d, cov2d, corr = track_step_by_depth(step, self.uv, self.uv_last, pair, edges, half=self.size // 2,
+                uv, flags2d, cov2d, corr = track_step_by_depth(step, self.uv, before, pair, edges, half=self.size // 2,
                                                                width=settings.DEPTH_WEIGHTS_BIN, **options)
             else:
-                uv, flags2d, cov2d, corr = step(self.uv, self.uv_last, weights=pair, **options)
+                uv, flags2d, cov2d, corr = step(self.uv, before, weights=pair, **options)
             # The box search only has to find the start (it does not model rotation or
             # scale); the least-squares match, which does, must reach the threshold.
             weak = (flags2d == TrackFlag.TRACKED) & ~(corr >= self.min_correlation)
@@ -192,7 +215,7 @@ class FrameTracker:
                 held = np.isfinite(self.uv[..., 0])
                 reach = settings.RESEARCH_REACH * pixel_size(self.cameras, self.x_last, held)
                 found = research_failed_views(
-                    self.grey, grey, self.uv, self.uv_last, uv, flags2d, cov2d, corr, self.x_last, reach, size=settings.RESEARCH_SIZE or self.size,
+                    self.grey, grey, self.uv, before, uv, flags2d, cov2d, corr, self.x_last, reach, size=settings.RESEARCH_SIZE or self.size,
                     radius=self.radius, wide_radius=settings.RESEARCH_WIDE_RADIUS, min_correlation=self.min_correlation,
                     box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
                     forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
@@ -213,7 +236,7 @@ class FrameTracker:
                     # from their anchor at the linear prediction.
                     lost = (np.isfinite(self.uv[..., 0]) & ~np.isfinite(uv[..., 0])
                             & np.isin(flags2d, settings.RESCUED))
-                    start = np.where(np.isfinite(self.uv_last), 2 * self.uv - self.uv_last, self.uv)
+                    start = np.where(np.isfinite(before), 2 * self.uv - before, self.uv)
                     found, fcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
                                                       reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
                     back = np.isfinite(found[..., 0])
