@@ -160,19 +160,19 @@ def test_predicting_before_makes_the_steps_linear_prediction_the_given_one(seed)
     np.testing.assert_array_equal(out[~take], before[~take])
 
 
-def test_main_step_is_unchanged_with_the_option_off(monkeypatch):
+def test_the_linear_prediction_with_the_option_off_and_a_bad_setting_refused(monkeypatch):
     from elastocap.tracking import settings as tracking_settings
+    from elastocap.tracking.step import FrameTracker
 
-    assert tracking_settings.RIGID_PREDICTION is None
-    with pytest.raises(ValueError):
-        from elastocap.tracking.step import FrameTracker
-
-        tracker = FrameTracker.__new__(FrameTracker)
-        tracker.uv = np.zeros((1, 1, 2))
-        tracker.uv_last = np.full((1, 1, 2), np.nan)
-        tracker.x_last = np.zeros((1, 3)) + [0, 0, 2]
-        tracker.x_before = np.full((1, 3), np.nan)
-        tracker.cameras = [CAMERA]
-        assert tracker._before() is tracker.uv_last
-        monkeypatch.setattr(tracking_settings, "RIGID_PREDICTION", "sideways")
+    assert tracking_settings.RIGID_PREDICTION == "new"  # the default (benches/README.md, session 21)
+    tracker = FrameTracker.__new__(FrameTracker)
+    tracker.uv = np.zeros((1, 1, 2))
+    tracker.uv_last = np.full((1, 1, 2), np.nan)
+    tracker.x_last = np.zeros((1, 3)) + [0, 0, 2]
+    tracker.x_before = np.full((1, 3), np.nan)
+    tracker.cameras = [CAMERA]
+    monkeypatch.setattr(tracking_settings, "RIGID_PREDICTION", None)
+    assert tracker._before() is tracker.uv_last
+    monkeypatch.setattr(tracking_settings, "RIGID_PREDICTION", "sideways")
+    with pytest.raises(ValueError, match="RIGID_PREDICTION"):
         tracker._before()

@@ -327,16 +327,15 @@ RESCUED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATC
 # camera) or "all". None: main's linear prediction. Neighbours: the RIGID_PREDICTION_NEIGHBOURS
 # points tracked on both last frames nearest to the point within RIGID_PREDICTION_REACH
 # pixels-equivalent at its depth, at least RIGID_PREDICTION_MIN_NEIGHBOURS of them.
-# Off (benches/README.md, branch track21): on main's tracks of tuning m0 / m2 / m3 the fast
-# limbs' lost new views are in the box's 6 px radius 4-12% of the time at the linear
-# prediction and 27-28% at this one (reach 60), and the old views' linear prediction is
-# the better ("all" costs m2's fast limbs their later steps). "new" against main: through
-# +0.0 to +3.9 points on the seven tuning seeds, +0.95 / +0.81 held out (m20 / m21), but
-# through with RMS <= 0.5 px -0.10 / -0.01 on m3 / m17 and kept 3-D beyond 5 px-eq +0.01 to
-# +0.03 on four tuning seeds: short of a default by the brief's line, the lead's candidate.
-# The elastic fit's drift ratio with its tracks: lower on fit seeds 1, 14, 15 and held-out
-# 23, higher on 10 (+0.020) and held-out 22 (+0.010).
-RIGID_PREDICTION: str | None = None
+# On for new views (benches/README.md, branch track21 and "Session 21, lead"): on the tracks
+# of tuning m0 / m2 / m3 the fast limbs' lost new views are in the box's 6 px radius 4-12%
+# of the time at the linear prediction and 27-28% at this one (reach 60), and the old
+# views' linear prediction is the better ("all" costs m2's fast limbs their later steps).
+# "new" against the linear prediction: through +0.0 to +3.9 points on the seven tuning
+# seeds and +0.95 / +0.81 held out (m20 / m21); through with RMS <= 0.5 px and kept 3-D
+# beyond 5 px-eq move by at most 0.1 point either way (m3 -0.10, m17 -0.01; kept 3-D +0.01
+# to +0.03 on four tuning seeds, -0.08 / +0.02 held out). None: the linear prediction.
+RIGID_PREDICTION: str | None = "new"
 RIGID_PREDICTION_NEIGHBOURS = 8
 RIGID_PREDICTION_MIN_NEIGHBOURS = 4
 RIGID_PREDICTION_REACH = 60.0

@@ -138,14 +138,14 @@ class FrameTracker:
         self.weights = self._weights(masks)
         self.masks = masks
         if self.anchors is not None and "anchor_frame" in last:
-            where_frames = last["anchor_frame"]
+            where_frames = np.asarray(last["anchor_frame"], np.int64)
             for source in np.unique(where_frames[where_frames >= 0]):
                 if source == chosen[done - 1]:
                     grey, weights = self.grey, self.weights
                 else:
                     grey, source_masks = self._read(int(source))
                     weights = self._weights(source_masks)
-                self.anchors.cut(grey, last["anchor_uv"], where_frames == source, int(source), weights=weights)
+                self.anchors.cut(grey, np.asarray(last["anchor_uv"], np.float64), where_frames == source, int(source), weights=weights)
             if "anchor_cuts" in last:
                 # The cuts again drive the drift covariance, which weighs the fusion.
                 self.anchors.grow(len(where_frames))
@@ -177,7 +177,7 @@ class FrameTracker:
         grey, masks = self._read(frame)
         weights = self._weights(masks)
         n, c = self.uv.shape[:2]
-        alive = np.isfinite(self.uv).all(axis=2).any(axis=1)
+        alive = np.any(np.all(np.isfinite(self.uv), axis=2), axis=1)
         if first or n == 0 or self.grey is None:
             uv = np.full((n, c, 2), np.nan)
             flags2d = np.full((n, c), TrackFlag.NOT_SEEDED, np.uint8)
@@ -237,11 +237,11 @@ class FrameTracker:
                     lost = (np.isfinite(self.uv[..., 0]) & ~np.isfinite(uv[..., 0])
                             & np.isin(flags2d, settings.RESCUED))
                     start = np.where(np.isfinite(before), 2 * self.uv - before, self.uv)
-                    found, fcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
-                                                      reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
-                    back = np.isfinite(found[..., 0])
-                    uv = np.where(back[..., None], found, uv)
-                    cov2d = np.where(back[..., None, None], fcov, cov2d)
+                    rescued, rcov = self.anchors.rescue(grey, start, lost, min_correlation=self.min_correlation,
+                                                        reach=settings.RESCUE_REACH, min_texture=self.keep_texture)
+                    back = np.isfinite(rescued[..., 0])
+                    uv = np.where(back[..., None], rescued, uv)
+                    cov2d = np.where(back[..., None, None], rcov, cov2d)
                     flags2d[back] = TrackFlag.TRACKED
             if settings.RETIE:
                 # The held views' disparity measured afresh (their chains drift apart).
@@ -276,11 +276,11 @@ class FrameTracker:
                                 neighbours=self.o["neighbours"])
         x[traj > 0] = np.nan
         xcov[traj > 0] = np.nan
-        tracked = np.isfinite(x).all(axis=1)
+        tracked = np.all(np.isfinite(x), axis=1)
         # A point down to one view (occluded in the others) keeps it for a frame: its 3-D
         # position predicted from the last two is where the others are searched again.
         views = np.isfinite(uv[..., 0])
-        single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.isfinite(self.x_last).all(axis=1)
+        single = ~tracked & (traj == 0) & (views.sum(axis=1) == 1) & np.all(np.isfinite(self.x_last), axis=1)
         keep = ((used | set_aside) & tracked[:, None]) | (views & single[:, None])
         uv = np.where(keep[..., None], uv, np.nan)
         flags = point_flags(flags2d, self.uv, traj, tracked, alive, self.point_flags)
@@ -292,7 +292,7 @@ class FrameTracker:
         if settings.HANDOVER:
             # The other stereo pairs that see a tracked point take it on before its pair
             # loses it.
-            hand_over(self, grey, masks, weights, uv, cov2d, x, xcov, tracked & np.isfinite(x).all(axis=1))
+            hand_over(self, grey, masks, weights, uv, cov2d, x, xcov, tracked & np.all(np.isfinite(x), axis=1))
         lone = np.isfinite(uv[..., 0]).sum(axis=1) < 2
         uv[lone & ~single] = np.nan
         # A single view that found no partner is given up.
@@ -348,7 +348,7 @@ class FrameTracker:
         self.weights = weights
         self.masks = masks
         self.seeded_at = np.concatenate([self.seeded_at, np.full(total - len(self.seeded_at), -1, np.int64)])
-        new = (self.seeded_at < 0) & np.isfinite(x).all(axis=1)
+        new = (self.seeded_at < 0) & np.all(np.isfinite(x), axis=1)
         self.seeded_at[new] = frame
         if new.any():
             # The intersections, not the fused positions: what the neighbours' motion is
@@ -450,7 +450,7 @@ class FrameTracker:
 
     def _forget(self) -> None:
         """Drops the reported positions of seeding frames no live point was seeded on."""
-        live = np.isfinite(self.uv).all(axis=2).any(axis=1)
+        live = np.any(np.all(np.isfinite(self.uv), axis=2), axis=1)
         if self.lost is not None:
             since = self.lost.since[: len(live)]
             live[: len(since)] |= since >= 0
