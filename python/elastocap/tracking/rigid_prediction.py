@@ -1,5 +1,5 @@
-"""The step's prediction from the neighbourhood's rigid 3-D motion (issue 15, option
-``settings.RIGID_PREDICTION``, off).
+"""The step's prediction from the neighbourhood's rigid 3-D motion (issue 15,
+``settings.RIGID_PREDICTION``: on for new views by default).
 
 The Rust step centres its box search at the linear prediction ``2 last - before`` of each
 view, and at ``last`` for a view with no previous position (a new seed). On a fast limb the
