@@ -85,6 +85,14 @@ TRACK_AHEAD = 6
 TRACK_AHEAD_TOLERANCE = 0.5
 TRACK_AHEAD_CHECK = 3.0
 TRACK_RELAY_MEMORY = 2
+# A stiff first stage (``fit_sequence(stiff_stage=)``, off by default): the stiffness of a
+# first fit of a frame, from which the frame is then fitted at its own stiffness. At
+# stiffness 1 a limb that moved a limb's width or more is met by the surface term locally
+# (each node to its nearest target surface) and slides its material along the limb
+# instead of turning it; much stiffer, the limb turns as a whole (benches/README.md,
+# trackfit10: seed 25's frame 1, the left leg's first step from rest, shin and foot
+# material 8.5 / 10.6% of the diagonal off -> 1.9 / 1.4% at 10 then 1; 5-100 all alike).
+STIFF_STAGE = 10.0
 
 
 @dataclass(frozen=True)
@@ -246,6 +254,8 @@ def fit_sequence(
     track_spread_radius: float | None = None,
     track_spread_relayed: float = 1.0,
     track_spread_relayed_dense: int = 0,
+    stiff_stage: float | None = None,
+    stiff_stage_frames: str = "first",
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
@@ -437,6 +447,17 @@ def fit_sequence(
         tracks tracked within the relay radius at its anchor frame (the trunk, where the
         relay is accurate) keeps its full spread; only the others (a fast limb whose tracks
         all ended) get the factor (0, the default: every relayed track gets it).
+    stiff_stage : float, optional
+        The stiffness of a first stage (e.g. 10, ``STIFF_STAGE``; None, the default: off):
+        the frame is first fitted at this stiffness from its start and then at
+        ``stiffness`` from there (with tracks, their spread measured again from the stiff
+        stage's result). A fast limb then turns as a whole towards its part of the
+        target before the softer fit places its surface, instead of sliding its material
+        along the limb (benches/README.md, trackfit10).
+    stiff_stage_frames : {"first", "all"}
+        Where the stiff stage runs: "first" (default) the frames fitted without a motion
+        prediction (the first frame on each side of the rest frame: a limb's first step
+        from rest, where the start is the rest pose), "all" every frame but the rest frame.
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -512,6 +533,10 @@ def fit_sequence(
     if isinstance(track_spread_relayed_dense, bool) or not (
             isinstance(track_spread_relayed_dense, (int, np.integer)) and track_spread_relayed_dense >= 0):
         raise InvalidInputError(f"track_spread_relayed_dense must be a non-negative int, got {track_spread_relayed_dense!r}")
+    if stiff_stage is not None and not (np.isfinite(stiff_stage) and stiff_stage > 0):
+        raise InvalidInputError(f"stiff_stage must be None or a finite positive number, got {stiff_stage}")
+    if stiff_stage_frames not in ("first", "all"):
+        raise InvalidInputError(f"stiff_stage_frames must be 'first' or 'all', got {stiff_stage_frames!r}")
     if not (np.isfinite(track_relayed_weight) and track_relayed_weight >= 0):
         raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
     attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
@@ -542,6 +567,7 @@ def fit_sequence(
                     attachments.count_older(frame)
                 attachments.attach(frame, result.fits[frame].positions)
             continue
+        predicted = False
         if neighbour is None:
             start = model.nodes
         else:
@@ -550,6 +576,8 @@ def fit_sequence(
                 # The elastic solve sees only the start, so a leg that swings 0.5 m per
                 # frame is met half-way instead of pulled back onto the nearest limb.
                 start = 2 * start - starts[second]
+                predicted = True
+        stiff = stiff_stage is not None and neighbour is not None and (stiff_stage_frames == "all" or not predicted)
         values, origin, spacing = _field_arrays(field_of(targets[frame]))
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
@@ -565,15 +593,22 @@ def fit_sequence(
         ahead = 0 if attachments is None else attachments.attach_ahead(frame, start)
         pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
         pulling_tracks = 0 if pulling is None else len(pulling[0])
-        if pulling is not None and attachments is not None and track_spread > 0:
-            pulling = spread_pulls(pulling, attachments.frame_ages(frame), start, model.surface_nodes,
-                                   model.surface_faces, share=float(track_spread), age=float(track_spread_age),
-                                   radius=spread_radius, sigma=sigma,
-                                   trust=None if track_spread_relayed == 1.0 else
-                                   np.where(attachments.frame_relayed(frame)
-                                            & ((track_spread_relayed_dense == 0)
-                                               | (attachments.frame_older_near(frame) < track_spread_relayed_dense)),
-                                            float(track_spread_relayed), 1.0))
+        track_arrays = pulling
+
+        def spread(at: NDArray[np.float64]) -> Any:
+            # The frame's track arrays with their corrections from ``at`` spread over the surface.
+            if track_arrays is None or attachments is None or track_spread <= 0:
+                return track_arrays
+            return spread_pulls(track_arrays, attachments.frame_ages(frame), at, model.surface_nodes,
+                                model.surface_faces, share=float(track_spread), age=float(track_spread_age),
+                                radius=spread_radius, sigma=sigma,
+                                trust=None if track_spread_relayed == 1.0 else
+                                np.where(attachments.frame_relayed(frame)
+                                         & ((track_spread_relayed_dense == 0)
+                                            | (attachments.frame_older_near(frame) < track_spread_relayed_dense)),
+                                         float(track_spread_relayed), 1.0))
+
+        pulling = spread(start)
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
                        stop_fraction=stop_fraction, invalidate=invalidate,
                        self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
@@ -584,6 +619,17 @@ def fit_sequence(
         clock = time.perf_counter()
         staged = views is not None and silhouette_stage != "joint"
         first = dict(options, solver_tolerance=staged_tolerance, stop_fraction=staged_stop_fraction) if staged else options
+        stiff_iterations = 0
+        if stiff:
+            # A first stage at ``stiff_stage`` (module constant STIFF_STAGE's comment): the
+            # fast limbs turn as a whole; the frame's own fit then starts from there, its
+            # tracks' spread measured from there.
+            start, stiff_metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start),
+                                                    **dict(first, stiffness=float(stiff_stage)), silhouette=0.0, views=None)
+            stiff_iterations = int(stiff_metrics["iterations"])
+            pulling = spread(start)
+            options["tracks"] = pulling
+            first = dict(first, tracks=pulling)
         positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **first,
                                               silhouette=0.0 if staged else silhouette,
                                               views=None if staged else views)
@@ -619,6 +665,8 @@ def fit_sequence(
             metrics["tracks_attached"] = int(attachments.attach(frame, positions)) + ahead
             metrics["tracks_attached_ahead"] = ahead
             metrics["tracks_unplaced"] = int(attachments.unplaced.sum()) - unplaced
+        if stiff:
+            metrics["stiff_stage_iterations"] = stiff_iterations
         metrics["seconds"] = time.perf_counter() - clock
         metrics["volume_ratio"] = model.enclosed_measure(positions) / rest_volume
         fit = FrameFit(frame, positions, dict(metrics))
