@@ -549,6 +549,7 @@ def fit_sequence(
         ahead_check, int(track_ahead_chain), bool(track_ahead_age), float(track_relayed_weight),
         int(track_relay_memory), bool(track_ahead_memory))
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
+    stage_stiffness = 0.0 if stiff_stage is None else float(stiff_stage)
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else _mask_field
     result = SequenceFit(model, rest_frame)
@@ -630,7 +631,7 @@ def fit_sequence(
             # fast limbs turn as a whole; the frame's own fit then starts from there, its
             # tracks' spread measured from there.
             start, stiff_metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start),
-                                                    **dict(first, stiffness=float(stiff_stage)), silhouette=0.0, views=None)
+                                                    **dict(first, stiffness=stage_stiffness), silhouette=0.0, views=None)
             stiff_iterations = int(stiff_metrics["iterations"])
             pulling = spread(start)
             options["tracks"] = pulling
