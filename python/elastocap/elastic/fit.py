@@ -462,7 +462,9 @@ def fit_sequence(
     stiff_stage_frames : {"first", "all"}
         Where the stiff stage runs: "first" (default) the frames fitted without a motion
         prediction (the first frame on each side of the rest frame: a limb's first step
-        from rest, where the start is the rest pose), "all" every frame but the rest frame.
+        from rest, where the start is the rest pose), "all" every frame but the rest frame
+        (twice the fit's CPU; textured fast capture, ten tuning seeds, not held out: mean
+        drift ratio 0.416 -> 0.394; benches/README.md, trackfit10, item 6).
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
