@@ -183,7 +183,7 @@ def test_a_windowed_view_reads_what_the_whole_image_would(moving_block: tuple) -
     # Only each mask's window crosses into the core; beyond it the core computes the
     # bounding box's distance itself, and must read the very values numpy's full image
     # holds (a frame on the windows is the frame on the full images, to the bit).
-    from elastocap.elastic.fit import _field_arrays, target_field
+    from elastocap.elastic.targets import field_arrays, target_field
     from elastocap.elastic.silhouette import silhouette_views, term_margins
 
     _, hulls, masks, rig = moving_block
@@ -195,7 +195,7 @@ def test_a_windowed_view_reads_what_the_whole_image_would(moving_block: tuple) -
     assert all(view[5] is not None and view[4].size < masks[1][0].size for view in windowed)
     whole = [(*view[:4], signed_mask_distance(mask, margin), None)
              for view, mask, margin in zip(windowed, masks[1], margins)]
-    values, origin, spacing = _field_arrays(target_field(hulls[1]))
+    values, origin, spacing = field_arrays(target_field(hulls[1]))
     core = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     results = [core.fit_frame(values, origin, spacing, model.nodes, silhouette=1.0, views=views)
                for views in (windowed, whole)]

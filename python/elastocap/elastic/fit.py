@@ -25,12 +25,9 @@ import elastocap._core as _core
 from elastocap._core import InvalidInputError
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.silhouette import silhouette_views, term_margins
+from elastocap.elastic.targets import field_arrays, frame_numbers, mask_field, target_field
 from elastocap.elastic.track_spread import spread_pulls
 from elastocap.elastic.tracks import TrackAttachments, check_tracks
-from elastocap.geometry.mesh_distance import TriangleMesh
-from elastocap.hull.carve import Hull
-from elastocap.hull.grid import Grid
-from elastocap.hull.sdf import SDF
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 
@@ -146,74 +143,6 @@ class SequenceFit:
     def frames(self) -> list[int]:
         """The fitted frames, ascending."""
         return sorted(self.fits)
-
-
-def target_field(target: Any) -> SDF:
-    """The signed distance field of a target: an :class:`SDF`, a :class:`Hull`, or a closed
-    trimesh (its exact signed distance sampled every 1/100 of its largest extent). Non-finite values (an empty or full
-    grid) are an error."""
-    if isinstance(target, SDF):
-        sdf = target
-    elif isinstance(target, Hull):
-        if not target.occupancy.any():
-            raise InvalidInputError("the hull is empty: every voxel was carved")
-        sdf = target.sdf()
-    elif isinstance(target, trimesh.Trimesh):
-        if not target.is_watertight:
-            raise InvalidInputError("a target mesh must be watertight")
-        lo, hi = target.bounds
-        h = float(np.max(hi - lo)) / 100
-        grid = Grid(lo - 5 * h, h, tuple(int(v) for v in np.ceil((hi - lo) / h).astype(int) + 11))
-        faces = np.asarray(target.faces)
-        # Exact signed distances at the voxel centres (no voxelisation error); signs need
-        # outward triangles, so an inside-out mesh is read the other way round.
-        index = TriangleMesh(target.vertices, faces if target.volume > 0 else faces[:, ::-1])
-        sdf = SDF(index.distances(grid.centers().reshape(-1, 3), signed=True).reshape(grid.shape), grid)
-    else:
-        raise InvalidInputError(f"a target must be an SDF, a Hull or a trimesh.Trimesh, got {type(target).__name__}")
-    if not np.all(np.isfinite(sdf.values)):
-        raise InvalidInputError("the target's signed distance is not finite (an empty or completely full grid)")
-    return sdf
-
-
-def _mask_field(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
-    """A 2-D target: the signed distance (pixels) of a binary mask ``(H, W)`` as a grid one
-    voxel thick over the model's pixel coordinates, pixel ``(row, column)`` at ``(column,
-    row)``."""
-    from elastocap.hull.sdf import signed_distance
-
-    if isinstance(target, (SDF, Hull, trimesh.Trimesh)):
-        raise InvalidInputError(f"a 2-D model fits to masks (H, W), not to a 3-D {type(target).__name__}")
-    mask = np.asarray(target)
-    if mask.ndim != 2:
-        raise InvalidInputError(f"a 2-D target must be a mask of shape (H, W), got shape {mask.shape}")
-    inside = mask.astype(bool)
-    if not inside.any() or inside.all():
-        raise InvalidInputError("a target mask is empty or full: it has no contour to fit to")
-    values = signed_distance(np.ascontiguousarray(inside.T)[:, :, None])
-    return values, (0.0, 0.0, 0.0), 1.0
-
-
-def _field_arrays(target: Any) -> tuple[NDArray[np.float64], tuple[float, float, float], float]:
-    """``(values, origin, spacing)`` of a 3-D :class:`SDF` or of :func:`_mask_field`'s tuple."""
-    if isinstance(target, SDF):
-        o = target.grid.origin
-        return np.ascontiguousarray(target.values, dtype=np.float64), (float(o[0]), float(o[1]), float(o[2])), float(target.grid.spacing)
-    values, origin, spacing = target
-    return np.ascontiguousarray(values, dtype=np.float64), origin, spacing
-
-
-def _frame_numbers(targets: Sequence[Any] | Mapping[int, Any]) -> list[int]:
-    """The frame numbers of ``targets``: a mapping's keys (ascending), or a sequence's
-    positions."""
-    if isinstance(targets, Mapping):
-        keys = list(targets.keys())
-        if not all(isinstance(key, (int, np.integer)) and not isinstance(key, bool) for key in keys):
-            raise InvalidInputError("targets given as a mapping must be keyed by int frame numbers")
-        return sorted(int(key) for key in keys)
-    if isinstance(targets, (str, bytes)) or not isinstance(targets, Sequence):
-        raise InvalidInputError(f"targets must be a sequence or a mapping of frame -> target, got {type(targets).__name__}")
-    return list(range(len(targets)))
 
 
 def fit_sequence(
@@ -495,7 +424,7 @@ def fit_sequence(
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
         )
-    frames = _frame_numbers(targets)
+    frames = frame_numbers(targets)
     if not frames:
         raise InvalidInputError("targets is empty")
     if rest_frame not in frames:
@@ -553,7 +482,7 @@ def fit_sequence(
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     stage_stiffness = 0.0 if stiff_stage is None else float(stiff_stage)
     rest_volume = model.enclosed_measure(model.nodes)
-    field_of = target_field if model.dim == 3 else _mask_field
+    field_of = target_field if model.dim == 3 else mask_field
     result = SequenceFit(model, rest_frame)
     previous = dict(done or {})
     # Where each fitted frame's neighbours start from: its fit, or with the silhouette
@@ -586,7 +515,7 @@ def fit_sequence(
                 start = 2 * start - starts[second]
                 predicted = True
         stiff = stiff_stage is not None and neighbour is not None and (stiff_stage_frames == "all" or not predicted)
-        values, origin, spacing = _field_arrays(field_of(targets[frame]))
+        values, origin, spacing = field_arrays(field_of(targets[frame]))
         views = None
         if silhouette > 0 and cameras is not None and masks is not None:
             # Only the band of each image the term can read is transformed exactly: a
