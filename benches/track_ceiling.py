@@ -250,17 +250,18 @@ def _rms(err: NDArray[np.float64], where: NDArray[np.bool_], axis: int | tuple[i
 
 
 def readings(held: NDArray[np.bool_], error: NDArray[np.float64], seen: NDArray[np.bool_], first: NDArray[np.int64],
-             rows: NDArray[np.int64], tracked: NDArray[np.bool_] | None = None) -> dict[str, float]:
+             rows: NDArray[np.int64], tracked: NDArray[np.bool_] | None = None, min_views: int = 2) -> dict[str, float]:
     """Shares of the points ``rows`` (and of their (point, camera) pairs for (c)) through on
     each reading, and through with RMS <= 0.5 px: ``held`` (F, N, C) the views a tracker
     holds (the oracle: accepted or free), ``error`` (F, N, C) their image errors (pixels;
     NaN: none, a free view); ``tracked`` (F, N): on (a) and (b) a point counts as held on a frame where it is tracked
     (the accuracy module's rule for a tracker's points, whose views may lie in cameras the
-    truth's neighbour rule does not count), else where two seeing cameras hold it."""
+    truth's neighbour rule does not count), else where ``min_views`` seeing cameras hold it
+    (two: what a forward intersection needs)."""
     held, error, seen, first = held[:, rows], error[:, rows], seen[:, rows], first[rows]
     expected, span = _span_frames(seen, first)
     on = seen & held
-    kept = on.sum(axis=2) >= 2 if tracked is None else tracked[:, rows]
+    kept = on.sum(axis=2) >= min_views if tracked is None else tracked[:, rows]
     out: dict[str, float] = {"points": int(rows.size)}
     after = (np.arange(len(held))[:, None] >= first[None, :]) & (first >= 0)[None, :]
     for name, frames, over in (("a", expected, after), ("b", span, span)):
@@ -468,6 +469,9 @@ def ceiling(folder: Path, tracks_dir: Path | None, images: Path | None, frames_l
             "measured_no_fb": readings(o.no_fb | o.free, o.error_any, seen, first_f, measured),
             "measured_no_corr": readings(o.no_corr | o.free, o.error_any, seen, first_f, measured),
             "measured_converged": readings(o.converged | o.free, o.error_any, seen, first_f, measured),
+            # A tracker that kept a point on one accepted view for a frame (its depth from
+            # elsewhere): what the second view's rejection costs.
+            "measured_one_view": readings(o.accepted | o.free, o.error, seen, first_f, measured, min_views=1),
         }
         if mode == "f2f":
             result["ours_span_losses"] = span_losses(tracked[:f], ours.flags[:f], ours_held, ours_err, o, seen,

@@ -88,6 +88,8 @@ def test_readings_on_constructed_tracks() -> None:
     assert r["c_pairs"] == 8
     assert r["c_through"] == pytest.approx(1.0)
     assert r["c_through_and_rms"] == pytest.approx(7 / 8, abs=1e-4)
+    # One view a frame is enough for a tracker that takes the depth from elsewhere.
+    assert tc.readings(held, error, seen, first, np.arange(n), min_views=1)["a_through"] == pytest.approx(1.0)
     # A point seeded on frame 2 counts from there only.
     first2 = np.array([0, 0, 2])
     r2 = tc.readings(held, error, seen, first2, np.array([2]))
