@@ -72,16 +72,40 @@ def _lk_tracks(capture: Any, uv0: np.ndarray, frames: list[int], tolerance: floa
     return out
 
 
+def peer_tracks(capture: Any, uv0: np.ndarray, frames: list[int]) -> tuple[Any, np.ndarray]:
+    """The peer's Tracks (without views: the accuracy module measures its intersected
+    positions' projections, as it always has) and its 2-D views (F, N, C, 2) of the points
+    whose first-frame views are ``uv0`` (N, C, 2): LK with a forward-backward check at 0.6 px per camera, then ours'
+    forward intersection with its blunder rejection; a view the intersection rejects is
+    dropped from the next frame on, as ours drops it (``benches/track_ceiling.py`` reads the
+    peer through this too)."""
+    from elastocap.tracking import TrackFlag, Tracks
+    from elastocap.tracking.views import intersect_views
+
+    cams = capture.rig.cameras
+    views = _lk_tracks(capture, uv0, frames, 0.6)
+    f, n = len(frames), len(uv0)
+    positions = np.full((f, n, 3), np.nan)
+    covariances = np.full((f, n, 3, 3), np.nan)
+    for i in range(f):
+        cov = np.where(np.isfinite(views[i])[..., None], np.eye(2) * 0.01, np.nan)
+        x, xc, _, _ = intersect_views(cams, views[i], cov, max_residual=1.5, floor=0.1)
+        positions[i], covariances[i] = x, xc
+        # Views the intersection rejected are dropped, as ours drops them.
+        views[i + 1:, ~np.isfinite(x).all(axis=1)] = np.nan if i + 1 < f else views[i + 1:, ~np.isfinite(x).all(axis=1)]
+    flags = np.where(np.isfinite(positions).all(axis=2), 0, TrackFlag.FEW_VIEWS).astype(np.uint8)
+    return Tracks(np.array(frames), np.arange(n), positions, covariances, flags), views
+
+
 def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
     import tempfile
 
     from elastocap import Capture
     from elastocap.synth.textured import load_textured_truth
     from elastocap.synth.track_reference import surface_reference
-    from elastocap.tracking import TrackFlag, Tracks, load_tracks, track_points
+    from elastocap.tracking import TrackFlag, track_points
     from elastocap.tracking.accuracy import track_accuracy
     from elastocap.tracking.tracks import read_frame, frame_file
-    from elastocap.tracking.views import intersect_views
 
     capture = Capture.open(folder)
     truth = load_textured_truth(folder)
@@ -97,19 +121,9 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
     born = np.flatnonzero((ours.flags[0] == TrackFlag.TRACKED) & acc.measured)
     # The peer on the same points: their first-frame views.
     start = time.perf_counter()
-    views = _lk_tracks(capture, first["uv"][born], frames, 0.6)
+    peer, _ = peer_tracks(capture, first["uv"][born], frames)
     peer_s = time.perf_counter() - start
-    f, n = len(frames), born.size
-    positions = np.full((f, n, 3), np.nan)
-    covariances = np.full((f, n, 3, 3), np.nan)
-    for i in range(f):
-        cov = np.where(np.isfinite(views[i])[..., None], np.eye(2) * 0.01, np.nan)
-        x, xc, _, _ = intersect_views(cams, views[i], cov, max_residual=1.5, floor=0.1)
-        positions[i], covariances[i] = x, xc
-        # Views the intersection rejected are dropped, as ours drops them.
-        views[i + 1:, ~np.isfinite(x).all(axis=1)] = np.nan if i + 1 < f else views[i + 1:, ~np.isfinite(x).all(axis=1)]
-    flags = np.where(np.isfinite(positions).all(axis=2), 0, TrackFlag.FEW_VIEWS).astype(np.uint8)
-    peer = Tracks(np.array(frames), np.arange(n), positions, covariances, flags)
+    n = born.size
     pacc = track_accuracy(peer, cams, truth.positions, truth.visible, truth.part, material=truth.material)
     # The same measures against the true surface point each track was seeded on (its seed
     # pixel back-projected with the true depth): the peer follows ours' frame-0 points, so
@@ -152,7 +166,7 @@ def _accuracy_row(folder: Path, repeats: int) -> dict[str, Any]:
         "peer_s": round(peer_s, 3),
         "ratio": round(peer_s / ours_s, 2),
         "repeats": 1,
-        "frames": f,
+        "frames": len(frames),
         "ours_first_frame_points": figures(acc, born),
         "ours_all_points": figures(acc, np.arange(len(ours.ids))) | {"n": len(ours.ids)},
         "peer_first_frame_points": figures(pacc, np.arange(n)),
