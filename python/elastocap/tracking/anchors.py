@@ -135,8 +135,10 @@ class Anchors:
         tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
 
         def tiled() -> NDArray[np.float32]:
-            return np.ascontiguousarray(tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3)
-                                        .reshape(per_row * self.side, per_row * self.side))
+            # A copy: with one tile the reshapes are views of ``tiles``, which the weights
+            # overwrite next (the patch then read as all ones: LOW_TEXTURE).
+            return np.array(tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3)
+                            .reshape(per_row * self.side, per_row * self.side), copy=True)
 
         tiles[: rows.size] = self.patches[rows, k]
         mosaic = tiled()
