@@ -38,6 +38,8 @@ from elastocap.tracking.tracks import write_frame
 
 
 def main() -> None:
+    if len(sys.argv) != 5:
+        sys.exit(f"usage: python benches/write_oracle_tracks.py ROOT SRC DST MODE\n{__doc__}")
     root, src, dst, mode = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4]
     truth = load_textured_truth(root)
     tracks = load_tracks(src)
