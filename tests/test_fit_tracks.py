@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from elastocap import ElasticModel, InvalidInputError, Tracks, fit_sequence
+from elastocap import ElasticModel, InvalidInputError, Tracks, TrackTerms, fit_sequence
 from elastocap.elastic.measures import LOST_LIMB_FRACTION, surface_error
 from elastocap.elastic.track_spread import GUARD, spread_pulls
 from elastocap.elastic.tracks import TrackAttachments, material_weights
@@ -95,7 +95,8 @@ def test_a_new_track_is_attached_through_the_older_tracks_not_the_drifted_fit(re
     positions[0, :30] = old
     positions[1, :30] = old + v
     positions[1, 30:] = new + v
-    attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=relay, relay_radius=0.5)
+    terms = TrackTerms(relay=relay, relay_radius=0.5, ahead=0, relay_memory=0)
+    attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, terms=terms, node_spacing=0.1)
     assert attachments.attach(0, nodes) == 30
     assert attachments.attach(1, nodes + v + d) == 5
     material = np.einsum("tk,tka->ta", attachments.phi[30:], nodes[attachments.neighbours[30:]])
@@ -290,13 +291,15 @@ def test_bad_tracks_are_clear_errors(small: tuple) -> None:
                  np.zeros((2, 3), np.uint8))
     with pytest.raises(InvalidInputError, match=r"frames \[7\]"):
         fit_sequence(model, targets, tracks=far)
-    with pytest.raises(InvalidInputError, match="track_scale"):
-        fit_sequence(model, targets, tracks=_tracks(good.copy()), track_scale=float("nan"))
+    with pytest.raises(InvalidInputError, match="TrackTerms.scale"):
+        TrackTerms(scale=float("nan"))
     for relay in (-1, 2.5, True):
-        with pytest.raises(InvalidInputError, match="track_relay"):
-            fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay=relay)
-    with pytest.raises(InvalidInputError, match="track_relay_radius"):
-        fit_sequence(model, targets, tracks=_tracks(good.copy()), track_relay_radius=0.0)
-    for name, value in (("track_spread", -0.5), ("track_spread_age", 0.0), ("track_spread_radius", float("nan"))):
-        with pytest.raises(InvalidInputError, match=name):
-            fit_sequence(model, targets, tracks=_tracks(good.copy()), **{name: value})
+        with pytest.raises(InvalidInputError, match="TrackTerms.relay"):
+            TrackTerms(relay=relay)
+    with pytest.raises(InvalidInputError, match="TrackTerms.relay_radius"):
+        TrackTerms(relay_radius=0.0)
+    for name, value in (("spread", -0.5), ("spread_age", 0.0), ("spread_radius", float("nan"))):
+        with pytest.raises(InvalidInputError, match=f"TrackTerms.{name}"):
+            TrackTerms(**{name: value})
+    with pytest.raises(InvalidInputError, match="track_terms"):
+        fit_sequence(model, targets, tracks=_tracks(good.copy()), track_terms={"scale": 10.0})

@@ -1,5 +1,5 @@
 """Issue 15: a late track attached ahead of its anchor frame's fit, through the rigid motion
-of its older neighbours back to the rest frame (``fit_sequence(track_ahead=)``,
+of its older neighbours back to the rest frame (``TrackTerms(ahead=)``,
 ``TrackAttachments.attach_ahead``, ``rigid_carry``)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from test_fit_tracks import _tracks
 
-from elastocap import InvalidInputError, fit_sequence
+from elastocap import InvalidInputError, TrackTerms, fit_sequence
 from elastocap.elastic.tracks import TrackAttachments, rigid_carry
 
 
@@ -72,12 +72,12 @@ def test_a_late_track_is_attached_ahead_at_its_true_material_point_on_a_rigidly_
     fitted = ((nodes - 0.5) @ drift.T + 0.5) @ rotation.T + shift
     material = {}
     for ahead in (0, 6):
-        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=5, relay_radius=0.5,
-                                             ahead=ahead, ahead_tolerance=1e-6)
+        terms = TrackTerms(relay=5, relay_radius=0.5, ahead=ahead, ahead_tolerance=1e-6, ahead_check=0.0, relay_memory=0)
+        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, terms=terms, node_spacing=0.1)
         assert attachments.attach(0, nodes) == 60
         early = attachments.attach_ahead(1)
         assert early == (5 if ahead else 0)
-        pulling = attachments.frame_arrays(1, 0.01)
+        pulling = attachments.frame_arrays(1)
         assert len(pulling[0]) == 60 + early
         assert attachments.attach(1, fitted) == 5 - early
         assert attachments.early[60:].all() == bool(ahead)
@@ -109,19 +109,19 @@ def _turning_ball() -> tuple:
 
 def test_track_ahead_in_the_fit_and_its_bad_values() -> None:
     model, field, tracks = _turning_ball()
-    fit = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6)
+    fit = fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(ahead=6))
     # Those whose six older neighbours lie within the relay radius (4 node spacings).
     ahead = fit.fits[1].metrics["tracks_attached_ahead"]
     assert ahead >= 30
     assert fit.fits[1].metrics["tracks"] == 40 + ahead
     assert fit.fits[1].metrics["tracks_attached"] == 40
-    plain = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=0)
+    plain = fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(ahead=0))
     assert plain.fits[1].metrics["tracks"] == 40
     # The carry is on by default.
     default = fit_sequence(model, [field] * 3, tracks=tracks)
     assert default.fits[1].metrics["tracks_attached_ahead"] >= 30
     for value in (-1, 1.5, True):
-        with pytest.raises(InvalidInputError, match="track_ahead"):
-            fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=value)
-    with pytest.raises(InvalidInputError, match="track_ahead_tolerance"):
-        fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6, track_ahead_tolerance=0.0)
+        with pytest.raises(InvalidInputError, match="TrackTerms.ahead"):
+            TrackTerms(ahead=value)
+    with pytest.raises(InvalidInputError, match="TrackTerms.ahead_tolerance"):
+        TrackTerms(ahead=6, ahead_tolerance=0.0)

@@ -1,8 +1,8 @@
 """Issue 15: the late tracks' attachment, session 20 (branch trackfit8): the carry ahead
-checked against the relay (``track_ahead_check``), the relay and the carry from tracks lost
-in the frames before (``track_relay_memory``, ``track_ahead_memory``), the carried tracks'
-age in the spread (``track_ahead_age``), chained carries (``track_ahead_chain``) and the
-relayed tracks' weight (``track_relayed_weight``)."""
+checked against the relay (``ahead_check``), the relay and the carry from tracks lost
+in the frames before (``relay_memory``, ``ahead_memory``), the carried tracks'
+age in the spread (``ahead_age``), chained carries (``ahead_chain``) and the
+relayed tracks' weight (``relayed_weight``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from test_fit_tracks import _tracks
 from test_fit_tracks_ahead import _rotation, _turning_ball
 
-from elastocap import InvalidInputError, fit_sequence
+from elastocap import InvalidInputError, TrackTerms, fit_sequence
 from elastocap.elastic.tracks import TrackAttachments
 
 
@@ -40,8 +40,8 @@ def test_a_carry_far_from_the_relay_is_dropped_and_left_to_the_relay() -> None:
     fitted = nodes + shift
     errors = {}
     for check in (0.0, 0.005):
-        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=5, relay_radius=0.5,
-                                             ahead=6, ahead_tolerance=0.001, ahead_check=check)
+        terms = TrackTerms(relay=5, relay_radius=0.5, ahead=6, ahead_tolerance=0.001, ahead_check=check, relay_memory=0)
+        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, terms=terms, node_spacing=0.1)
         attachments.attach(0, nodes)
         early = attachments.attach_ahead(1, fitted)
         assert early == (0 if check else 1)
@@ -69,9 +69,9 @@ def test_tracks_lost_the_frame_before_relay_and_carry_the_tracks_that_replace_th
     positions[2, 40:] = new + 2 * shift
     errors = {}
     for memory in (0, 1):
-        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=5, relay_radius=0.5,
-                                             ahead=6 if ahead else 0, ahead_tolerance=1e-3, relay_memory=memory,
-                                             ahead_memory=ahead)
+        terms = TrackTerms(relay=5, relay_radius=0.5, ahead=6 if ahead else 0, ahead_tolerance=1e-3, ahead_check=0.0,
+                           relay_memory=memory, ahead_memory=ahead)
+        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, terms=terms, node_spacing=0.1)
         attachments.attach(0, nodes)
         attachments.attach_ahead(1, nodes + shift + drift)
         attachments.attach(1, nodes + shift + drift)
@@ -103,8 +103,9 @@ def test_a_carried_track_is_aged_from_its_carriers_anchors_and_chains_carry_from
     positions[:2, len(old):] = np.nan
     outer = np.flatnonzero(points[:, 0] > 0.58)
     for age, chain in ((False, 0), (True, 0), (False, 2), (True, 2)):
-        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, relay=5, relay_radius=0.11,
-                                             ahead=6, ahead_tolerance=1e-3, ahead_age=age, ahead_chain=chain)
+        terms = TrackTerms(relay=5, relay_radius=0.11, ahead=6, ahead_tolerance=1e-3, ahead_check=0.0, ahead_age=age,
+                           ahead_chain=chain, relay_memory=0)
+        attachments = TrackAttachments.build(_tracks(positions), rest_frame=0, k=20, terms=terms, node_spacing=0.1)
         for f in range(4):
             attachments.attach_ahead(f, nodes + f * shift)
             attachments.attach(f, nodes + f * shift)
@@ -123,19 +124,20 @@ def test_a_carried_track_is_aged_from_its_carriers_anchors_and_chains_carry_from
 
 def test_the_new_options_in_the_fit_and_their_bad_values() -> None:
     model, field, tracks = _turning_ball()
-    plain = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6)
+    plain = fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(ahead=6))
     # Every option at a value that changes nothing on this sequence: the same fit.
-    same = fit_sequence(model, [field] * 3, tracks=tracks, track_ahead=6, track_ahead_check=10.0, track_relay_memory=1,
-                        track_ahead_memory=True, track_relayed_weight=1.0)
+    same = fit_sequence(model, [field] * 3, tracks=tracks,
+                        track_terms=TrackTerms(ahead=6, ahead_check=10.0, relay_memory=1, ahead_memory=True,
+                                               relayed_weight=1.0))
     for f in range(3):
         np.testing.assert_allclose(same.fits[f].positions, plain.fits[f].positions, atol=1e-12)
     # Without the carry the late tracks are attached by the relay after frame 1's fit; at
     # weight 0 they do not pull frame 2.
-    relayed = fit_sequence(model, [field] * 3, tracks=tracks, track_relayed_weight=0.0, track_spread=0.0)
-    unweighted = fit_sequence(model, [field] * 3, tracks=tracks, track_spread=0.0)
+    relayed = fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(relayed_weight=0.0, spread=0.0))
+    unweighted = fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(spread=0.0))
     assert not np.allclose(relayed.fits[2].positions, unweighted.fits[2].positions)
-    for name, value in (("track_ahead_check", -1.0), ("track_ahead_check", np.nan), ("track_ahead_chain", -1),
-                        ("track_ahead_chain", 1.5), ("track_relay_memory", -1), ("track_relay_memory", True),
-                        ("track_relayed_weight", -0.5), ("track_relayed_weight", np.inf)):
-        with pytest.raises(InvalidInputError, match=name):
-            fit_sequence(model, [field] * 3, tracks=tracks, **{name: value})
+    for name, value in (("ahead_check", -1.0), ("ahead_check", np.nan), ("ahead_chain", -1),
+                        ("ahead_chain", 1.5), ("relay_memory", -1), ("relay_memory", True),
+                        ("relayed_weight", -0.5), ("relayed_weight", np.inf)):
+        with pytest.raises(InvalidInputError, match=f"TrackTerms.{name}"):
+            TrackTerms(**{name: value})

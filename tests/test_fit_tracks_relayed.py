@@ -1,5 +1,5 @@
 """Issue 15, session 21 (branch trackfit9): the spread's trust in the tracks attached by the
-relay alone (``fit_sequence(track_spread_relayed=)``, ``spread_pulls(trust=)``,
+relay alone (``TrackTerms(spread_relayed=)``, ``spread_pulls(trust=)``,
 ``TrackAttachments.frame_relayed``).
 
 A late track that the carry cannot take is attached after its anchor frame's fit, where the
@@ -15,7 +15,7 @@ import pytest
 from test_fit_tracks import _tracks, _two_spheres
 from test_fit_tracks_ahead import _rotation, _turning_ball
 
-from elastocap import InvalidInputError, fit_sequence
+from elastocap import InvalidInputError, SequenceFit, TrackTerms, fit_sequence
 from elastocap.elastic.track_spread import spread_pulls
 from elastocap.elastic.track_weights import material_weights
 from elastocap.elastic.tracks import TrackAttachments
@@ -59,8 +59,8 @@ def test_the_relayed_tracks_are_the_late_ones_not_carried_ahead() -> None:
     model, field, tracks = _turning_ball()
     spacing = float(np.mean(model.volumes) ** (1 / 3))
     for ahead in (0, 6):
-        attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], 5, 4 * spacing, ahead,
-                                             0.5 * spacing)
+        terms = TrackTerms(relay=5, ahead=ahead, ahead_check=0.0, relay_memory=0)
+        attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], terms, spacing)
         fitted = [model.nodes @ _rotation(np.array([0.0, 0, 1]), 6 * f).T for f in range(3)]
         for f in range(3):
             attachments.attach_ahead(f, fitted[f])
@@ -82,7 +82,7 @@ def test_relayed_tracks_attached_wrong_drag_the_surface_less_without_their_sprea
     """The turning ball with its late tracks matched 10 degrees too far round at their anchor
     frame (a wrong match, then found right in frame 2): the relay attaches them 10 degrees
     off, and in frame 2 they pull their wrong material points to the right places, turning
-    the surface back. Without their spread (``track_spread_relayed`` 0) the old tracks'
+    the surface back. Without their spread (``TrackTerms.spread_relayed`` 0) the old tracks'
     material points end nearer their tracked positions; at 1 the fit is the default's to
     the bit; with the spread off the option changes nothing."""
     model, field, tracks = _turning_ball()
@@ -93,36 +93,40 @@ def test_relayed_tracks_attached_wrong_drag_the_surface_less_without_their_sprea
 
     def old_error(fit) -> float:
         spacing = float(np.mean(model.volumes) ** (1 / 3))
-        attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], 5, 4 * spacing)
+        attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1],
+                                             TrackTerms(relay=5, ahead=0, relay_memory=0), spacing)
         attachments.attach(0, fit.fits[0].positions)
         at = np.einsum("tk,tkd->td", attachments.phi[:40], fit.fits[2].positions[attachments.neighbours[:40]])
         return float(np.linalg.norm(at - wrong[2, :40], axis=1).mean())
 
-    options = dict(tracks=tracks, track_ahead=0)
-    default = fit_sequence(model, [field] * 3, **options)
-    same = fit_sequence(model, [field] * 3, track_spread_relayed=1.0, **options)
+    def fit(**terms) -> SequenceFit:
+        return fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(ahead=0, **terms))
+
+    default = fit()
+    same = fit(spread_relayed=1.0)
     for f in range(3):
         np.testing.assert_array_equal(same.fits[f].positions, default.fits[f].positions)
-    without = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, **options)
+    without = fit(spread_relayed=0.0)
     assert old_error(without) < 0.5 * old_error(default)  # 2.9 cm -> 0.9 cm
-    off = fit_sequence(model, [field] * 3, track_spread=0.0, **options)
-    off_relayed = fit_sequence(model, [field] * 3, track_spread=0.0, track_spread_relayed=0.0, **options)
+    off = fit(spread=0.0)
+    off_relayed = fit(spread=0.0, spread_relayed=0.0)
     for f in range(3):
         np.testing.assert_array_equal(off.fits[f].positions, off_relayed.fits[f].positions)
     for value in (-0.5, np.nan, np.inf):
-        with pytest.raises(InvalidInputError, match="track_spread_relayed"):
-            fit_sequence(model, [field] * 3, track_spread_relayed=value, **options)
+        with pytest.raises(InvalidInputError, match="TrackTerms.spread_relayed"):
+            TrackTerms(spread_relayed=value)
 
 
 def test_relayed_tracks_among_many_older_ones_keep_their_spread() -> None:
-    """``track_spread_relayed_dense``: on the turning ball each late track has older tracks
+    """``TrackTerms.spread_relayed_dense``: on the turning ball each late track has older tracks
     within the relay radius at its anchor frame (counted as a k-d tree would), so a
     threshold of 1 leaves every relayed track its spread (the default's fit to the bit) and
-    one above any count takes it from all of them (``track_spread_relayed``'s fit to the
+    one above any count takes it from all of them (``spread_relayed``'s fit to the
     bit); between, the fit is neither. Bad values refused."""
     model, field, tracks = _turning_ball()
     spacing = float(np.mean(model.volumes) ** (1 / 3))
-    attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], 5, 4 * spacing)
+    attachments = TrackAttachments.build(tracks, 0, model.neighbors.shape[1], TrackTerms(relay=5, ahead=0, relay_memory=0),
+                                         spacing)
     attachments.attach(0, model.nodes)
     attachments.count_older(1)
     late = tracks.positions[1, 40:]
@@ -130,18 +134,19 @@ def test_relayed_tracks_among_many_older_ones_keep_their_spread() -> None:
     np.testing.assert_array_equal(attachments.older_near[40:], expected)
     assert expected.min() >= 1 and expected.max() < 40
     np.testing.assert_array_equal(attachments.older_near[:40], 0)
-    options = dict(tracks=tracks, track_ahead=0)
-    default = fit_sequence(model, [field] * 3, **options)
-    without = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, **options)
-    kept = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, track_spread_relayed_dense=1, **options)
-    dropped = fit_sequence(model, [field] * 3, track_spread_relayed=0.0, track_spread_relayed_dense=40, **options)
-    middle = fit_sequence(model, [field] * 3, track_spread_relayed=0.0,
-                          track_spread_relayed_dense=int(np.median(expected)), **options)
+    def fit(**terms) -> SequenceFit:
+        return fit_sequence(model, [field] * 3, tracks=tracks, track_terms=TrackTerms(ahead=0, **terms))
+
+    default = fit()
+    without = fit(spread_relayed=0.0)
+    kept = fit(spread_relayed=0.0, spread_relayed_dense=1)
+    dropped = fit(spread_relayed=0.0, spread_relayed_dense=40)
+    middle = fit(spread_relayed=0.0, spread_relayed_dense=int(np.median(expected)))
     for f in range(3):
         np.testing.assert_array_equal(kept.fits[f].positions, default.fits[f].positions)
         np.testing.assert_array_equal(dropped.fits[f].positions, without.fits[f].positions)
     assert not np.allclose(middle.fits[2].positions, default.fits[2].positions)
     assert not np.allclose(middle.fits[2].positions, without.fits[2].positions)
     for value in (-1, 1.5, True):
-        with pytest.raises(InvalidInputError, match="track_spread_relayed_dense"):
-            fit_sequence(model, [field] * 3, track_spread_relayed_dense=value, **options)
+        with pytest.raises(InvalidInputError, match="TrackTerms.spread_relayed_dense"):
+            TrackTerms(spread_relayed_dense=value)

@@ -17,7 +17,7 @@ from elastocap import _moved
 from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_body
 from elastocap.cameras import CalibrationWarning, Camera, Rig
 from elastocap.capture import Capture
-from elastocap.elastic import ElasticModel, FrameFit, SequenceFit, StaticSolution, fit_sequence
+from elastocap.elastic import ElasticModel, FrameFit, SequenceFit, StaticSolution, TrackTerms, fit_sequence
 from elastocap.elastic import mls_shape_functions, stiffness_matrix
 from elastocap.geometry import SpatialIndex, knn, polar_rotation, radius_neighbors
 from elastocap.hull import SDF, Grid, Hull, signed_distance, visual_hull
@@ -56,6 +56,7 @@ __all__ = [
     "SequenceFit",
     "SpatialIndex",
     "StaticSolution",
+    "TrackTerms",
     "Tracks",
     "__version__",
     "clean_mask",

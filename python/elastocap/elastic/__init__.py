@@ -1,9 +1,10 @@
 """The element-free elastic model (SPEC 4) and its fit through a sequence (SPEC 5): MLS
-shape functions, nodal-integration stiffness, the ElasticModel, fit_sequence."""
+shape functions, nodal-integration stiffness, the ElasticModel, fit_sequence and its TrackTerms."""
 
 from elastocap.elastic.mls import MLSShapeFunctions, mls_shape_functions
 from elastocap.elastic.efg import stiffness_matrix
 from elastocap.elastic.model import ElasticModel, StaticSolution
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.elastic.track_terms import TrackTerms
 
-__all__ = ["ElasticModel", "FrameFit", "MLSShapeFunctions", "SequenceFit", "StaticSolution", "fit_sequence", "mls_shape_functions", "stiffness_matrix"]
+__all__ = ["ElasticModel", "FrameFit", "MLSShapeFunctions", "SequenceFit", "StaticSolution", "TrackTerms", "fit_sequence", "mls_shape_functions", "stiffness_matrix"]

@@ -26,7 +26,8 @@ from elastocap._core import InvalidInputError
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.silhouette import silhouette_views, term_margins
 from elastocap.elastic.targets import field_arrays, frame_numbers, mask_field, target_field
-from elastocap.elastic.track_spread import spread_pulls
+from elastocap.elastic.track_spread import frame_spread
+from elastocap.elastic.track_terms import TrackTerms
 from elastocap.elastic.tracks import TrackAttachments, check_tracks
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
@@ -54,34 +55,6 @@ STOP_FRACTION = 0.01
 # past the volume bound on coarse masks; in the refinement alone: 1.714%); benches/README.md,
 # session 13.
 STAGED_STOP_FRACTION = 0.002
-# Older tracks whose median offset says where a track anchored after the rest frame is
-# attached (elastic/tracks.py). Textured fast capture, tuning seed 1 (benches/README.md,
-# trackfit2): mean drift 7.01% of the diagonal at 0, 6.87% at 3, 7.05% at 5 (weight 1);
-# at weight 4: 7.28% at 0, 6.66% at 5. No frame lost at 5, weight 1.
-TRACK_RELAY = 5
-# The tracks' corrections carried along the surface (elastic/track_spread.py): the most a
-# node is pulled, in tracks, and the frames over which a track's trust falls by e. Textured
-# fast capture, tuning seed 1 (benches/README.md, trackfit3; drift without tracks 9.71%,
-# with tracks and no spread 7.20%): before the guard against tracks gone astray, 6.29% at
-# 1 / 5 frames (one frame lost), 6.38% at 2 / 5 (one lost), 6.27% at 4 / 10, 6.03% at
-# 1 / 15, 6.36% at 1 / 30; with the final guard 6.33% at 1 / 15, none lost (held out:
-# seeds 2 and 3 5.58 -> 4.66%, 4.91 -> 4.49%).
-TRACK_SPREAD = 1.0
-# 30 frames rather than 15 once late tracks are carried ahead (below): alone, 30 is worse
-# than 15 (benches/README.md, trackfit8: the relayed tracks' errors spread longer).
-TRACK_SPREAD_AGE = 30.0
-# Late tracks carried to the rest frame ahead of their anchor frame's fit (elastic/tracks.py):
-# how many older tracks carry one, the largest RMS residual of their rigid motion and the
-# farthest a carry may land from the relay's place (both in mean node spacings), and the
-# frames a lost track still relays. Textured fast capture (benches/README.md, trackfit8 and
-# session 20's lead section), drift ratio with / without tracks against the carry off and
-# spread age 15: tuning seeds 1 / 10 / 14 / 15 0.492 / 0.547 / 0.571 / 0.328 -> 0.464 /
-# 0.501 / 0.504 / 0.325, held out 18 / 19 0.500 / 0.429 -> 0.441 / 0.423; no frame lost. A
-# check of 1 spacing throws good carries away; beyond 4 the carries are 20% of the diagonal off.
-TRACK_AHEAD = 6
-TRACK_AHEAD_TOLERANCE = 0.5
-TRACK_AHEAD_CHECK = 3.0
-TRACK_RELAY_MEMORY = 2
 # A stiff first stage (``fit_sequence(stiff_stage=)``) on the frames fitted without a
 # motion prediction: the stiffness of a first fit of the frame, from which the frame is then
 # fitted at its own stiffness. At stiffness 1 a limb that moved a limb's width or more is
@@ -116,8 +89,8 @@ class FrameFit:
         the end, a failure signal: a lost limb leaves its part of the hull unexplained);
         with ``tracks``: ``tracks`` (tracks pulling the frame), ``tracks_attached``
         (anchored at it), ``tracks_attached_ahead`` (of those, attached before the frame
-        was fitted: ``track_ahead``), ``tracks_unplaced`` (anchored at it where the model's
-        nodes around the tracked point do not span space: left out) and
+        was fitted: ``TrackTerms.ahead``), ``tracks_unplaced`` (anchored at it where the
+        model's nodes around the tracked point do not span space: left out) and
         ``track_mahalanobis`` (their mean Mahalanobis distance at the end, when any
         pulled).
     """
@@ -168,24 +141,7 @@ def fit_sequence(
     solver_tolerance: float = SOLVER_TOLERANCE,
     staged_tolerance: float = STAGED_TOLERANCE,
     tracks: Any = None,
-    track_weight: float = 1.0,
-    track_sigma: float | None = None,
-    track_scale: float = 10.0,
-    track_relay: int = TRACK_RELAY,
-    track_relay_radius: float | None = None,
-    track_ahead: int = TRACK_AHEAD,
-    track_ahead_tolerance: float | None = None,
-    track_ahead_check: float | None = None,
-    track_ahead_chain: int = 0,
-    track_ahead_age: bool = False,
-    track_relayed_weight: float = 1.0,
-    track_relay_memory: int = TRACK_RELAY_MEMORY,
-    track_ahead_memory: bool = False,
-    track_spread: float = TRACK_SPREAD,
-    track_spread_age: float = TRACK_SPREAD_AGE,
-    track_spread_radius: float | None = None,
-    track_spread_relayed: float = 1.0,
-    track_spread_relayed_dense: int = 0,
+    track_terms: TrackTerms | None = None,
     stiff_stage: float | None = STIFF_STAGE,
     stiff_stage_frames: str = "first",
     done: Mapping[int, NDArray[np.float64]] | None = None,
@@ -298,87 +254,13 @@ def fit_sequence(
         is tracked that material point is pulled to the tracked position with its
         covariance's weight under a robust (Cauchy) loss (:mod:`elastocap.elastic.tracks`,
         SPEC 5.1). An empty set (no track or no frame) changes nothing.
-    track_weight : float
-        Weight of one track relative to a fully confident surface node (0 turns it off).
-    track_sigma : float, optional
-        Floor of a track's standard deviation, world units: a track's metric is
-        ``(Sigma + track_sigma^2 I)^-1`` scaled by ``track_sigma^2``, so none pulls harder
-        than ``track_weight``. Default: a quarter of the mean node spacing.
-    track_scale : float
-        Scale of the Cauchy loss in standard deviations: a track whose material point is
-        ``track_scale`` deviations away pulls with half its weight, farther ones less (a
-        track 1 m off at the default sigma pulls with about 1/70 of it). Chosen on the
-        fast-motion capture (seed 1, 14 frames, 1,000 nodes, ground-truth tracks with 5 mm
-        noise): worst lost-limb frame 7.4% of the diagonal without tracks, 17.8% at 3 (fast
-        limbs' tracks start too far away to pull), 2.6% at 10.
-    track_relay : int
-        A track anchored at a frame other than the rest frame is attached where the
-        ``track_relay`` older tracks nearest to it (median) say the fit is off, instead of
-        where that frame's (drifted) fit puts it (:mod:`elastocap.elastic.tracks`; 0: the
-        fit's place; default 5).
-    track_relay_radius : float, optional
-        Those older tracks must lie within this distance, world units (default 4 mean
-        node spacings).
-    track_ahead : int
-        A track anchored at a frame other than the rest frame is attached before that
-        frame is fitted, through the rigid motion back to the rest frame of the
-        ``track_ahead`` older tracks tracked nearest to it there (within
-        ``track_relay_radius``), and pulls that frame too; where they do not move
-        rigidly, after the fit as ``track_relay`` says (:mod:`elastocap.elastic.tracks`;
-        0: off; default 6, ``TRACK_AHEAD``).
-    track_ahead_tolerance : float, optional
-        The largest RMS residual of those older tracks' rigid motion, world units (default
-        half a mean node spacing, ``TRACK_AHEAD_TOLERANCE``).
-    track_ahead_check : float, optional
-        A track carried ahead whose material point at rest lies farther than this (world
-        units) from where the relay's offsets, measured on the frame's start, put it is
-        left to the relay after the fit (a neighbourhood attached wrong that moves rigidly
-        carries its tracks far off; 0: no check; default 3 mean node spacings,
-        ``TRACK_AHEAD_CHECK``).
-    track_ahead_chain : int
-        Passes after the first in which the tracks just attached ahead carry the other
-        tracks anchored at the same frame (0, the default: only older tracks carry).
-    track_ahead_age : bool
-        A track attached ahead is aged in the spread (``track_spread_age``) from the mean
-        anchor frame of the tracks that carried it, not from its own (default False).
-    track_relayed_weight : float
-        Weight, relative to the others, of the tracks attached after their late anchor
-        frame's fit (by the relay alone; default 1).
-    track_relay_memory : int
-        Tracks lost in up to this many frames before (on the rest frame's side) relay too,
-        with the offset from the fit they had in their last tracked frame (0: only tracks
-        tracked in the frame relay; default 2, ``TRACK_RELAY_MEMORY``).
-    track_ahead_memory : bool
-        Those tracks lost in the last ``track_relay_memory`` frames carry late tracks ahead
-        too, placed where the frame's start and their last offset put them (default False).
-    track_spread : float
-        The tracks' corrections (tracked position minus where the frame's start puts the
-        material point) carried along the surface to the nodes around them, each pulled
-        along the surface to its start moved by them, at most this share of one track's
-        weight (:mod:`elastocap.elastic.track_spread`; 0 turns it off; default 1).
-        Textured fast capture: mean drift 7.20% -> 6.33% of the diagonal (tuning seed 1),
-        5.58% -> 4.66% and 4.91% -> 4.49% (held-out seeds 2 and 3).
-    track_spread_age : float
-        Frames from its anchor over which a track's trust in the spread falls by e
-        (default 30, ``TRACK_SPREAD_AGE``). Textured fast capture (benches/README.md,
-        trackfit8): 30 alone is worse than 15 (the relayed tracks' errors spread longer);
-        30 with the defaults of ``track_ahead``, ``track_ahead_tolerance``,
-        ``track_ahead_check`` and ``track_relay_memory`` lowers the drift ratio on all six
-        seeds measured (e.g. 0.571 -> 0.504, held out 0.500 -> 0.441).
-    track_spread_radius : float, optional
-        A track's reach in the spread, geodesic on the surface at the start, world units
-        (default 4 mean node spacings).
-    track_spread_relayed : float
-        A factor on the spread's trust in the tracks attached by the relay alone (anchored
-        away from the rest frame and not carried ahead; 0: they pull their own material
-        point but do not spread; default 1). On a fast limb the relay attaches new tracks
-        where the drifted fit puts them, and the spread carries that error to every node
-        around them (benches/README.md, trackfit9).
-    track_spread_relayed_dense : int
-        With ``track_spread_relayed``: a relayed track that had at least this many older
-        tracks tracked within the relay radius at its anchor frame (the trunk, where the
-        relay is accurate) keeps its full spread; only the others (a fast limb whose tracks
-        all ended) get the factor (0, the default: every relayed track gets it).
+    track_terms : TrackTerms, optional
+        How the tracks pull the fit (:class:`~elastocap.elastic.track_terms.TrackTerms`,
+        its fields documented there; None: its defaults): their weight and robust loss, how
+        tracks anchored away from the rest frame are attached (the relay, the carry ahead)
+        and how their corrections spread along the surface. Before session 26 these were
+        the keywords ``track_weight`` ... ``track_spread_relayed_dense``
+        (:meth:`TrackTerms.from_flat` reads such a mapping).
     stiff_stage : float, optional
         The stiffness of a first stage (default 10, ``STIFF_STAGE``; None: off): the frame
         is first fitted at this stiffness from its start and then at
@@ -437,48 +319,18 @@ def fit_sequence(
     for name, value in (("stop_fraction", stop_fraction), ("staged_stop_fraction", staged_stop_fraction)):
         if not (np.isfinite(value) and 0 <= value < 1):
             raise InvalidInputError(f"{name} must be in [0, 1), got {value}")
-    for name, given in (("track_weight", track_weight), ("track_scale", track_scale), ("track_sigma", track_sigma)):
-        if given is not None and not (np.isfinite(given) and given >= 0 and (name == "track_weight" or given > 0)):
-            raise InvalidInputError(f"{name} must be a finite positive number (track_weight may be 0), got {given}")
+    if track_terms is None:
+        track_terms = TrackTerms()
+    elif not isinstance(track_terms, TrackTerms):
+        raise InvalidInputError(f"track_terms must be an elastocap.TrackTerms or None, got {type(track_terms).__name__}")
     node_spacing = float(np.mean(model.volumes) ** (1 / 3))
-    sigma = 0.25 * node_spacing if track_sigma is None else float(track_sigma)
-    if isinstance(track_relay, bool) or not (isinstance(track_relay, (int, np.integer)) and track_relay >= 0):
-        raise InvalidInputError(f"track_relay must be a non-negative int, got {track_relay!r}")
-    relay_radius = 4 * node_spacing if track_relay_radius is None else float(track_relay_radius)
-    spread_radius = 4 * node_spacing if track_spread_radius is None else float(track_spread_radius)
-    for name, value in (("track_spread", track_spread), ("track_spread_age", track_spread_age),
-                        ("track_spread_radius", spread_radius)):
-        if not (np.isfinite(value) and value >= 0 and (name == "track_spread" or value > 0)):
-            raise InvalidInputError(f"{name} must be a finite positive number (track_spread may be 0), got {value}")
-    if not (np.isfinite(relay_radius) and relay_radius > 0):
-        raise InvalidInputError(f"track_relay_radius must be a finite positive number, got {track_relay_radius}")
-    if isinstance(track_ahead, bool) or not (isinstance(track_ahead, (int, np.integer)) and track_ahead >= 0):
-        raise InvalidInputError(f"track_ahead must be a non-negative int, got {track_ahead!r}")
-    ahead_tolerance = TRACK_AHEAD_TOLERANCE * node_spacing if track_ahead_tolerance is None else float(track_ahead_tolerance)
-    if not (np.isfinite(ahead_tolerance) and ahead_tolerance > 0):
-        raise InvalidInputError(f"track_ahead_tolerance must be a finite positive number, got {track_ahead_tolerance}")
-    ahead_check = TRACK_AHEAD_CHECK * node_spacing if track_ahead_check is None else float(track_ahead_check)
-    if not (np.isfinite(ahead_check) and ahead_check >= 0):
-        raise InvalidInputError(f"track_ahead_check must be a finite number >= 0, got {track_ahead_check}")
-    if isinstance(track_ahead_chain, bool) or not (isinstance(track_ahead_chain, (int, np.integer)) and track_ahead_chain >= 0):
-        raise InvalidInputError(f"track_ahead_chain must be a non-negative int, got {track_ahead_chain!r}")
-    if isinstance(track_relay_memory, bool) or not (isinstance(track_relay_memory, (int, np.integer)) and track_relay_memory >= 0):
-        raise InvalidInputError(f"track_relay_memory must be a non-negative int, got {track_relay_memory!r}")
-    if not (np.isfinite(track_spread_relayed) and track_spread_relayed >= 0):
-        raise InvalidInputError(f"track_spread_relayed must be a finite number >= 0, got {track_spread_relayed}")
-    if isinstance(track_spread_relayed_dense, bool) or not (
-            isinstance(track_spread_relayed_dense, (int, np.integer)) and track_spread_relayed_dense >= 0):
-        raise InvalidInputError(f"track_spread_relayed_dense must be a non-negative int, got {track_spread_relayed_dense!r}")
+    sigma = track_terms.lengths(node_spacing).sigma
     if stiff_stage is not None and not (np.isfinite(stiff_stage) and stiff_stage > 0):
         raise InvalidInputError(f"stiff_stage must be None or a finite positive number, got {stiff_stage}")
     if stiff_stage_frames not in ("first", "all"):
         raise InvalidInputError(f"stiff_stage_frames must be 'first' or 'all', got {stiff_stage_frames!r}")
-    if not (np.isfinite(track_relayed_weight) and track_relayed_weight >= 0):
-        raise InvalidInputError(f"track_relayed_weight must be a finite number >= 0, got {track_relayed_weight}")
-    attachments = None if tracks is None or track_weight == 0 else TrackAttachments.build(
-        tracks, rest_frame, model.neighbors.shape[1], int(track_relay), relay_radius, int(track_ahead), ahead_tolerance,
-        ahead_check, int(track_ahead_chain), bool(track_ahead_age), float(track_relayed_weight),
-        int(track_relay_memory), bool(track_ahead_memory))
+    attachments = None if tracks is None or track_terms.weight == 0 else TrackAttachments.build(
+        tracks, rest_frame, model.neighbors.shape[1], track_terms, node_spacing)
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
     stage_stiffness = 0.0 if stiff_stage is None else float(stiff_stage)
     rest_volume = model.enclosed_measure(model.nodes)
@@ -500,7 +352,7 @@ def fit_sequence(
             result.fits[frame] = FrameFit(frame, np.asarray(previous[frame], dtype=np.float64), {})
             starts[frame] = result.fits[frame].positions
             if attachments is not None:
-                if track_spread_relayed_dense > 0:
+                if track_terms.spread_relayed_dense > 0:
                     attachments.count_older(frame)
                 attachments.attach(frame, result.fits[frame].positions)
             continue
@@ -524,26 +376,19 @@ def fit_sequence(
             surface = model.surface_nodes
             margins = term_margins(cameras, start[surface], model.support[surface]) if model.dim == 3 else None
             views = silhouette_views(cameras, masks[frame], margins)
-        if attachments is not None and track_spread_relayed_dense > 0:
+        if attachments is not None and track_terms.spread_relayed_dense > 0:
             attachments.count_older(frame)
         # Late tracks that their older neighbours place at rest pull this frame already.
         ahead = 0 if attachments is None else attachments.attach_ahead(frame, start)
-        pulling = None if attachments is None else attachments.frame_arrays(frame, sigma)
+        pulling = None if attachments is None else attachments.frame_arrays(frame)
         pulling_tracks = 0 if pulling is None else len(pulling[0])
         track_arrays = pulling
 
         def spread(at: NDArray[np.float64]) -> Any:
             # The frame's track arrays with their corrections from ``at`` spread over the surface.
-            if track_arrays is None or attachments is None or track_spread <= 0:
+            if attachments is None:
                 return track_arrays
-            return spread_pulls(track_arrays, attachments.frame_ages(frame), at, model.surface_nodes,
-                                model.surface_faces, share=float(track_spread), age=float(track_spread_age),
-                                radius=spread_radius, sigma=sigma,
-                                trust=None if track_spread_relayed == 1.0 else
-                                np.where(attachments.frame_relayed(frame)
-                                         & ((track_spread_relayed_dense == 0)
-                                            | (attachments.frame_older_near(frame) < track_spread_relayed_dense)),
-                                         float(track_spread_relayed), 1.0))
+            return frame_spread(attachments, frame, track_arrays, at, model.surface_nodes, model.surface_faces)
 
         pulling = spread(start)
         options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
@@ -552,7 +397,8 @@ def fit_sequence(
                        # A body keeps its volume; a 2-D silhouette does not keep its area.
                        volume=volume if model.dim == 3 else 0.0,
                        solver_tolerance=solver_tolerance,
-                       tracks=pulling, track_weight=track_weight, track_sigma=sigma, track_scale=track_scale)
+                       tracks=pulling, track_weight=track_terms.weight, track_sigma=sigma,
+                       track_scale=track_terms.scale)
         clock = time.perf_counter()
         staged = views is not None and silhouette_stage != "joint"
         first = dict(options, solver_tolerance=staged_tolerance, stop_fraction=staged_stop_fraction) if staged else options

@@ -1,5 +1,5 @@
 """The tracks' correction carried along the surface to the nodes around them (issue 15;
-``fit_sequence(track_spread=)``).
+``TrackTerms(spread=)``).
 
 The track term (``rust/fit/tracks.rs``) pins the material point of each track, and the
 elastic term carries that pin only a node or two: between the tracks the surface slides
@@ -28,11 +28,11 @@ against a way the plain median spread (trackfit2, reverted) went wrong:
   reach), also damped the fast limbs' good tracks: frames lost on the tuning seed 0 -> 2
   (benches/README.md, trackfit3).
 - **Optionally, by how it was attached** (``trust``, a factor per track;
-  ``fit_sequence(track_spread_relayed=)``, off): a track attached by the relay alone on a fast
+  ``TrackTerms(spread_relayed=)``, off): a track attached by the relay alone on a fast
   limb's drifted fit has a wrong material point, and its spread drags every node around it
   the same wrong way (seed 14's right hand, benches/README.md, trackfit9); on the trunk the
   same tracks' spread holds the surface (seed 19), so it stays on by default
-  (``track_spread_relayed_dense`` keeps it for relayed tracks among many older ones).
+  (``spread_relayed_dense`` keeps it for relayed tracks among many older ones).
 - **Across the surface only**: a node is pulled along the surface (metric ``I - n n^T``,
   ``n`` its normal at the start); the hull says where the surface is, the tracks say which
   part of it is where.
@@ -52,8 +52,9 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from elastocap._core import InvalidInputError
+from elastocap.elastic.tracks import TrackAttachments
 
-__all__ = ["spread_pulls", "surface_geodesics"]
+__all__ = ["frame_spread", "spread_pulls", "surface_geodesics"]
 
 # A track whose correction is this many reaches or more does not spread (Tukey's biweight of
 # the correction's length).
@@ -165,3 +166,22 @@ def spread_pulls(arrays: TrackArrays, ages: NDArray[np.float64], start: NDArray[
         np.ascontiguousarray(np.concatenate([targets, start[which] + correction[track]])),
         np.ascontiguousarray(np.concatenate([precisions, weight[:, None, None] / sigma**2 * along])),
     )
+
+
+def frame_spread(attachments: TrackAttachments, frame: int, arrays: TrackArrays | None, start: NDArray[np.float64],
+                 surface_nodes: NDArray[np.int64], surface_faces: NDArray[np.int64]) -> TrackArrays | None:
+    """:func:`spread_pulls` of ``frame``'s track arrays (``attachments.frame_arrays``) from
+    its ``start`` (N, 3), as ``attachments.terms`` say: ``spread`` (0: the arrays as they
+    are), ``spread_age``, ``spread_radius``, and ``spread_relayed`` on the tracks attached by
+    the relay alone (those with fewer than ``spread_relayed_dense`` older tracks near them
+    at their anchor frame, when it is set)."""
+    terms, lengths = attachments.terms, attachments.lengths
+    if arrays is None or terms.spread <= 0:
+        return arrays
+    trust = None
+    if terms.spread_relayed != 1.0:
+        dense = terms.spread_relayed_dense
+        relayed = attachments.frame_relayed(frame) & ((dense == 0) | (attachments.frame_older_near(frame) < dense))
+        trust = np.where(relayed, terms.spread_relayed, 1.0)
+    return spread_pulls(arrays, attachments.frame_ages(frame), start, surface_nodes, surface_faces, share=terms.spread,
+                        age=terms.spread_age, radius=lengths.spread_radius, sigma=lengths.sigma, trust=trust)

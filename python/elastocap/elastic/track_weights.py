@@ -1,7 +1,7 @@
 """Where a tracked point sits in the model (issue 15): its MLS shape-function weights over
 the nodes around it (SPEC 4.2; the material point a track is attached to,
 :mod:`elastocap.elastic.tracks`), and the rigid motion of its neighbours that carries it
-back to the rest frame (``fit_sequence(track_ahead=)``)."""
+back to the rest frame (``TrackTerms(ahead=)``)."""
 
 from __future__ import annotations
 

@@ -14,14 +14,15 @@ fitted before its anchor).
 
 A track seeded after the rest frame is anchored at a frame whose fit has already drifted
 along the surface; attached where that fit puts it, it would hold the drift instead of
-undoing it. With ``relay`` (the default of :func:`elastocap.fit_sequence`), the older
-tracks tracked at that frame say how far the fit is off there: each one's material point
-sits at ``sum phi x`` in the fit but was tracked at ``X``, so the fit is off by ``X - sum
-phi x`` around it. A new track is attached at its tracked position moved back by the
-median of that offset over its nearest older tracks (within a radius), that is at the
-material point the older tracks place there, not the one the drifted fit places there.
+undoing it. With ``relay`` (:class:`~elastocap.elastic.track_terms.TrackTerms`; on by
+default), the older tracks tracked at that frame say how far the fit is off there: each
+one's material point sits at ``sum phi x`` in the fit but was tracked at ``X``, so the fit
+is off by ``X - sum phi x`` around it. A new track is attached at its tracked position
+moved back by the median of that offset over its nearest older tracks (within a radius),
+that is at the material point the older tracks place there, not the one the drifted fit
+places there.
 
-With ``ahead`` (``fit_sequence(track_ahead=True)``, off by default) a late track is
+With ``ahead`` (``TrackTerms(ahead=)``, on by default) a late track is
 attached before its anchor frame is fitted, from the tracks alone: the older tracks tracked
 at that frame near it (their material points known at the rest frame) give the local rigid
 motion from that frame back to the rest frame (a least-squares rotation and translation,
@@ -31,9 +32,10 @@ pulls its anchor frame too. Where its older neighbours are too few, too close to
 or not moving rigidly (a joint between them), the track is attached after the fit as
 above.
 
-Options of the carry and the relay (``fit_sequence``'s ``track_ahead_check``,
-``track_relay_memory``, ``track_ahead_memory``, ``track_ahead_chain``, ``track_ahead_age``,
-``track_relayed_weight``; all off by default; benches/README.md, trackfit8):
+Options of the carry and the relay (:class:`~elastocap.elastic.track_terms.TrackTerms`'
+``ahead_check``, ``relay_memory``, ``ahead_memory``, ``ahead_chain``, ``ahead_age``,
+``relayed_weight``; the check and the relay's memory on by default, the others off;
+benches/README.md, trackfit8):
 
 - **The check against the relay**: a carry whose material point lies far from the relay's
   (measured on the frame's start, before the fit) is dropped. On the textured capture the
@@ -60,6 +62,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from elastocap._core import InvalidInputError
+from elastocap.elastic.track_terms import TrackLengths, TrackTerms
 from elastocap.elastic.track_weights import material_weights, placeable_weights, rigid_carry
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import Tracks
@@ -122,18 +125,10 @@ class TrackAttachments:
 
     tracks: Tracks
     k: int
-    relay: int = 0
-    relay_radius: float = 0.0
-    ahead: int = 0
-    ahead_tolerance: float = 0.0
+    terms: TrackTerms
+    lengths: TrackLengths
     rest_frame: int = 0
     rest_positions: NDArray[np.float64] | None = None
-    ahead_check: float = 0.0
-    ahead_chain: int = 0
-    ahead_age: bool = False
-    relayed_weight: float = 1.0
-    relay_memory: int = 0
-    ahead_memory: bool = False
     early: NDArray[np.bool_] = field(init=False)
     older_near: NDArray[np.int64] = field(init=False)
     last_offset: NDArray[np.float64] = field(init=False)
@@ -146,18 +141,12 @@ class TrackAttachments:
     unplaced: NDArray[np.bool_] = field(init=False)
 
     @classmethod
-    def build(cls, tracks: Tracks, rest_frame: int, k: int, relay: int = 0, relay_radius: float = 0.0,
-              ahead: int = 0, ahead_tolerance: float = 0.0, ahead_check: float = 0.0, ahead_chain: int = 0,
-              ahead_age: bool = False, relayed_weight: float = 1.0, relay_memory: int = 0,
-              ahead_memory: bool = False) -> TrackAttachments:
+    def build(cls, tracks: Tracks, rest_frame: int, k: int, terms: TrackTerms, node_spacing: float) -> TrackAttachments:
         """Anchors of ``tracks`` about ``rest_frame``; ``k`` nodes per material point;
-        ``relay`` older tracks (at most ``relay_radius`` away, world units) correct where a
-        new track is attached (module docs; 0: where the fit puts it); ``ahead`` older
-        tracks (within ``relay_radius``) whose rigid motion back to the rest frame, when
-        they fit it to ``ahead_tolerance`` (RMS, world units), attaches a late track before
-        its anchor frame is fitted (:meth:`attach_ahead`; 0: off)."""
-        self = cls(tracks, k, relay, relay_radius, ahead, ahead_tolerance, rest_frame, None, float(ahead_check),
-                   int(ahead_chain), bool(ahead_age), float(relayed_weight), int(relay_memory), bool(ahead_memory))
+        ``terms`` say how late tracks are attached (``relay``, ``ahead`` and their options;
+        module docs), their lengths left at None taken at ``node_spacing`` (the model's
+        mean node spacing, world units; :meth:`TrackTerms.lengths`)."""
+        self = cls(tracks, k, terms, terms.lengths(node_spacing), rest_frame)
         tracked = tracks.flags == TrackFlag.TRACKED
         # Nearest the rest frame; on a tie, after it (the forward run is fitted first).
         gap = np.abs(tracks.frames - rest_frame) * 2 + (tracks.frames < rest_frame)
@@ -204,7 +193,7 @@ class TrackAttachments:
             which = which[placed]
             self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
-        if self.relay_memory > 0:
+        if self.terms.relay_memory > 0:
             seen = np.flatnonzero(self.attached & (self.tracks.flags[row] == TrackFlag.TRACKED))
             fitted = np.einsum("tk,tkd->td", self.phi[seen], positions[self.neighbours[seen]])
             self.last_offset[seen] = self.tracks.positions[row, seen] - fitted
@@ -224,18 +213,18 @@ class TrackAttachments:
         tracks just attached ahead at this frame carry the others too (a limb whose tracks
         all start here is carried from its older end)."""
         row = self._row(frame)
-        if self.ahead <= 0 or row is None or self.rest_positions is None or frame == self.rest_frame:
+        if self.terms.ahead <= 0 or row is None or self.rest_positions is None or frame == self.rest_frame:
             return 0
         tracked = self.tracks.flags[row] == TrackFlag.TRACKED
-        m = max(self.ahead, 3)
+        m = max(self.terms.ahead, 3)
         total = 0
-        for _ in range(1 + max(self.ahead_chain, 0)):
+        for _ in range(1 + max(self.terms.ahead_chain, 0)):
             which = np.flatnonzero((self.anchor == row) & ~self.attached & ~self.unplaced)
             # Carriers: the older tracks attached, and (from the second pass) this frame's
             # tracks attached ahead in the passes before.
             old = np.flatnonzero(self.attached & tracked & ((self.anchor != row) | self.early))
             moved = self.tracks.positions[row, old]
-            if self.ahead_memory and start is not None:
+            if self.terms.ahead_memory and start is not None:
                 # Tracks lost in the last frames carry too, where the start and their last
                 # offset from the fit put them (``relay_memory``).
                 lost = self._lost(row)
@@ -246,11 +235,11 @@ class TrackAttachments:
                 break
             rest = np.einsum("tk,tkd->td", self.phi[old], self.rest_positions[self.neighbours[old]])
             new = self.tracks.positions[row, which]
-            rest_new, good, carriers = rigid_carry(moved, rest, new, m, self.relay_radius, self.ahead_tolerance,
+            rest_new, good, carriers = rigid_carry(moved, rest, new, m, self.lengths.relay_radius, self.lengths.ahead_tolerance,
                                                    neighbours=True)
-            if self.ahead_check > 0 and start is not None:
+            if self.lengths.ahead_check > 0 and start is not None:
                 relayed, known = self._relay_rest(row, which, start)
-                good &= ~known | (np.linalg.norm(rest_new - relayed, axis=1) <= self.ahead_check)
+                good &= ~known | (np.linalg.norm(rest_new - relayed, axis=1) <= self.lengths.ahead_check)
             which, rest_new, carriers = which[good], rest_new[good], carriers[good]
             if len(which) == 0:
                 break
@@ -259,7 +248,7 @@ class TrackAttachments:
             self.neighbours[which], self.phi[which] = neighbours[placed], phi[placed]
             self.attached[which] = True
             self.early[which] = True
-            if self.ahead_age:
+            if self.terms.ahead_age:
                 # A carried track is as far from the rest frame's evidence as its carriers.
                 self.origin[which] = self.origin[old[carriers]].mean(axis=1)
             total += len(which)
@@ -281,7 +270,7 @@ class TrackAttachments:
         frame = int(self.tracks.frames[row])
         gap = (frame - self.last_frame) * np.sign(frame - self.rest_frame)
         here = self.tracks.flags[row] == TrackFlag.TRACKED
-        return np.flatnonzero(self.attached & ~here & (gap > 0) & (gap <= self.relay_memory))
+        return np.flatnonzero(self.attached & ~here & (gap > 0) & (gap <= self.terms.relay_memory))
 
     def _offsets(self, row: int, which: NDArray[np.int64], positions: NDArray[np.float64], with_near: bool = False) -> Any:
         """(len(which), 3): how far the fit ``positions`` of frame ``row`` is off around
@@ -294,7 +283,7 @@ class TrackAttachments:
         old = np.flatnonzero(self.attached & here & (self.anchor != row))
         placed = np.einsum("tk,tkd->td", self.phi[old], positions[self.neighbours[old]])
         tracked = self.tracks.positions[row, old]
-        if self.relay_memory > 0:
+        if self.terms.relay_memory > 0:
             # Tracks lost in the last ``relay_memory`` frames (on the rest frame's side of
             # this one) relay too, with the offset they last had, placed where it puts their
             # material point now: on a fast limb whose tracks all ended and were re-seeded
@@ -303,12 +292,12 @@ class TrackAttachments:
             fitted = np.einsum("tk,tkd->td", self.phi[lost], positions[self.neighbours[lost]])
             placed = np.concatenate([placed, fitted])
             tracked = np.concatenate([tracked, fitted + self.last_offset[lost]])
-        if self.relay <= 0 or len(tracked) < self.relay:
+        if self.terms.relay <= 0 or len(tracked) < self.terms.relay:
             return (offsets, near) if with_near else offsets
-        distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.relay)
+        distance, nearest = cKDTree(tracked).query(self.tracks.positions[row, which], k=self.terms.relay)
         # k = 1 gives 1-D answers.
-        distance, nearest = distance.reshape(len(which), self.relay), nearest.reshape(len(which), self.relay)
-        near = (distance <= self.relay_radius).all(axis=1)
+        distance, nearest = distance.reshape(len(which), self.terms.relay), nearest.reshape(len(which), self.terms.relay)
+        near = (distance <= self.lengths.relay_radius).all(axis=1)
         # The median, not the mean: a track the tracker's filters kept on a wrong match
         # must not move its neighbours' anchors.
         offsets[near] = np.median((tracked - placed)[nearest[near]], axis=1)
@@ -344,7 +333,7 @@ class TrackAttachments:
         if len(which) == 0 or len(old) == 0:
             return
         near = cKDTree(self.tracks.positions[row, old]).query_ball_point(self.tracks.positions[row, which],
-                                                                          self.relay_radius, return_length=True)
+                                                                          self.lengths.relay_radius, return_length=True)
         self.older_near[which] = near
 
     def frame_older_near(self, frame: int) -> NDArray[np.int64]:
@@ -363,12 +352,12 @@ class TrackAttachments:
         return np.abs(self.tracks.frames[row] - self.origin[use]).astype(np.float64)
 
     def frame_arrays(
-        self, frame: int, sigma: float
+        self, frame: int
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
         """The track term's arrays for ``frame`` (``_core.FitCore.fit_frame(tracks=)``):
         nodes (T, k), weights (T, k), tracked positions (T, 3) and precisions
-        ``(Sigma + sigma^2 I)^-1`` (T, 3, 3) of the attached tracks tracked there, not
-        anchored there; None when there are none."""
+        ``(Sigma + sigma^2 I)^-1`` (T, 3, 3, sigma the terms' floor, world units) of the
+        attached tracks tracked there, not anchored there; None when there are none."""
         row = self._row(frame)
         if row is None:
             return None
@@ -376,11 +365,12 @@ class TrackAttachments:
         if not use.any():
             return None
         covariance = self.tracks.covariances[row, use]
+        sigma = self.lengths.sigma
         precision = np.linalg.inv(0.5 * (covariance + covariance.transpose(0, 2, 1)) + sigma**2 * np.eye(3))
-        if self.relayed_weight != 1.0:
+        if self.terms.relayed_weight != 1.0:
             # Tracks attached after their (late) anchor frame's fit, where only the relay
             # says where their material is: trusted less.
-            precision[self.frame_relayed(frame)] *= self.relayed_weight
+            precision[self.frame_relayed(frame)] *= self.terms.relayed_weight
         return (
             np.ascontiguousarray(self.neighbours[use]),
             np.ascontiguousarray(self.phi[use]),
