@@ -19,6 +19,9 @@ hulls and tracks are kept in ``/tmp/elastocap_texfast_<seed>_<frames>_<width>`` 
 be read back as the default's). ``--reuse-without`` keeps the fit without tracks in
 ``OUT/without_<nodes>.npz`` and reads it back on the next run (it does not depend on the
 tracks or the fit's track options).
+``--options`` are ``fit_sequence``'s keywords as JSON; its track terms may be given as
+``"track_terms": {"ahead": 2}`` or, as in the commands of earlier sessions, flat
+(``"track_ahead": 2``): both become one ``TrackTerms``.
 Prints one JSON line per fit (``"tracks": false`` and ``true``) and their drift ratio.
 """
 
@@ -27,13 +30,14 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from elastocap import ElasticModel, fit_sequence, load_tracks, track_points
+from elastocap import ElasticModel, TrackTerms, fit_sequence, load_tracks, track_points
 from elastocap.capture.folder import Capture
 from elastocap.elastic.measures import surface_error
 from elastocap.pipeline.hull import load_hull, run_hull_stage
@@ -127,7 +131,7 @@ def main() -> None:
             saved = np.load(cache if not with_tracks else args.save_with)
             positions, seconds, cpu = saved["positions"], float(saved["seconds"]), float(saved["cpu"])
         else:
-            fit = fit_sequence(model, hulls, tracks=tracks if with_tracks else None, **options)
+            fit = fit_sequence(model, hulls, tracks=tracks if with_tracks else None, **fit_keywords(options))
             seconds, cpu = (time.perf_counter() - clock) / args.frames, (time.process_time() - cpu) / args.frames
             positions = np.stack([fit.fits[f].positions for f in frames])
             if not with_tracks and args.reuse_without:
@@ -160,6 +164,21 @@ def main() -> None:
         lost_parts(model, truth, tracks, meshes, frames, diagonal, curves)
         anchor_errors(model, truth, tracks, frames, diagonal, curves[True][6], args.options)
         part_drift(truth, tracks, frames, diagonal, curves)
+
+
+def fit_keywords(options: dict) -> dict:
+    """``fit_sequence``'s keywords from ``--options``: the track terms, flat ``track_*`` keys
+    (the commands of sessions before 26) and / or a ``"track_terms"`` object of
+    ``TrackTerms`` fields, as one ``TrackTerms`` (a field given both ways is refused)."""
+    flat = {key: value for key, value in options.items() if key.startswith("track_") and key != "track_terms"}
+    nested = dict(options.get("track_terms") or {})
+    both = sorted(key[len("track_"):] for key in flat if key[len("track_"):] in nested)
+    if both:
+        raise SystemExit(f"--options: {both} given both flat and in track_terms")
+    keywords = {key: value for key, value in options.items() if key not in flat and key != "track_terms"}
+    if flat or nested:
+        keywords["track_terms"] = replace(TrackTerms.from_flat(flat), **nested)
+    return keywords
 
 
 def figure_lost(model, positions, meshes, frames) -> list[float]:
@@ -247,28 +266,19 @@ def anchor_errors(model, truth, tracks, frames, diagonal, positions, options: di
     material point at rest (its MLS weights over the fit's frame-0 nodes) and the true rest
     position of the surface point it was tracked on (the ground-truth point nearest its
     tracked position at its anchor frame, within 1% of the diagonal), median % of the
-    diagonal; attached as the fit does (relay 5, and ``track_ahead`` / ``track_ahead_tolerance``
-    / ``track_ahead_check`` / ``track_ahead_chain`` / ``track_relay_memory`` as the fit's
-    ``options`` set them or its defaults; the frame's start for ``track_ahead_check`` is the fit's
-    constant-velocity prediction, as the fit's) and without either, on the same fit."""
-    from elastocap.elastic.fit import (TRACK_AHEAD, TRACK_AHEAD_CHECK, TRACK_AHEAD_TOLERANCE, TRACK_RELAY,
-                                       TRACK_RELAY_MEMORY)
+    diagonal; attached as the fit does (the relay, the carry ahead and their options as the
+    fit's ``TrackTerms`` from ``options`` set them, or its defaults; the frame's start for
+    the carry's check is the fit's constant-velocity prediction, as the fit's) and without
+    either (``relay``, ``ahead`` and ``relay_memory`` 0), on the same fit."""
     from elastocap.elastic.tracks import TrackAttachments
 
     spacing = float(np.mean(model.volumes) ** (1 / 3))
-    options = options or {}
-    ahead = int(options.get("track_ahead", TRACK_AHEAD))
-    tolerance = options.get("track_ahead_tolerance")
-    check = options.get("track_ahead_check")
-    tolerance = TRACK_AHEAD_TOLERANCE * spacing if tolerance is None else float(tolerance)
-    check = TRACK_AHEAD_CHECK * spacing if check is None else float(check)
+    terms = fit_keywords(options or {}).get("track_terms") or TrackTerms()
     bins = [(0, 1)] + [(lo, min(lo + 10, len(frames))) for lo in range(1, len(frames), 10)]
     rows = {}
-    for relay in (TRACK_RELAY, 0):
-        attachments = TrackAttachments.build(
-            tracks, frames[0], model.neighbors.shape[1], relay, 4 * spacing, ahead if relay else 0,
-            tolerance, check, int(options.get("track_ahead_chain", 0)),
-            relay_memory=int(options.get("track_relay_memory", TRACK_RELAY_MEMORY)) if relay else 0)
+    for relayed in (True, False):
+        used = terms if relayed else replace(terms, relay=0, ahead=0, relay_memory=0)
+        attachments = TrackAttachments.build(tracks, frames[0], model.neighbors.shape[1], used, spacing)
         for i, f in enumerate(frames):
             start = positions[frames[max(i - 1, 0)]] if i < 2 else 2 * positions[frames[i - 1]] - positions[frames[i - 2]]
             attachments.attach_ahead(f, start)
@@ -283,11 +293,11 @@ def anchor_errors(model, truth, tracks, frames, diagonal, positions, options: di
             rest = np.einsum("tk,tkd->td", attachments.phi[n[pick]], positions[frames[0]][attachments.neighbours[n[pick]]])
             e = 100 * np.linalg.norm(rest - truth.positions[frames[0]][nearest], axis=1) / diagonal
             error[pick] = np.where(gap <= 0.01 * diagonal, e, np.nan)
-        rows[relay] = [(np.nanmedian(error[(anchor >= lo) & (anchor < hi)]) if ((anchor >= lo) & (anchor < hi)).any() else np.nan,
+        rows[relayed] = [(np.nanmedian(error[(anchor >= lo) & (anchor < hi)]) if ((anchor >= lo) & (anchor < hi)).any() else np.nan,
                         int(((anchor >= lo) & (anchor < hi) & np.isfinite(error)).sum())) for lo, hi in bins]
-    print(f"anchor frames: median attachment error % of the diagonal (tracks), relay {TRACK_RELAY}"
-          f"{f' and ahead {ahead}' if ahead else ''} / 0")
-    for (lo, hi), a, b in zip(bins, rows[TRACK_RELAY], rows[0]):
+    print(f"anchor frames: median attachment error % of the diagonal (tracks), relay {terms.relay}"
+          f"{f' and ahead {terms.ahead}' if terms.ahead else ''} / 0")
+    for (lo, hi), a, b in zip(bins, rows[True], rows[False]):
         print(f"  {lo:3d}-{hi - 1:3d}: {a[0]:5.2f} / {b[0]:5.2f} ({a[1]})")
 
 
