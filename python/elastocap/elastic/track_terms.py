@@ -47,9 +47,9 @@ TRACK_AHEAD = 6
 TRACK_AHEAD_TOLERANCE = 0.5
 TRACK_AHEAD_CHECK = 3.0
 TRACK_RELAY_MEMORY = 2
-# The defaults of the other lengths, in mean node spacings: a track's sigma floor (a
-# quarter spacing: none pulls harder than ``weight``), the relay's radius and the spread's
-# reach (the MLS support of a node is about 2 spacings; 4 reaches the next ring of tracks).
+# The defaults of the other lengths, in mean node spacings (fit_sequence's before they were
+# grouped here): a track's sigma floor, the relay's radius (also the carry's) and the
+# spread's geodesic reach.
 TRACK_SIGMA = 0.25
 TRACK_RELAY_RADIUS = 4.0
 TRACK_SPREAD_RADIUS = 4.0
@@ -71,8 +71,9 @@ class TrackLengths:
 @dataclass(frozen=True, kw_only=True)
 class TrackTerms:
     """How tracks pull the fit (:func:`elastocap.fit_sequence`'s ``track_terms``); the
-    defaults are the fit's. Validated on construction (:class:`InvalidInputError` naming
-    the field and its value); ints, floats and bools are stored as Python's own.
+    defaults are the fit's. Keyword-only and frozen (``dataclasses.replace`` makes a
+    variant); validated on construction (:class:`InvalidInputError` naming the field and
+    its value); ints, floats and bools are stored as Python's own.
 
     Parameters
     ----------
