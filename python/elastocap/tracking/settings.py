@@ -339,3 +339,17 @@ RIGID_PREDICTION: str | None = "new"
 RIGID_PREDICTION_NEIGHBOURS = 8
 RIGID_PREDICTION_MIN_NEIGHBOURS = 4
 RIGID_PREDICTION_REACH = 60.0
+# A young view's lost first step searched coarse to fine (:mod:`elastocap.tracking.pyramid_search`):
+# the views with no position on the frame before that the step (and the second search) lost
+# to a failed match are searched by the same step on both images reduced PYRAMID_LEVEL times
+# (cv2.pyrDown), in a box of PYRAMID_RADIUS coarse pixels (15 at level 2: 60 px) with a
+# template of PYRAMID_SIZE coarse pixels, then at full resolution from that find with the
+# tracker's box and checks. The coarse find is kept only if every other local maximum of its
+# correlation surface farther than PYRAMID_PEAK_EXCLUSION coarse pixels is at least
+# PYRAMID_PEAK_MARGIN lower (a repeated print, the other leg). False: main's step exactly.
+PYRAMID_SEARCH = False
+PYRAMID_LEVEL = 2
+PYRAMID_RADIUS = 15
+PYRAMID_SIZE = 7
+PYRAMID_PEAK_EXCLUSION = 2.0
+PYRAMID_PEAK_MARGIN = 0.1
