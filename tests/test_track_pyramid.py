@@ -12,11 +12,11 @@ from scipy.ndimage import gaussian_filter
 
 from elastocap.tracking.depth_weights import rust_step
 from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.pyramid_search import check_options, pyramid, pyramid_search, unique_peaks
+from elastocap.tracking.pyramid_search import box_scores, check_options, coarse_peaks, pooled, pyramid, pyramid_search
 
 OPTIONS = dict(size=15, min_correlation=0.75, box_correlation=0.5, forward_backward=0.6, min_texture=0.0,
                max_iterations=8)
-COARSE = dict(level=2, radius=15, coarse_size=7, exclusion=2.0, margin=0.1)
+COARSE = dict(level=2, radius=15, coarse_size=7, coarse_correlation=0.5, exclusion=2.0, margin=0.1)
 
 
 def _texture(shape: tuple[int, int], seed: int, period: int | None = None) -> np.ndarray:
@@ -119,25 +119,45 @@ def test_a_repeated_print_puts_a_look_alike_in_the_box_and_the_guard_refuses_it(
     assert wrong.sum() >= 0.5 * loose.found.sum() > 0
 
 
-def test_unique_peaks_reads_the_second_local_maximum_not_the_peaks_own_slope():
+def test_the_coarse_peak_is_the_true_shift_and_unique_unless_the_print_repeats():
     # A single smooth print: the slope beside the true peak is high, but it is no local
-    # maximum, so the find is unique; the same print repeated 6 coarse pixels apart is not.
+    # maximum, so the peak is unique; the same print repeated 6 coarse pixels apart is not.
+    points = np.array([[40.0, 30.0], [60.0, 50.0], [100.0, 60.0]])
     single = pyramid([_texture((240, 320), 4)], 1)[0]
-    moved = pyramid([_shifted(_texture((240, 320), 4), (20.0, 0.0))], 1)[0]
-    points = np.array([[80.0, 60.0], [100.0, 70.0]])
-    finds = points + np.array([10.0, 0.0])
-    assert unique_peaks(single, points, moved, points, finds, size=7, radius=12, exclusion=2.0, margin=0.1).all()
+    moved = pyramid([_shifted(_texture((240, 320), 4), (20.0, -8.0))], 1)[0]
+    find, score, unique = coarse_peaks(*box_scores(single, points, moved, points, size=7, radius=12), radius=12,
+                                       exclusion=2.0, margin=0.1)
+    np.testing.assert_allclose(find, points + np.array([10.0, -4.0]))
+    assert (score > 0.9).all() and unique.all()
     repeated = pyramid([_texture((240, 320), 5, period=12)], 1)[0]
     moved_r = pyramid([_shifted(_texture((240, 320), 5, period=12), (20.0, 0.0))], 1)[0]
-    assert not unique_peaks(repeated, points, moved_r, points, finds, size=7, radius=12, exclusion=2.0,
-                            margin=0.1).any()
+    _, score_r, unique_r = coarse_peaks(*box_scores(repeated, points, moved_r, points, size=7, radius=12), radius=12,
+                                        exclusion=2.0, margin=0.1)
+    assert (score_r > 0.9).all() and not unique_r.any()
+
+
+def test_pooling_lets_the_shift_a_neighbourhood_shares_beat_each_views_look_alike():
+    # Five points 1 cm apart; each view's surface (K = 3 shifts) has its true shift 0 at
+    # 0.6 and a look-alike of 0.9 at shift 1 or 2 (a different one per view); a sixth
+    # point 1 m away has only the look-alike and keeps its own scores.
+    scores = np.array([[0.6, 0.9, 0.1], [0.6, 0.1, 0.9], [0.6, 0.9, 0.1], [0.6, 0.1, 0.9], [0.6, 0.2, 0.2],
+                       [0.1, 0.9, 0.1]])
+    x = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0], [0.04, 0, 0], [1.0, 0, 0]])
+    reach = np.full(6, 0.05)
+    out = pooled(scores, x, 5, reach)
+    assert (out[:5].argmax(axis=1) == 0).all()
+    np.testing.assert_allclose(out[5], scores[5])
+    np.testing.assert_allclose(pooled(scores, x, 1, reach), scores)
+    assert (scores.argmax(axis=1)[:4] != 0).all()
 
 
 @pytest.mark.parametrize("bad", [dict(level=0), dict(level=5), dict(level=1.5), dict(radius=0), dict(radius=100),
                                  dict(size=6), dict(size=1), dict(margin=-0.1), dict(margin=float("nan")),
-                                 dict(exclusion=0.5), dict(exclusion=15.0)])
+                                 dict(exclusion=0.5), dict(exclusion=15.0),
+                                 dict(correlation=1.5), dict(correlation=float("nan")),
+                                 dict(pool=0), dict(pool=2.5), dict(reach=0.0), dict(reach=float("inf"))])
 def test_bad_settings_are_refused(bad):
-    good = dict(level=2, radius=15, size=7, margin=0.1, exclusion=2.0)
+    good = dict(level=2, radius=15, size=7, correlation=0.5, margin=0.1, exclusion=2.0, pool=8, reach=30.0)
     check_options(**good)
     with pytest.raises(ValueError):
         check_options(**{**good, **bad})
