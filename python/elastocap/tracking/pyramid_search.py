@@ -71,9 +71,9 @@ def pyramid(images: list[NDArray[np.float32]], level: int) -> list[NDArray[np.fl
     ``p * 2 ** level``."""
     out = []
     for image in images:
-        reduced = image
+        reduced: NDArray[np.floating] = image
         for _ in range(level):
-            reduced = cv2.pyrDown(reduced)
+            reduced = np.asarray(cv2.pyrDown(reduced), dtype=np.float32)
         out.append(np.ascontiguousarray(reduced, dtype=np.float32))
     return out
 
