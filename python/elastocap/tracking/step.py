@@ -29,6 +29,8 @@ from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.hidden import end_hidden_views
 from elastocap.tracking.prediction import drop_breaking_views, drop_far_views, research_failed_views
+from elastocap.tracking.pyramid_search import check_options as check_pyramid_options
+from elastocap.tracking.pyramid_search import pyramid_search
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.retie import retie_views
 from elastocap.tracking.revival import Lost, revive
@@ -227,6 +229,29 @@ class FrameTracker:
                 uv, flags2d, cov2d, corr = found.uv, found.flags2d, found.cov2d, found.corr
                 researched = found.found
                 wide = found.found & ~found.by_neighbours
+            if settings.PYRAMID_SEARCH:
+                # A young view (no position on the frame before: a new seed's first step,
+                # predicted at no motion) lost by the match searched coarse to fine.
+                check_pyramid_options(level=settings.PYRAMID_LEVEL, radius=settings.PYRAMID_RADIUS,
+                                      size=settings.PYRAMID_SIZE, correlation=settings.PYRAMID_CORRELATION,
+                                      margin=settings.PYRAMID_PEAK_MARGIN, exclusion=settings.PYRAMID_PEAK_EXCLUSION,
+                                      pool=settings.PYRAMID_POOL, reach=settings.PYRAMID_POOL_REACH)
+                young = np.isfinite(self.uv[..., 0]) & ~np.isfinite(self.uv_last[..., 0])
+                held_now = np.isfinite(self.uv[..., 0])
+                pool_reach = settings.PYRAMID_POOL_REACH * pixel_size(self.cameras, self.x_last, held_now)
+                coarse = pyramid_search(
+                    self.grey, grey, self.uv, before, young, uv, flags2d, cov2d, corr, level=settings.PYRAMID_LEVEL,
+                    radius=settings.PYRAMID_RADIUS, coarse_size=settings.PYRAMID_SIZE,
+                    coarse_correlation=settings.PYRAMID_CORRELATION,
+                    exclusion=settings.PYRAMID_PEAK_EXCLUSION, margin=settings.PYRAMID_PEAK_MARGIN, size=self.size,
+                    fine_radius=self.radius, min_correlation=self.min_correlation,
+                    box_correlation=min(self.min_correlation, settings.BOX_CORRELATION),
+                    forward_backward=self.o["forward_backward"], min_texture=self.keep_texture,
+                    max_iterations=settings.STEP_ITERATIONS, weights=pair, weighted_box=settings.WEIGHTED_BOX,
+                    pool=settings.PYRAMID_POOL, x_last=self.x_last, reach=pool_reach)
+                uv, flags2d, cov2d, corr = coarse.uv, coarse.flags2d, coarse.cov2d, coarse.corr
+                # A blunder found this wide must not end its point (as the second search's).
+                researched = researched | coarse.found
             if self.anchors is not None:
                 uv, stale = self.anchors.correct(grey, uv, min_correlation=self.min_correlation, reach=settings.ANCHOR_REACH,
                                                  min_texture=self.keep_texture)
