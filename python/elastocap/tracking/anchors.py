@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
+from elastocap.tracking import settings
 
 __all__ = ["Anchors"]
 
@@ -83,7 +84,8 @@ class Anchors:
         """``uv`` (N, C, 2) refined against the anchors where held and tracked; returns the
         refined positions and where the anchor no longer matched (to be re-cut)."""
         out, _, good = self._match(images, uv, self.held[: len(uv)] & np.isfinite(uv[..., 0]),
-                                   min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+                                   min_correlation=min_correlation, reach=reach, min_texture=min_texture,
+                                   refine=settings.ANCHOR_REFINE)
         tried = self.held[: len(uv)] & np.isfinite(uv[..., 0])
         return np.where(good[..., None], out, uv), tried & ~good
 
@@ -95,7 +97,8 @@ class Anchors:
         stops matching. Returns positions (N, C, 2) and covariances (N, C, 2, 2), NaN where
         not found."""
         out, cov, good = self._match(images, starts, where & self.held[: len(starts)] & np.isfinite(starts[..., 0]),
-                                     min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+                                     min_correlation=min_correlation, reach=reach, min_texture=min_texture,
+                                     refine=settings.ANCHOR_REFINE if settings.ANCHOR_REFINE_RESCUE else None)
         return np.where(good[..., None], out, np.nan), np.where(good[..., None, None], cov, np.nan)
 
     def search(self, images: Sequence[NDArray[np.float32]], targets: NDArray[np.float64], where: NDArray[np.bool_], *,
@@ -149,8 +152,8 @@ class Anchors:
         return mosaic, weighs, centres
 
     def _match(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], *,
-               min_correlation: float, reach: float,
-               min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+               min_correlation: float, reach: float, min_texture: float,
+               refine: dict[str, object] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         n, c = uv.shape[:2]
         self.grow(n)
         out = uv.copy()
@@ -163,7 +166,7 @@ class Anchors:
             mosaic, weighs, centres = self._mosaic(rows, k)
             m = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
                               size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
-                              weights=weighs)
+                              weights=weighs, refine=refine)
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
