@@ -442,26 +442,34 @@ pub(crate) fn refine(
         // covariance.
         return Outcome::failed(Status::LowTexture, state, iterations);
     }
-    let mut status = Status::MaxIterations;
-    let mut taken = iterations;
-    for _ in 0..model.iterations {
-        let Some(ev) = evaluate(
+    // The model at a state with the prior's weights on the normal matrix's diagonal: the
+    // equations of each step and, at the end, of the covariance.
+    let regularised = |s: &RichState, residuals: &mut [f32]| {
+        let ev = evaluate(
             patch,
             image,
-            &s,
+            s,
             &layout,
             options.interpolation,
             true,
             residuals,
-        ) else {
+        )?;
+        let lambda = prior(s, &layout, model, ev.square / redundancy, h);
+        let mut normal = ev.normal;
+        for k in 0..p {
+            normal[k][k] += lambda[k];
+        }
+        Some((ev, normal, lambda))
+    };
+    let mut status = Status::MaxIterations;
+    let mut taken = iterations;
+    for _ in 0..model.iterations {
+        let Some((ev, normal, lambda)) = regularised(&s, residuals) else {
             return Outcome::failed(Status::LeftImage, to_state(&s), taken);
         };
-        let lambda = prior(&s, &layout, model, ev.square / redundancy, h);
-        let mut normal = ev.normal;
         let mut gradient = ev.gradient;
         let current = unknowns(&s, &layout);
         for k in 0..p {
-            normal[k][k] += lambda[k];
             gradient[k] -= lambda[k] * current[k];
         }
         let Some(chol) = Cholesky::new(&normal, p) else {
@@ -478,23 +486,10 @@ pub(crate) fn refine(
             break;
         }
     }
-    let Some(ev) = evaluate(
-        patch,
-        image,
-        &s,
-        &layout,
-        options.interpolation,
-        true,
-        residuals,
-    ) else {
+    let Some((ev, normal, _)) = regularised(&s, residuals) else {
         return Outcome::failed(Status::LeftImage, to_state(&s), taken);
     };
     let sigma0 = (ev.square / redundancy).sqrt();
-    let lambda = prior(&s, &layout, model, ev.square / redundancy, h);
-    let mut normal = ev.normal;
-    for k in 0..p {
-        normal[k][k] += lambda[k];
-    }
     let Some(chol) = Cholesky::new(&normal, p) else {
         return Outcome::failed(Status::LowTexture, to_state(&s), taken);
     };
