@@ -186,48 +186,19 @@ pub(super) fn box_search_sampled(
     };
     let n = (size * size) as f64;
     let shifts = 2 * radius + 1;
+    shift_dots(
+        &scratch.window,
+        side,
+        &template,
+        size,
+        &mut scratch.padded,
+        &mut scratch.dots,
+    );
     scratch.scores.clear();
-    scratch.dots.clear();
-    scratch.dots.resize(shifts, 0.0);
     let (mut best, mut best_at) = (f64::NEG_INFINITY, (radius, radius));
-    // Up to `LANES` shifts a row, the window is copied into rows of stride `size + LANES`
-    // (zero beyond the window) so that the inner loop runs over a fixed-size array the
-    // compiler unrolls into whole vector registers; the run of `shifts` (13 at the default
-    // radius) otherwise leaves a remainder loop and its set-up at every one of the `size^2`
-    // template samples (profiled: a third of the tracker's step went there). The sums run
-    // in the same order either way, so the scores are the same to the bit.
-    let fixed = shifts <= LANES;
-    let stride_w = if fixed { size + LANES } else { side };
-    if fixed {
-        scratch.padded.clear();
-        scratch.padded.resize(side * stride_w, 0.0);
-        for r in 0..side {
-            scratch.padded[r * stride_w..r * stride_w + side]
-                .copy_from_slice(&scratch.window[r * side..(r + 1) * side]);
-        }
-    }
     for r in 0..shifts {
-        // The dot products of one row of shifts at once: each template sample times a run
-        // of `shifts` window samples, a loop the compiler vectorises (the per-shift dot
-        // product of `size^2` terms is a serial sum it cannot).
-        if fixed {
-            let rows = &scratch.padded[r * stride_w..(r + size) * stride_w];
-            let acc = row_of_shifts(rows, &template, size);
-            scratch.dots[..shifts].copy_from_slice(&acc[..shifts]);
-        } else {
-            let dots = &mut scratch.dots[..shifts];
-            dots.fill(0.0);
-            for tr in 0..size {
-                let row = &scratch.window[(r + tr) * side..(r + tr + 1) * side];
-                for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
-                    for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
-                        *dot += w * t;
-                    }
-                }
-            }
-        }
         for c in 0..shifts {
-            let dot = scratch.dots[c];
+            let dot = scratch.dots[r * shifts + c];
             let s = box_sum(&scratch.sum, r, c);
             let ss = box_sum(&scratch.square, r, c);
             let variance = ss - s * s / n;
@@ -245,6 +216,56 @@ pub(super) fn box_search_sampled(
         }
     }
     Some(refine(&scratch.scores, best_at, best, prediction, radius))
+}
+
+/// The dot products of `template` (`size x size`) with the window (`side x side`,
+/// `side = size + 2 radius`) at each of the `(2 radius + 1)^2` shifts, row-major into
+/// `out`: the plain search's and the weighted search's ([`super::weighted_ncc`]) one kernel.
+///
+/// A row of shifts at once: each template sample times a run of `shifts` window samples, a
+/// loop the compiler vectorises (the per-shift dot product of `size^2` terms is a serial
+/// sum it cannot). Up to `LANES` shifts a row, the window is copied into rows of stride
+/// `size + LANES` (zero beyond the window) so that the inner loop runs over a fixed-size
+/// array the compiler unrolls into whole vector registers; the run of `shifts` (13 at the
+/// default radius) otherwise leaves a remainder loop and its set-up at every one of the
+/// `size^2` template samples (profiled: a third of the tracker's step went there). The sums
+/// run in the same order either way, so the dot products are the same to the bit.
+pub(super) fn shift_dots(
+    window: &[f32],
+    side: usize,
+    template: &[f32],
+    size: usize,
+    padded: &mut Vec<f32>,
+    out: &mut Vec<f32>,
+) {
+    let shifts = side + 1 - size;
+    out.clear();
+    out.resize(shifts * shifts, 0.0);
+    if shifts <= LANES {
+        let stride = size + LANES;
+        padded.clear();
+        padded.resize(side * stride, 0.0);
+        for r in 0..side {
+            padded[r * stride..r * stride + side]
+                .copy_from_slice(&window[r * side..(r + 1) * side]);
+        }
+        for r in 0..shifts {
+            let acc = row_of_shifts(&padded[r * stride..(r + size) * stride], template, size);
+            out[r * shifts..(r + 1) * shifts].copy_from_slice(&acc[..shifts]);
+        }
+    } else {
+        for r in 0..shifts {
+            let dots = &mut out[r * shifts..(r + 1) * shifts];
+            for tr in 0..size {
+                let row = &window[(r + tr) * side..(r + tr + 1) * side];
+                for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
+                    for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
+                        *dot += w * t;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// The best shift `best_at` (row, column) of the `(2 radius + 1)^2` `scores` (row-major)

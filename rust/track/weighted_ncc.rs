@@ -13,13 +13,11 @@
 //!
 //! with $\bar x_w = \sum w x / \sum w$; for $w \equiv 1$ it is the plain correlation. Per
 //! shift, three dot products over the patch (the template's weighted deviations with the
-//! window, the weights with the window, the weights with the window's squares), each a row
-//! of shifts at once as the plain search does, where the plain search needs one (its window
-//! sums come from summed-area tables, which weights defeat).
+//! window, the weights with the window, the weights with the window's squares), each by the
+//! plain search's kernel ([`super::ncc::shift_dots`]), where the plain search needs one (its
+//! window sums come from summed-area tables, which weights defeat).
 
-use super::ncc::{
-    box_search_sampled, refine, row_of_shifts, sample_window, BoxScratch, NccBest, LANES,
-};
+use super::ncc::{box_search_sampled, refine, sample_window, shift_dots, BoxScratch, NccBest};
 use crate::lsm::ImageView;
 
 /// Least total weight of a weighted template, as a share of its pixels: with less, the
@@ -61,48 +59,6 @@ pub(super) fn all_ones(
         all &= *w >= 1.0;
     }
     all
-}
-
-/// The dot products of `template` (`size x size`) with the window (`side x side`,
-/// `side = size + 2 radius`) at each of the `(2 radius + 1)^2` shifts, row-major into
-/// `out`.
-fn shift_dots(
-    window: &[f32],
-    side: usize,
-    template: &[f32],
-    size: usize,
-    padded: &mut Vec<f32>,
-    out: &mut Vec<f32>,
-) {
-    let shifts = side + 1 - size;
-    out.clear();
-    out.resize(shifts * shifts, 0.0);
-    if shifts <= LANES {
-        // The plain search's fixed-width rows (see `box_search`).
-        let stride = size + LANES;
-        padded.clear();
-        padded.resize(side * stride, 0.0);
-        for r in 0..side {
-            padded[r * stride..r * stride + side]
-                .copy_from_slice(&window[r * side..(r + 1) * side]);
-        }
-        for r in 0..shifts {
-            let acc = row_of_shifts(&padded[r * stride..(r + size) * stride], template, size);
-            out[r * shifts..(r + 1) * shifts].copy_from_slice(&acc[..shifts]);
-        }
-    } else {
-        for r in 0..shifts {
-            let dots = &mut out[r * shifts..(r + 1) * shifts];
-            for tr in 0..size {
-                let row = &window[(r + tr) * side..(r + tr + 1) * side];
-                for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
-                    for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
-                        *dot += w * t;
-                    }
-                }
-            }
-        }
-    }
 }
 
 /// The box search of the template in `scratch.template` with the weights
