@@ -13,9 +13,10 @@
 //!
 //! Submodules: `sample` (template patch and gradients), `resample` (bilinear and bicubic
 //! resampling), `normal` (normal equations from patch sums), `gauss_newton` (one search
-//! image; `line` its epipolar constraint), `sandwich` (its covariance under noisy template gradients), `multi` (all search
-//! images of a point, joint covariance), `dense` (8x8 Cholesky and inverse), `types`
-//! (options, status, outputs).
+//! image; `line` its epipolar constraint), `sandwich` (its covariance under noisy template
+//! gradients), `rich` (second-order warp terms and a gain gradient after convergence, an
+//! option), `multi` (all search images of a point, joint covariance), `dense` (Cholesky
+//! and inverses of small systems), `types` (options, status, outputs).
 
 mod dense;
 #[cfg(target_arch = "x86_64")]
@@ -25,6 +26,7 @@ mod line;
 mod multi;
 mod normal;
 mod resample;
+mod rich;
 mod sample;
 mod sandwich;
 #[cfg(test)]
@@ -32,7 +34,9 @@ mod tests;
 mod types;
 
 pub(crate) use resample::wide;
-pub use types::{ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS};
+pub use types::{
+    ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Status, Warp, PARAMETERS,
+};
 
 use rayon::prelude::*;
 
@@ -204,6 +208,18 @@ fn validate(
             value,
             value >= 0.0 && value.is_finite(),
             "a finite number >= 0",
+        )?;
+    }
+    let extra = &options.extra;
+    for (argument, value) in [
+        ("extra.warp_sigma", extra.warp_sigma),
+        ("extra.gain_sigma", extra.gain_sigma),
+    ] {
+        option(
+            argument,
+            value,
+            value >= 0.0 && value.is_finite(),
+            "a finite number >= 0 (0: no prior)",
         )?;
     }
     if searches.is_empty() {

@@ -350,6 +350,13 @@ def lsm_match_patches(
     interpolation: str = "bicubic",
     threads: int | None = None,
     weights: NDArray[np.float32] | None = None,
+    extra_iterations: int = 0,
+    extra_warp: str = "affine",
+    extra_gain_gradient: bool = False,
+    extra_warp_sigma: float = 0.0,
+    extra_gain_sigma: float = 0.0,
+    extra_fallback: bool = False,
+    extra_jacobian: str = "search",
 ) -> tuple[
     NDArray[np.uint8],
     NDArray[np.float64],

@@ -1,22 +1,23 @@
-//! Small dense systems (up to 8 unknowns): Cholesky of symmetric positive definite ones,
+//! Small dense systems (8 unknowns, 16 for the richer model): Cholesky of symmetric positive definite ones,
 //! solves and inverses, and a general inverse, on fixed-size arrays, so an iteration
 //! allocates nothing.
 
 /// Largest system handled.
 pub(crate) const MAX: usize = 8;
 
-/// A symmetric positive definite matrix of order `m <= MAX` factorised as `L L^T`.
+/// A symmetric positive definite matrix of order `m <= N` factorised as `L L^T` (`N` is
+/// `MAX` for a match's unknowns, more for the richer model's, `rich`).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Cholesky {
-    l: [[f64; MAX]; MAX],
+pub(crate) struct Cholesky<const N: usize> {
+    l: [[f64; N]; N],
     m: usize,
 }
 
-impl Cholesky {
+impl<const N: usize> Cholesky<N> {
     /// Factorises the leading `m x m` block of `a`; `None` when a pivot is not positive
     /// relative to the diagonal (numerically singular: `pivot <= 1e-12 * a_ii`).
-    pub fn new(a: &[[f64; MAX]; MAX], m: usize) -> Option<Self> {
-        let mut l = [[0.0; MAX]; MAX];
+    pub fn new(a: &[[f64; N]; N], m: usize) -> Option<Self> {
+        let mut l = [[0.0; N]; N];
         for j in 0..m {
             let mut d = a[j][j];
             for k in 0..j {
@@ -40,7 +41,7 @@ impl Cholesky {
     }
 
     /// `A^-1 b` for the first `m` entries of `b`.
-    pub fn solve(&self, b: &[f64; MAX]) -> [f64; MAX] {
+    pub fn solve(&self, b: &[f64; N]) -> [f64; N] {
         let (l, m) = (&self.l, self.m);
         let mut x = *b;
         for i in 0..m {
@@ -61,10 +62,10 @@ impl Cholesky {
     }
 
     /// `A^-1` (the leading `m x m` block; the rest zero).
-    pub fn inverse(&self) -> [[f64; MAX]; MAX] {
-        let mut inv = [[0.0; MAX]; MAX];
+    pub fn inverse(&self) -> [[f64; N]; N] {
+        let mut inv = [[0.0; N]; N];
         for j in 0..self.m {
-            let mut e = [0.0; MAX];
+            let mut e = [0.0; N];
             e[j] = 1.0;
             let column = self.solve(&e);
             for i in 0..self.m {

@@ -14,6 +14,7 @@ use super::line::degenerate;
 pub(crate) use super::line::Line;
 use super::normal::Sums;
 use super::resample::{sample_search, sample_search_ring};
+use super::rich::refine;
 use super::sample::{dot, TemplatePatch};
 use super::sandwich::{meat, sandwich, sensitivity};
 use super::types::{ImageView, MatchOptions, Status};
@@ -92,7 +93,7 @@ pub(crate) struct Outcome {
 }
 
 impl Outcome {
-    fn failed(status: Status, state: State, iterations: u32) -> Self {
+    pub(crate) fn failed(status: Status, state: State, iterations: u32) -> Self {
         Self {
             status,
             state,
@@ -252,6 +253,16 @@ pub(crate) fn match_image(
                 status = Status::Converged;
                 break;
             }
+        }
+    }
+    // The richer model (off by default) from the converged affine match; not with a line
+    // (the temporal match it is for has none).
+    if status == Status::Converged && options.extra.iterations > 0 && line.is_none() {
+        let refined = refine(
+            patch, image, state, start_a, start_b, options, iterations, residuals,
+        );
+        if refined.status == Status::Converged || !options.extra.fallback {
+            return refined;
         }
     }
     finish(

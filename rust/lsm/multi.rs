@@ -114,7 +114,7 @@ pub(crate) fn match_point(
 
 /// The step -> parameter map of one search image: `[d, D, gain, offset]` to
 /// `[u, v, a11, a12, a21, a22, gain, offset]` at the map `a` (`Δb = A d`, `ΔA = A D`).
-fn to_parameters(a: [f64; 4]) -> [[f64; U]; U] {
+pub(crate) fn to_parameters(a: [f64; 4]) -> [[f64; U]; U] {
     let [a11, a12, a21, a22] = a;
     let mut l = [[0.0; U]; U];
     l[0][0] = a11;

@@ -76,6 +76,9 @@ pub struct MatchOptions {
     /// `(G^T G)^-1`, the template taken noise-free, for callers that only use the match's
     /// position (the tracker's forward-backward check).
     pub sandwich: bool,
+    /// A richer model for the last iterations of a converged match (off by default):
+    /// second-order warp terms and a gain that varies across the patch (`rich`).
+    pub extra: ExtraModel,
 }
 
 impl Default for MatchOptions {
@@ -91,6 +94,64 @@ impl Default for MatchOptions {
             shift_only_iterations: 1,
             interpolation: Interpolation::Bicubic,
             sandwich: true,
+            extra: ExtraModel::default(),
+        }
+    }
+}
+
+/// The warp of the richer model: template offsets `x` (pixels, `xi = x / h` with `h` the
+/// patch's half-width) to search pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Warp {
+    /// `b + A x`: the affine map alone.
+    Affine,
+    /// `b + A x / (1 + p1 xi + p2 eta)`: a homography about the centre, two more unknowns
+    /// (a compression that varies linearly across the patch).
+    Projective,
+    /// `b + A x + (q_u . m, q_v . m)`, `m = (xi^2, xi eta, eta^2)`: six more unknowns, the
+    /// coefficients in search pixels at the patch's edge.
+    Quadratic,
+}
+
+/// The richer model of a match (Gauss-Newton with the exact Jacobian, the search patch's
+/// own gradients, after the affine match has converged: staged, so the extra unknowns
+/// start from a settled centre and shape). The centre stays `b` (every extra term vanishes
+/// at the template point), so the matched position keeps its meaning.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExtraModel {
+    /// Gauss-Newton iterations of the richer model after the affine match converged; 0 =
+    /// off (the affine match to the bit).
+    pub iterations: usize,
+    /// Warp terms beyond the affine map.
+    pub warp: Warp,
+    /// The gain varies linearly across the patch, `g0 + g_x xi + g_y eta` (two more
+    /// unknowns): shading that changes across a curved patch.
+    pub gain_gradient: bool,
+    /// Standard deviation of a zero-mean prior (Tikhonov) on the extra warp terms, search
+    /// pixels of displacement at the patch's edge; 0 = no prior.
+    pub warp_sigma: f64,
+    /// Standard deviation of a zero-mean prior on the gain's slopes, as a fraction of the
+    /// gain across half the patch; 0 = no prior.
+    pub gain_sigma: f64,
+    /// When the richer model does not converge, report the affine match as it stood (the
+    /// match the option-free path returns) instead of the richer model's failure.
+    pub fallback: bool,
+    /// The Jacobian from the template's gradients (the affine loop's choice: constant
+    /// apart from the gain columns, the update composed on the template side) instead of
+    /// the search image's at the warped points (exact, forward-additive).
+    pub template_jacobian: bool,
+}
+
+impl Default for ExtraModel {
+    fn default() -> Self {
+        Self {
+            iterations: 0,
+            warp: Warp::Affine,
+            gain_gradient: false,
+            warp_sigma: 0.0,
+            gain_sigma: 0.0,
+            fallback: false,
+            template_jacobian: false,
         }
     }
 }

@@ -8,7 +8,8 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{
-    match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, PARAMETERS,
+    match_weighted_patches, ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Warp,
+    PARAMETERS,
 };
 
 type Matches<'py> = (
@@ -35,11 +36,18 @@ fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<Im
 /// Images are C-contiguous float32; `initial` is `(N, S, 6)` row-major 2x3 maps;
 /// `epipolar` `(N, S, 3)` lines. `weights`, the template's shape (float32), weighs its
 /// pixels (weighted least squares). `threads` runs the batch on its own pool of that size.
+/// `extra_iterations` > 0 refines a converged match with the richer model (`extra_warp`
+/// "affine", "projective" or "quadratic", `extra_gain_gradient`, the priors' standard
+/// deviations `extra_warp_sigma` px and `extra_gain_sigma`, 0 = none, `extra_fallback`:
+/// the affine match where the richer one does not converge, `extra_jacobian` "search" or
+/// "template"); 0 is the affine match.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (template, points, search_images, initial, epipolar=None, *, size=11,
     max_iterations=30, tolerance=0.01, max_shift=5.0, max_scale=3.0, min_texture=0.0,
-    line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None, weights=None))]
+    line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None, weights=None,
+    extra_iterations=0, extra_warp="affine", extra_gain_gradient=false, extra_warp_sigma=0.0,
+    extra_gain_sigma=0.0, extra_fallback=false, extra_jacobian="search"))]
 fn lsm_match_patches<'py>(
     py: Python<'py>,
     template: PyReadonlyArray2<'py, f32>,
@@ -58,6 +66,13 @@ fn lsm_match_patches<'py>(
     interpolation: &str,
     threads: Option<usize>,
     weights: Option<PyReadonlyArray2<'py, f32>>,
+    extra_iterations: usize,
+    extra_warp: &str,
+    extra_gain_gradient: bool,
+    extra_warp_sigma: f64,
+    extra_gain_sigma: f64,
+    extra_fallback: bool,
+    extra_jacobian: &str,
 ) -> PyResult<Matches<'py>> {
     let template_view = view(&template, "template")?;
     let weights_view = weights.as_ref().map(|w| view(w, "weights")).transpose()?;
@@ -106,6 +121,25 @@ fn lsm_match_patches<'py>(
             )))
         }
     };
+    let warp = match extra_warp {
+        "affine" => Warp::Affine,
+        "projective" => Warp::Projective,
+        "quadratic" => Warp::Quadratic,
+        other => {
+            return Err(invalid_input(format!(
+                "extra_warp must be 'affine', 'projective' or 'quadratic', got {other:?}"
+            )))
+        }
+    };
+    let template_jacobian = match extra_jacobian {
+        "search" => false,
+        "template" => true,
+        other => {
+            return Err(invalid_input(format!(
+                "extra_jacobian must be 'search' or 'template', got {other:?}"
+            )))
+        }
+    };
     let options = MatchOptions {
         size,
         max_iterations,
@@ -117,6 +151,15 @@ fn lsm_match_patches<'py>(
         shift_only_iterations,
         interpolation,
         sandwich: true,
+        extra: ExtraModel {
+            iterations: extra_iterations,
+            warp,
+            gain_gradient: extra_gain_gradient,
+            warp_sigma: extra_warp_sigma,
+            gain_sigma: extra_gain_sigma,
+            fallback: extra_fallback,
+            template_jacobian,
+        },
     };
     let width = PARAMETERS * s;
     let status = PyArray2::<u8>::zeros(py, [n, s], false);

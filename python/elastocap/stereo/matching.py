@@ -8,7 +8,7 @@ from the data and wraps the arrays in :class:`Matches`.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from enum import IntEnum
 from typing import Any, NamedTuple
 
@@ -135,6 +135,7 @@ def match_patches(
     interpolation: str = "bicubic",
     threads: int | None = None,
     weights: Any = None,
+    refine: Mapping[str, Any] | None = None,
 ) -> Matches:
     """Find the patch around each point of the template image in the search images by
     least-squares matching.
@@ -213,6 +214,29 @@ def match_patches(
         :attr:`MatchStatus.LOW_TEXTURE`, one whose weights are all 1 is matched exactly as
         without weights. The covariance of a weighted patch is ``sigma0^2 (G^T W G)^-1``
         (the template's noise is not propagated). Default: every pixel weighs 1.
+    refine : mapping, optional, keyword-only
+        A richer model for matches that converged (ignored where an epipolar line
+        applies): Gauss-Newton from the converged affine match (staged: the extra unknowns
+        start at zero from a settled centre and shape) on
+        ``sum_x w(x) (T(x) - r0 - G(x) S(W(x)))^2``. Keys (all optional):
+        ``"iterations"`` (int >= 1, default 10), ``"warp"`` (``"affine"``,
+        ``"projective"``: ``b + A x / (1 + p1 xi + p2 eta)``, or ``"quadratic"``:
+        ``b + A x`` plus ``xi^2``, ``xi eta``, ``eta^2`` terms per coordinate; ``xi, eta``
+        the offsets over the patch's half-width; default ``"quadratic"``),
+        ``"gain_gradient"`` (bool, ``G = g0 + gx xi + gy eta``; default True),
+        ``"warp_sigma"`` (px at the patch's edge) and ``"gain_sigma"`` (fraction of the
+        gain): standard deviations of zero-mean priors on the extra terms, 0 = none
+        (default 0), ``"fallback"`` (bool: where the richer model does not converge,
+        report the affine match; default False), ``"jacobian"`` (``"search"``: the
+        search image's gradients at the warped points, the update added; ``"template"``:
+        the template's gradients, the update composed on the template side as in the
+        affine loop; default ``"search"``). Every extra term vanishes at the
+        template point, so the position keeps its meaning; :attr:`Matches.affine` holds
+        the centre and linear part, ``gain`` is ``g0``, ``correlation`` that of ``T`` with
+        ``G S(W)``, the covariance that of the richer model's normal equations. On a
+        curved surface that turns (a limb) the affine model settles tenths of a pixel off
+        the material point (benches/README.md, "track27", "lsm28"). Default: None (the
+        affine match).
 
     Returns
     -------
@@ -288,6 +312,7 @@ def match_patches(
         if limit is None or not (np.isfinite(limit) and -1.0 <= limit <= 1.0):
             raise InvalidInputError(f"min_correlation must be a number from -1 to 1, got {min_correlation!r}")
         min_correlation = limit
+    extra = _refine_options(refine)
     status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_patches(
         template_image,
         points_array,
@@ -304,6 +329,7 @@ def match_patches(
         interpolation=interpolation,
         threads=threads,
         weights=weight_image,
+        **extra,
     )
     status = _reject_poor(status, sigma0, correlation, max_sigma0, min_correlation)
     return Matches(
@@ -333,6 +359,47 @@ def _reject_poor(
     if min_correlation is not None:
         poor |= ~(correlation >= min_correlation)
     return np.where(poor & (status == MatchStatus.CONVERGED), np.uint8(MatchStatus.REJECTED), status).astype(np.uint8)
+
+
+_REFINE_DEFAULTS: dict[str, Any] = {
+    "iterations": 10, "warp": "quadratic", "gain_gradient": True, "warp_sigma": 0.0, "gain_sigma": 0.0,
+    "fallback": False, "jacobian": "search",
+}
+
+
+def _refine_options(refine: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``match_patches(refine=)`` as the core's ``extra_*`` keywords, checked."""
+    if refine is None:
+        return {}
+    if not isinstance(refine, Mapping):
+        raise InvalidInputError(f"refine must be a mapping or None, got {type(refine).__name__}")
+    unknown = sorted(set(refine) - set(_REFINE_DEFAULTS))
+    if unknown:
+        raise InvalidInputError(f"refine has unknown keys {unknown}; known: {sorted(_REFINE_DEFAULTS)}")
+    given = {**_REFINE_DEFAULTS, **refine}
+    if given["warp"] not in ("affine", "projective", "quadratic"):
+        raise InvalidInputError(f"refine['warp'] must be 'affine', 'projective' or 'quadratic', got {given['warp']!r}")
+    if given["jacobian"] not in ("search", "template"):
+        raise InvalidInputError(f"refine['jacobian'] must be 'search' or 'template', got {given['jacobian']!r}")
+    for key in ("gain_gradient", "fallback"):
+        if not isinstance(given[key], (bool, np.bool_)):
+            raise InvalidInputError(f"refine[{key!r}] must be a bool, got {given[key]!r}")
+    sigmas = {}
+    for key in ("warp_sigma", "gain_sigma"):
+        value = given[key]
+        number = None if isinstance(value, (str, bytes, bool)) else float(value)
+        if number is None or not (np.isfinite(number) and number >= 0):
+            raise InvalidInputError(f"refine[{key!r}] must be a finite number >= 0 (0: no prior), got {value!r}")
+        sigmas[key] = number
+    return {
+        "extra_iterations": as_count("refine['iterations']", given["iterations"]),
+        "extra_warp": given["warp"],
+        "extra_gain_gradient": bool(given["gain_gradient"]),
+        "extra_warp_sigma": sigmas["warp_sigma"],
+        "extra_gain_sigma": sigmas["gain_sigma"],
+        "extra_fallback": bool(given["fallback"]),
+        "extra_jacobian": given["jacobian"],
+    }
 
 
 def noise_level(image: Any) -> float:

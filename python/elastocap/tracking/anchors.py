@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
+from elastocap.tracking import settings
 
 __all__ = ["Anchors"]
 
@@ -40,6 +41,9 @@ class Anchors:
         # How many times each view's patch was cut since the view was acquired (its drift
         # grows with the cuts again: :mod:`elastocap.tracking.drift`).
         self.cuts = np.zeros((0, cameras), np.int64)
+        # The richer model's centre minus the affine one, smoothed over the frames since the
+        # patch was cut (``settings.ANCHOR_REFINE_SMOOTH``); NaN until the first.
+        self.offset = np.full((0, cameras, 2), np.nan)
 
     def grow(self, n: int) -> None:
         """Room for ``n`` points in all."""
@@ -52,6 +56,7 @@ class Anchors:
             self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
             self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
             self.cuts = np.concatenate([self.cuts, np.zeros((extra, c), np.int64)])
+            self.offset = np.concatenate([self.offset, np.full((extra, c, 2), np.nan)])
 
     def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
             weights: Sequence[NDArray[np.float32]] | None = None) -> None:
@@ -67,6 +72,7 @@ class Anchors:
         self.frame[: len(where)][where] = frame
         self.uv[: len(where)][where] = uv[where]
         self.cuts[: len(where)][where] += 1
+        self.offset[: len(where)][where] = np.nan
 
     def drop(self, where: NDArray[np.bool_]) -> None:
         self.held[: len(where)] &= ~where
@@ -83,7 +89,8 @@ class Anchors:
         """``uv`` (N, C, 2) refined against the anchors where held and tracked; returns the
         refined positions and where the anchor no longer matched (to be re-cut)."""
         out, _, good = self._match(images, uv, self.held[: len(uv)] & np.isfinite(uv[..., 0]),
-                                   min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+                                   min_correlation=min_correlation, reach=reach, min_texture=min_texture,
+                                   refine=settings.ANCHOR_REFINE, smooth=True)
         tried = self.held[: len(uv)] & np.isfinite(uv[..., 0])
         return np.where(good[..., None], out, uv), tried & ~good
 
@@ -95,7 +102,8 @@ class Anchors:
         stops matching. Returns positions (N, C, 2) and covariances (N, C, 2, 2), NaN where
         not found."""
         out, cov, good = self._match(images, starts, where & self.held[: len(starts)] & np.isfinite(starts[..., 0]),
-                                     min_correlation=min_correlation, reach=reach, min_texture=min_texture)
+                                     min_correlation=min_correlation, reach=reach, min_texture=min_texture,
+                                     refine=settings.ANCHOR_REFINE if settings.ANCHOR_REFINE_RESCUE else None)
         return np.where(good[..., None], out, np.nan), np.where(good[..., None, None], cov, np.nan)
 
     def search(self, images: Sequence[NDArray[np.float32]], targets: NDArray[np.float64], where: NDArray[np.bool_], *,
@@ -149,8 +157,9 @@ class Anchors:
         return mosaic, weighs, centres
 
     def _match(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], *,
-               min_correlation: float, reach: float,
-               min_texture: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+               min_correlation: float, reach: float, min_texture: float,
+               refine: dict[str, object] | None = None,
+               smooth: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         n, c = uv.shape[:2]
         self.grow(n)
         out = uv.copy()
@@ -163,8 +172,24 @@ class Anchors:
             mosaic, weighs, centres = self._mosaic(rows, k)
             m = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
                               size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
-                              weights=weighs)
+                              weights=weighs, refine=refine)
             pos = m.positions[:, 0]
+            alpha = settings.ANCHOR_REFINE_SMOOTH
+            if refine is not None and smooth and alpha < 1.0:
+                # The richer centre's departure from the affine one, smoothed over frames:
+                # the departure (the affine model's slide on a turning, shaded patch) grows
+                # slowly with the anchor's age, while its noise (8 more unknowns; the
+                # fallback's switching) is new every frame and ends tracks in the trajectory
+                # checks (benches/README.md, lsm29).
+                a = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
+                                  size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
+                                  weights=weighs)
+                both = (m.status[:, 0] == MatchStatus.CONVERGED) & (a.status[:, 0] == MatchStatus.CONVERGED)
+                departure = pos - a.positions[:, 0]
+                before = self.offset[rows, k]
+                smoothed = np.where(np.isfinite(before), before + alpha * (departure - np.nan_to_num(before)), departure)
+                self.offset[rows[both], k] = smoothed[both]
+                pos = np.where(both[:, None], a.positions[:, 0] + smoothed, pos)
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
             out[rows[good], k] = pos[good]

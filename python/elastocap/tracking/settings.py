@@ -23,6 +23,24 @@ KEEP_TEXTURE_OVER_NOISE = 0.5
 BOX_CORRELATION = 0.5
 # Largest correction of a frame-to-frame match by its anchor, pixels.
 ANCHOR_REACH = 1.5
+# The anchor's match (its correction, and its rescue with ANCHOR_REFINE_RESCUE) refined with a richer model after the affine
+# match converged: ``match_patches(refine=)``'s mapping (second-order warp terms, a gain
+# that varies across the patch), or None for the affine match. On a limb that turns the
+# affine model settles tenths of a pixel off the material point (benches/README.md,
+# track27 and lsm28). Off: see lsm28 for the measurements.
+ANCHOR_REFINE: dict[str, object] | None = None
+# Whether the anchor's rescue of a lost view uses it too (its covariance, the richer
+# model's normal equations without the sandwich, then weighs the view in the intersection;
+# lsm28 measured the correction alone as its variant).
+ANCHOR_REFINE_RESCUE = False
+# With ANCHOR_REFINE, the anchor's correction is the affine match's centre plus the richer
+# model's departure from it smoothed over frames (exponentially, this weight on the newest;
+# restarted when the patch is cut again); 1: the richer centre as it is (lsm28's variant V).
+# The departure (the affine model's slide) changes slowly, the richer centre's noise every
+# frame: unsmoothed it raised the frame-to-frame jitter of the tracks by a fifth and ended
+# tracks in the trajectory checks (benches/README.md, lsm29). Costs a second affine match
+# per anchor view.
+ANCHOR_REFINE_SMOOTH = 1.0
 # Gauss-Newton iterations of the frame-to-frame match: from the box search's start a
 # match that will converge does so in a few; the rest wander along the weak direction of a
 # smooth texture (measured on the textured capture: 8 instead of 15 keeps 1.6% more views
