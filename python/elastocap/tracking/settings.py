@@ -372,9 +372,9 @@ RIGID_PREDICTION_REACH = 60.0
 # margin and correlation cut the finds the intersection keeps more than 5 px from the truth
 # from 96 of 435 (no guard) to 12 of 258. False: the step as before session 26.
 # On by default since session 26 (benches/README.md, "seedpyr1:" and "Session 26, lead" item 4):
-# the elastic fit's drift ratio with tracks, tuning seeds 1 / 10 / 14 / 15 / 18 / 25 / 35,
-# 0.464 / 0.523 / 0.538 / 0.351 / 0.452 / 0.468 / 0.473 -> 0.451 / 0.475 / 0.506 / 0.319 / 0.477 /
-# 0.444 / 0.410 (mean 0.467 -> 0.440), held out 46 / 47 0.4625 / 0.4348 -> 0.4629 / 0.4255, no
+# the elastic fit's drift ratio with tracks, tuning seeds 1 / 10 / 14 / 15 / 18 / 25 / 35 / 42,
+# 0.464 / 0.523 / 0.538 / 0.351 / 0.452 / 0.468 / 0.473 / 0.450 -> 0.451 / 0.475 / 0.506 / 0.319 /
+# 0.477 / 0.444 / 0.410 / 0.449 (mean 0.465 -> 0.441), held out 46 / 47 0.4625 / 0.4348 -> 0.4629 / 0.4255, no
 # frame lost; the tracking figures within 0.25 point of the step without it (m15, m40, m44, m45).
 PYRAMID_SEARCH = True
 PYRAMID_LEVEL = 2
