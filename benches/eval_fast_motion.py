@@ -23,6 +23,7 @@ import numpy as np
 
 from elastocap import ElasticModel, fit_sequence
 from elastocap.capture.folder import Capture
+from elastocap.elastic.fit_options import grouped_keywords
 from elastocap.elastic.measures import surface_error
 from elastocap.elastic.rest import least_volume_frame
 from elastocap.pipeline.hull import load_hull, run_hull_stage
@@ -61,9 +62,10 @@ def main() -> None:
     for options in args.options:
         clock = time.perf_counter()
         # The cameras and masks, as the pipeline gives them ('{"silhouette": 0}' turns the
-        # silhouette term off).
+        # silhouette term off); the options as fit_sequence's keywords or its former flat
+        # ones (grouped_keywords: '{"stiff_stage_frames": "all"}').
         views = {"cameras": capture.rig.cameras, "masks": masks}
-        fit = fit_sequence(model, hulls, rest_frame=rest, **options, **views)
+        fit = fit_sequence(model, hulls, rest_frame=rest, **grouped_keywords(options), **views)
         seconds = (time.perf_counter() - clock) / args.frames
         errors = [surface_error(fit.surface(f), truths[f]) for f in frames]
         metrics = [fit.fits[f].metrics for f in frames]

@@ -40,6 +40,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import elastocap
+from elastocap.elastic.fit_options import grouped_keywords
 from elastocap.elastic.measures import surface_error
 from elastocap.elastic.rest import least_volume_frame
 from elastocap.geometry._distance import distance_to_mesh
@@ -156,9 +157,10 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int | str = 0,
     clock = time.perf_counter()
     model = elastocap.ElasticModel.from_mesh(hull_meshes[rest_frame], n_nodes=nodes, k=20, rotation="warped")
     log(f"model: {model.n_nodes} nodes ({len(model.surface_nodes)} on the surface) in {time.perf_counter() - clock:.1f} s")
-    extra = dict(options or {})
-    # The masks and cameras, as the pipeline gives them (fit_sequence's silhouette term is
-    # on when they are given; '{"silhouette": 0}' turns it off).
+    # The options as fit_sequence's keywords or its former flat ones (grouped_keywords:
+    # '{"silhouette_stage": "refine"}'); the masks and cameras, as the pipeline gives them
+    # (fit_sequence's silhouette term is on when they are given; '{"silhouette": 0}' turns it off).
+    extra = grouped_keywords(options or {})
     extra.update(cameras=rig.cameras, masks=masks)
     fit = elastocap.fit_sequence(model, hulls, rest_frame=rest_frame, stiffness=stiffness, coverage=coverage, **extra)
     surface_faces = model.surface.faces
@@ -207,7 +209,7 @@ def evaluate(frames: int = 48, nodes: int = NODES, *, rest_frame: int | str = 0,
             })
     return {"setup": {"frames": frames, "rest_frame": rest_frame, "nodes": model.n_nodes,
                       "surface_nodes": len(model.surface_nodes), "k": model.k, "stiffness": stiffness,
-                      "coverage": coverage, "options": {k: v for k, v in extra.items() if k not in ("cameras", "masks")}, "floor": floor, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
+                      "coverage": coverage, "options": dict(options or {}), "floor": floor, "resolution": resolution, "voxel_m": hulls[0].grid.spacing, "cameras": len(rig),
                       "bbox_diagonal_m": diagonal},
             "summary": summarise(per_frame, rest_frame), "frames": per_frame}
 

@@ -19,9 +19,10 @@ hulls and tracks are kept in ``/tmp/elastocap_texfast_<seed>_<frames>_<width>`` 
 be read back as the default's). ``--reuse-without`` keeps the fit without tracks in
 ``OUT/without_<nodes>.npz`` and reads it back on the next run (it does not depend on the
 tracks or the fit's track options).
-``--options`` are ``fit_sequence``'s keywords as JSON; its track terms may be given as
-``"track_terms": {"ahead": 2}`` or, as in the commands of earlier sessions, flat
-(``"track_ahead": 2``): both become one ``TrackTerms``.
+``--options`` are ``fit_sequence``'s keywords as JSON; its option objects may be given as
+mappings of their fields (``"track_terms": {"ahead": 2}``, ``"stiff_stage": {"frames": "all"}``)
+or, as in the commands of earlier sessions, flat (``"track_ahead": 2``,
+``"stiff_stage_frames": "all"``): both become the objects (``grouped_keywords``).
 Prints one JSON line per fit (``"tracks": false`` and ``true``) and their drift ratio.
 """
 
@@ -37,8 +38,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from elastocap import ElasticModel, TrackTerms, fit_sequence, load_tracks, track_points
+from elastocap import ElasticModel, InvalidInputError, TrackTerms, fit_sequence, load_tracks, track_points
 from elastocap.capture.folder import Capture
+from elastocap.elastic.fit_options import grouped_keywords
 from elastocap.elastic.measures import surface_error
 from elastocap.pipeline.hull import load_hull, run_hull_stage
 from elastocap.synth.textured import load_textured_truth, write_textured_capture
@@ -167,18 +169,15 @@ def main() -> None:
 
 
 def fit_keywords(options: dict) -> dict:
-    """``fit_sequence``'s keywords from ``--options``: the track terms, flat ``track_*`` keys
-    (the commands of sessions before 26) and / or a ``"track_terms"`` object of
-    ``TrackTerms`` fields, as one ``TrackTerms`` (a field given both ways is refused)."""
-    flat = {key: value for key, value in options.items() if key.startswith("track_") and key != "track_terms"}
-    nested = dict(options.get("track_terms") or {})
-    both = sorted(key[len("track_"):] for key in flat if key[len("track_"):] in nested)
-    if both:
-        raise SystemExit(f"--options: {both} given both flat and in track_terms")
-    keywords = {key: value for key, value in options.items() if key not in flat and key != "track_terms"}
-    if flat or nested:
-        keywords["track_terms"] = replace(TrackTerms.from_flat(flat), **nested)
-    return keywords
+    """``fit_sequence``'s keywords from ``--options``: its keywords and option objects as
+    JSON (``"track_terms": {"ahead": 2}``, ``"stopping": {"max_iterations": 5}``) or, as in the
+    commands of earlier sessions, its former flat keywords (``"track_ahead": 2``,
+    ``"stiff_stage": 10.0``, ``"solver_tolerance": 1e-5``): ``grouped_keywords`` makes the
+    objects (a field given both ways is refused)."""
+    try:
+        return grouped_keywords(options)
+    except InvalidInputError as error:
+        raise SystemExit(f"--options: {error}") from error
 
 
 def figure_lost(model, positions, meshes, frames) -> list[float]:

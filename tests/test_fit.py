@@ -13,7 +13,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import elastocap
-from elastocap import ElasticModel, InvalidInputError, fit_sequence, run_fit_stage
+from elastocap import ElasticModel, InvalidInputError, SelfIntersection, fit_sequence, run_fit_stage
 from elastocap.pipeline.fit import load_model
 from elastocap.pipeline.hull import load_hull
 from elastocap.synth.capture import write_synthetic_capture
@@ -144,9 +144,9 @@ def test_self_intersection_term_keeps_limbs_apart() -> None:
     last = []
     for seed in range(4):
         model = ElasticModel.from_mesh(two_blocks(0.3), n_nodes=900, rotation="warped", seed=seed)
-        held = fit_sequence(model, targets, self_intersection=True, hold_contacts=True)
-        on = fit_sequence(model, targets, self_intersection=True)
-        off = fit_sequence(model, targets, self_intersection=False)
+        held = fit_sequence(model, targets, self_intersection=SelfIntersection(hold=True))
+        on = fit_sequence(model, targets, self_intersection=SelfIntersection())
+        off = fit_sequence(model, targets, self_intersection=None)
         counts = [
             (off.fits[f].metrics["penetrating"], on.fits[f].metrics["penetrating"], held.fits[f].metrics["penetrating"])
             for f in on.frames

@@ -22,7 +22,7 @@ import elastocap
 import elastocap._core as _core
 from elastocap import ElasticModel, InvalidInputError, fit_sequence
 from elastocap.elastic.measures import surface_error
-from elastocap.elastic.fit import STAGED_TOLERANCE
+from elastocap.elastic.fit_options import STAGED_TOLERANCE, SilhouetteTerm, StoppingRules
 from elastocap.elastic.silhouette import signed_mask_distance
 from elastocap.render import render_silhouette
 from elastocap.pipeline.fit import run_fit_stage
@@ -89,8 +89,9 @@ def test_the_silhouette_term_brings_the_fit_closer_to_the_truth(turning_block: t
     truths, hulls, masks, rig = turning_block
     model = ElasticModel.from_mesh(truths[0], n_nodes=900)
     errors = {}
-    for name, options in {"off": {"silhouette": 0.0}, "refine": {"silhouette": 4.0, "silhouette_stage": "refine"},
-                          "chain": {"silhouette": 4.0}}.items():
+    for name, options in {"off": {"silhouette": None},
+                          "refine": {"silhouette": SilhouetteTerm(weight=4.0, stage="refine")},
+                          "chain": {"silhouette": SilhouetteTerm(weight=4.0)}}.items():
         fit = fit_sequence(model, hulls, cameras=rig.cameras, masks=masks, **options)
         errors[name] = np.array([surface_error(fit.surface(f), truths[f]).mean for f in fit.frames])
     print("mean distance to the truth per frame, mm:", {k: np.round(1000 * v, 2) for k, v in errors.items()})
@@ -276,18 +277,23 @@ def test_the_silhouette_term_needs_cameras_and_masks(moving_block: tuple) -> Non
     truths, hulls, _, _ = moving_block
     model = ElasticModel.from_mesh(truths[0], n_nodes=300)
     with pytest.raises(InvalidInputError, match="cameras and masks"):
-        fit_sequence(model, hulls[:1], silhouette=1.0)
+        fit_sequence(model, hulls[:1], silhouette=SilhouetteTerm(weight=1.0))
+    # The default weight needs them not: without them the term is off.
+    np.testing.assert_array_equal(fit_sequence(model, hulls[:1], silhouette=SilhouetteTerm(stage="joint")).fits[0].positions,
+                                  fit_sequence(model, hulls[:1], silhouette=None).fits[0].positions)
 
 
 def test_the_silhouette_term_is_on_by_default_with_cameras_and_masks(moving_block: tuple) -> None:
     truths, hulls, masks, rig = moving_block
     model = ElasticModel.from_mesh(truths[0], n_nodes=300)
     default = fit_sequence(model, hulls[:1], cameras=rig.cameras, masks=masks[:1])
-    weighted = fit_sequence(model, hulls[:1], silhouette=1.0, cameras=rig.cameras, masks=masks[:1])
-    off = fit_sequence(model, hulls[:1], silhouette=0.0, cameras=rig.cameras, masks=masks[:1])
+    weighted = fit_sequence(model, hulls[:1], silhouette=SilhouetteTerm(weight=1.0), cameras=rig.cameras, masks=masks[:1])
+    off = fit_sequence(model, hulls[:1], silhouette=None, cameras=rig.cameras, masks=masks[:1])
+    zero = fit_sequence(model, hulls[:1], silhouette=SilhouetteTerm(weight=0.0), cameras=rig.cameras, masks=masks[:1])
     bare = fit_sequence(model, hulls[:1])
     np.testing.assert_allclose(default.fits[0].positions, weighted.fits[0].positions, atol=1e-9)
     np.testing.assert_allclose(bare.fits[0].positions, off.fits[0].positions, atol=1e-9)
+    np.testing.assert_array_equal(zero.fits[0].positions, off.fits[0].positions)
     assert np.abs(default.fits[0].positions - off.fits[0].positions).max() > 1e-3
 
 
@@ -297,16 +303,17 @@ def test_each_stage_starts_the_next_frame_from_its_own_fit(moving_block: tuple) 
     truths, hulls, masks, rig = moving_block
     model = ElasticModel.from_mesh(truths[0], n_nodes=300)
     views = {"cameras": rig.cameras, "masks": masks}
-    refined = fit_sequence(model, hulls, silhouette=2.0, silhouette_stage="refine", **views)
+    refine = SilhouetteTerm(weight=2.0, stage="refine")
+    refined = fit_sequence(model, hulls, silhouette=refine, **views)
     # (the hull-only stage solves to the staged tolerance)
-    hull_only = fit_sequence(model, hulls, silhouette=0.0, solver_tolerance=STAGED_TOLERANCE)
-    alone = fit_sequence(model, hulls, silhouette=2.0, silhouette_stage="refine",
+    hull_only = fit_sequence(model, hulls, silhouette=None, stopping=StoppingRules(solver_tolerance=STAGED_TOLERANCE))
+    alone = fit_sequence(model, hulls, silhouette=refine,
                          done={f: hull_only.fits[f].positions for f in (0, 1)}, **views)
     np.testing.assert_allclose(alone.fits[2].positions, refined.fits[2].positions, atol=1e-6)
     # "chain" (the default): from the refined fits.
-    chained = fit_sequence(model, hulls, silhouette=2.0, **views)
+    chained = fit_sequence(model, hulls, silhouette=SilhouetteTerm(weight=2.0), **views)
     assert np.abs(chained.fits[2].positions - refined.fits[2].positions).max() > 1e-4
-    again = fit_sequence(model, hulls, silhouette=2.0, done={f: chained.fits[f].positions for f in (0, 1)}, **views)
+    again = fit_sequence(model, hulls, silhouette=SilhouetteTerm(weight=2.0), done={f: chained.fits[f].positions for f in (0, 1)}, **views)
     np.testing.assert_allclose(again.fits[2].positions, chained.fits[2].positions, atol=1e-6)
-    with pytest.raises(InvalidInputError, match="silhouette_stage"):
-        fit_sequence(model, hulls[:1], silhouette_stage="after", **views)
+    with pytest.raises(InvalidInputError, match="SilhouetteTerm.stage must be one of 'chain', 'refine', 'joint', got 'after'"):
+        SilhouetteTerm(stage="after")

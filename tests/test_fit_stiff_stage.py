@@ -1,5 +1,5 @@
 """Issue 15, session 22 (branch trackfit10): the stiff first stage of a frame
-(``fit_sequence(stiff_stage=, stiff_stage_frames=)``).
+(``fit_sequence(stiff_stage=StiffStage(stiffness=, frames=))``).
 
 A limb's first step from the rest frame has no motion to predict it from: the frame starts
 at the rest pose. When the limb moved by much of its own width, the surface term meets it
@@ -17,7 +17,7 @@ import pytest
 from test_fit import LEG_GAP, LEG_WIDTH, LEGS_GRID, _leg_occupancy, _two_legs
 
 import elastocap
-from elastocap import ElasticModel, InvalidInputError, fit_sequence
+from elastocap import ElasticModel, InvalidInputError, StiffStage, fit_sequence
 
 SWING = 60.0
 
@@ -49,7 +49,7 @@ def test_a_leg_swung_60_degrees_from_rest_keeps_its_material_with_the_stiff_stag
     own = elastocap.SDF.from_occupancy(_leg_occupancy(-1, SWING), LEGS_GRID)
     figures = {}
     for stage in (None, 10.0):
-        fit = fit_sequence(model, targets, stiff_stage=stage)
+        fit = fit_sequence(model, targets, stiff_stage=None if stage is None else StiffStage(stiffness=stage))
         x = fit.fits[1].positions
         figures[stage] = (float(np.median(np.linalg.norm(x[leg] - true, axis=1))),
                           float(np.median(np.abs(own.sample(x[leg])))))
@@ -69,14 +69,16 @@ def test_the_stiff_stage_runs_on_the_first_frames_from_rest_or_on_all() -> None:
     targets = [_two_legs(a) for a in (-10.0, -5.0, 0.0, 5.0, 10.0)]
     plain = fit_sequence(model, targets, rest_frame=2, stiff_stage=None)
     first = fit_sequence(model, targets, rest_frame=2)
-    every = fit_sequence(model, targets, rest_frame=2, stiff_stage=10.0, stiff_stage_frames="all")
+    every = fit_sequence(model, targets, rest_frame=2, stiff_stage=StiffStage(stiffness=10.0, frames="all"))
     staged = {f for f in first.frames if "stiff_stage_iterations" in first.fits[f].metrics}
     assert staged == {1, 3}
     assert {f for f in every.frames if "stiff_stage_iterations" in every.fits[f].metrics} == {0, 1, 3, 4}
     np.testing.assert_array_equal(first.fits[2].positions, plain.fits[2].positions)
     for frame in (1, 3):
         assert np.abs(first.fits[frame].positions - plain.fits[frame].positions).max() > 0
-    for bad in (dict(stiff_stage=0.0), dict(stiff_stage=float("nan")), dict(stiff_stage=-1.0),
-                dict(stiff_stage=10.0, stiff_stage_frames="some")):
-        with pytest.raises(InvalidInputError, match="stiff_stage"):
-            fit_sequence(model, targets, **bad)
+    for bad in (dict(stiffness=0.0), dict(stiffness=float("nan")), dict(stiffness=-1.0), dict(frames="some")):
+        with pytest.raises(InvalidInputError, match=f"StiffStage.{next(iter(bad))}"):
+            StiffStage(**bad)  # type: ignore[arg-type]
+    # The former keyword's value (a stiffness) is refused by type, naming the object.
+    with pytest.raises(InvalidInputError, match="stiff_stage must be an elastocap.StiffStage or None"):
+        fit_sequence(model, targets, stiff_stage=10.0)  # type: ignore[arg-type]

@@ -18,6 +18,7 @@ from elastocap.body import BodyFit, BodyModel, BodyObservations, BodyState, fit_
 from elastocap.cameras import CalibrationWarning, Camera, Rig
 from elastocap.capture import Capture
 from elastocap.elastic import ElasticModel, FrameFit, SequenceFit, StaticSolution, TrackTerms, fit_sequence
+from elastocap.elastic import SelfIntersection, SilhouetteTerm, StiffStage, StoppingRules
 from elastocap.elastic import mls_shape_functions, stiffness_matrix
 from elastocap.geometry import SpatialIndex, knn, polar_rotation, radius_neighbors
 from elastocap.hull import SDF, Grid, Hull, signed_distance, visual_hull
@@ -53,9 +54,13 @@ __all__ = [
     "InvalidInputError",
     "Rig",
     "SDF",
+    "SelfIntersection",
     "SequenceFit",
+    "SilhouetteTerm",
     "SpatialIndex",
     "StaticSolution",
+    "StiffStage",
+    "StoppingRules",
     "TrackTerms",
     "Tracks",
     "__version__",

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 import elastocap._core as _core
 from elastocap._core import InvalidInputError
+from elastocap.elastic.fit_options import SelfIntersection, SilhouetteTerm, StiffStage, StoppingRules
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.silhouette import silhouette_views, term_margins
 from elastocap.elastic.targets import field_arrays, frame_numbers, mask_field, target_field
@@ -32,40 +33,9 @@ from elastocap.elastic.tracks import TrackAttachments, check_tracks
 
 __all__ = ["FrameFit", "SequenceFit", "fit_sequence", "target_field"]
 
-# The silhouette term's weight when cameras and masks are given (benches/README.md, issue 17:
-# horse gallop fit/hull 0.961 -> 0.802, drift 1.81% -> 1.66% of the diagonal).
-SILHOUETTE = 1.0
 # The most a frame's refinement against the masks may take its volume farther from rest
 # (a fraction of the rest volume; the volume bound of issue 17).
 REFINED_VOLUME_CHANGE = 0.05
-# The linear solve's relative residual per iteration.
-SOLVER_TOLERANCE = 1e-6
-# ... and in the fit to the hull that the silhouette term's refinement starts from (a
-# fifth of a frame's PCG iterations at 2,465 nodes; horse gallop fit/hull 0.802 -> 0.803,
-# drift 1.657% -> 1.682%; 1e-4 saved more but moved the refinement's result on the pitted
-# block of tests/test_fit_silhouette.py: benches/README.md, session 10).
-STAGED_TOLERANCE = 1e-5
-# A frame's iteration stops when its last decrease of the objective is below this fraction
-# of its total decrease so far (SPEC 5: 1%) ...
-STOP_FRACTION = 0.01
-# ... and the fit to the hull alone that the silhouette term's refinement starts from
-# goes further to its minimum: along the surface is where it stops short. Horse gallop
-# (benches/eval_horse.py, 5,873 nodes): mean drift 1.717% -> 1.679% of the diagonal for 7%
-# more iterations (0.002 in both stages: 1.660% for 27% more, and the refinement then swells
-# past the volume bound on coarse masks; in the refinement alone: 1.714%); benches/README.md,
-# session 13.
-STAGED_STOP_FRACTION = 0.002
-# A stiff first stage (``fit_sequence(stiff_stage=)``) on the frames fitted without a
-# motion prediction: the stiffness of a first fit of the frame, from which the frame is then
-# fitted at its own stiffness. At stiffness 1 a limb that moved a limb's width or more is
-# met by the surface term locally (each node to its nearest target surface) and slides its
-# material along the limb instead of turning it; much stiffer, the limb turns as a whole
-# (benches/README.md, trackfit10: seed 25's frame 1, the left leg's first step from rest,
-# shin and foot material 8.5 / 10.6% of the diagonal off -> 1.9 / 1.4% at 10 then 1; 5-100
-# alike, 3 not enough). Textured fast capture with tracks, ten tuning seeds: mean drift
-# ratio 0.419 -> 0.416, no frame lost (seed 25's frame 1 5.59% -> 3.6%); held out seeds 28
-# / 29: 0.483 / 0.386 (3 frames lost, the first steps) -> 0.435 / 0.425, none lost.
-STIFF_STAGE = 10.0
 
 
 @dataclass(frozen=True)
@@ -124,30 +94,31 @@ def fit_sequence(
     *,
     rest_frame: int = 0,
     stiffness: float = 1.0,
-    contact: float = 1.0,
-    max_iterations: int = 10,
-    stop_fraction: float = STOP_FRACTION,
-    staged_stop_fraction: float = STAGED_STOP_FRACTION,
-    invalidate: bool = True,
-    self_intersection: bool = True,
-    hold_contacts: bool = False,
     coverage: float = 2.0,
     volume: float = 4.0,
-    silhouette: float | None = None,
-    silhouette_stage: str = "chain",
+    invalidate: bool = True,
+    predict: bool = True,
+    self_intersection: SelfIntersection | None = SelfIntersection(),
+    silhouette: SilhouetteTerm | None = SilhouetteTerm(),
     cameras: Sequence[Any] | None = None,
     masks: Sequence[Sequence[Any]] | Mapping[int, Sequence[Any]] | None = None,
-    predict: bool = True,
-    solver_tolerance: float = SOLVER_TOLERANCE,
-    staged_tolerance: float = STAGED_TOLERANCE,
+    stiff_stage: StiffStage | None = StiffStage(),
+    stopping: StoppingRules | None = None,
     tracks: Any = None,
     track_terms: TrackTerms | None = None,
-    stiff_stage: float | None = STIFF_STAGE,
-    stiff_stage_frames: str = "first",
     done: Mapping[int, NDArray[np.float64]] | None = None,
     callback: Callable[[FrameFit], None] | None = None,
 ) -> SequenceFit:
     """Fit ``model`` (built from the rest frame's shape) to every target of a sequence.
+
+    The options of a term or stage are objects (:mod:`elastocap.elastic.fit_options`,
+    :class:`~elastocap.elastic.track_terms.TrackTerms`; frozen, checked on construction); a
+    term or stage that is on by default is turned off by None. Until session 27 their fields
+    were keywords of their own (``contact``, ``hold_contacts``, ``silhouette_stage``,
+    ``stiff_stage_frames``, ``max_iterations``, ``stop_fraction``, ``staged_stop_fraction``,
+    ``solver_tolerance``, ``staged_tolerance``; ``self_intersection`` a bool, ``silhouette``
+    a weight, ``stiff_stage`` a stiffness): :func:`~elastocap.elastic.fit_options.grouped_keywords`
+    reads such a mapping.
 
     Parameters
     ----------
@@ -169,28 +140,6 @@ def fit_sequence(
         alpha / beta of SPEC 5 in units of the shear modulus times the mean node spacing:
         1 balances a node's elastic diagonal with a fully confident surface term; larger is
         stiffer (smoother, less faithful to noisy hulls).
-    contact : float
-        gamma / beta, the weight of the self-intersection term (SPEC 5: 1).
-    max_iterations : int
-        Iterations per frame (SPEC 5: 10), per stage when the silhouette term refines a
-        hull-only fit.
-    stop_fraction : float
-        A frame also stops when the last decrease of its objective is below this fraction
-        of its total decrease so far (SPEC 5: 0.01).
-    staged_stop_fraction : float
-        The same for the fit to the hull alone that the silhouette term's refinement
-        starts from (``silhouette_stage`` "chain" or "refine"): 0.002 takes it the rest of
-        the way to its minimum, where it otherwise stops short along the surface (horse
-        gallop: mean drift 1.717% -> 1.679% of the diagonal, 7% more iterations).
-    invalidate, self_intersection : bool
-        Turn the invalidation of colliding associations and the self-intersection term on
-        or off.
-    hold_contacts : bool
-        Keep a node pushed out of another part in contact for the rest of its frame while
-        it stays near that part. Limbs pressed together (an arm on the chest) then end
-        with far fewer penetrating nodes (two blocks squeezed by 25%: 57 -> 20 of 606
-        surface nodes), but limbs that swing past each other are held back (horse gallop
-        at 2,500 nodes: mean drift 2.1% -> 2.7%), so it is off by default.
     coverage : float
         Weight of the coverage term (SPEC 5.1; 0 turns it off): samples of the target's
         surface that no model surface node of a compatible normal lies near pull the nearest
@@ -208,44 +157,37 @@ def fit_sequence(
         the body does not. 3-D models only (a 2-D silhouette's area changes with the pose).
         Measured on the fast-motion capture (seed 1, 30 frames, 2,500
         nodes): volume 0.886-1.000 of rest without it, 0.976-1.007 at 1, 0.991-1.008 at 4.
-    silhouette : float, optional
-        Weight of the silhouette term per surface node and camera (0 turns it off; needs
-        ``cameras`` and ``masks``; default 1 when they are given for a 3-D model, else 0):
-        surface nodes projecting outside a camera's mask are pushed in, and rim nodes
-        (normal across the camera's ray) whose outline lies inside the mask are drawn out
-        to the mask's outline, each across the outline in the plane normal to the ray. The
-        masks are exact to a pixel where a carved hull is exact to a voxel. Horse gallop
-        (benches/eval_horse.py): fitted/hull mean distance 0.96 -> 0.80.
-    silhouette_stage : {"chain", "refine", "joint"}
-        How the silhouette term enters. "chain" (default): each frame is fitted to the
-        hull first (whose terms have their invalidation), the fit is then refined against
-        the masks from there, and the next frame starts from the refined fit. "refine": the
-        same, but the next frame starts from the hull-only fit. "joint": every term at once
-        from the frame's start. A mask's pull goes to the nearest outline, a neighbouring
-        limb's when the frame starts far from its pose; after the hull-only fit the nearest
-        outline is the limb's own. Horse gallop (benches/eval_horse.py, 5,873 nodes):
-        joint drift 3.85% of the diagonal with a worst frame 1.66x the hull's error (legs
-        drawn into each other's silhouettes), refine 1.74% and 0.87x, chain 1.66% and 0.87x.
-        A refinement that takes the volume more than 5% of rest farther from it than the
-        hull-only fit is dropped (metric ``silhouette_kept``).
-    cameras : sequence of Camera, optional
-        The rig's cameras (``Rig.cameras``), for the silhouette term.
-    masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional
-        Per frame, one mask per camera (keyed as ``targets``), for the silhouette term.
+    invalidate : bool
+        The invalidation of colliding associations (SPEC 5, step 2: two surface nodes far
+        apart at rest pulled to the same place both lose their pull, so that a limb tip is
+        not pulled to another limb; the coverage term's samples likewise).
     predict : bool
         Start each frame from its neighbour's fit moved on by the neighbour's own motion
         (constant velocity: ``2 x[f -/+ 1] - x[f -/+ 2]``) where both are fitted, instead
         of from the neighbour's fit. Measured on the horse gallop (fast leg swings, up to
         0.59 m per frame; benches/README.md): mean drift 2.85% -> 2.16% of the bounding-box
         diagonal over one gallop cycle.
-    solver_tolerance : float
-        Relative residual at which each iteration's linear solve (PCG) stops, against the
-        right-hand side's norm. Each iteration re-linearises (rotations, associations), so
-        a solve far more exact than the next iteration's change is wasted.
-    staged_tolerance : float
-        The same for the fit to the hull alone that the silhouette term's refinement starts
-        from (``silhouette_stage`` "chain" or "refine"): only the refinement's result is
-        kept, so its start need not be exact.
+    self_intersection : SelfIntersection or None
+        The self-intersection term (SPEC 5, step 3): its weight and whether contacts are
+        held (:class:`~elastocap.elastic.fit_options.SelfIntersection`; default: its
+        defaults, weight 1; None: off).
+    silhouette : SilhouetteTerm or None
+        The silhouette term (SPEC 5.1): its weight per surface node and camera and how it
+        enters a frame (:class:`~elastocap.elastic.fit_options.SilhouetteTerm`; default: weight
+        1 when ``cameras`` and ``masks`` are given for a 3-D model, else off, stage "chain";
+        None: off).
+    cameras : sequence of Camera, optional
+        The rig's cameras (``Rig.cameras``), for the silhouette term.
+    masks : sequence or mapping of int frame number -> sequence of (H, W) bool, optional
+        Per frame, one mask per camera (keyed as ``targets``), for the silhouette term.
+    stiff_stage : StiffStage or None
+        A stiff first fit of the frames fitted without a motion prediction, or of every
+        frame (:class:`~elastocap.elastic.fit_options.StiffStage`; default: stiffness 10,
+        the first frame on each side of the rest frame; None: off).
+    stopping : StoppingRules, optional
+        When a frame's iteration and each linear solve stop
+        (:class:`~elastocap.elastic.fit_options.StoppingRules`; None: its defaults, SPEC 5's
+        10 iterations and 1%).
     tracks : Tracks, optional
         Tracked 3-D surface points (:func:`elastocap.track_points`,
         :func:`elastocap.load_tracks`; 3-D models only), frames keyed as ``targets``. Each
@@ -261,21 +203,6 @@ def fit_sequence(
         and how their corrections spread along the surface. Before session 26 these were
         the keywords ``track_weight`` ... ``track_spread_relayed_dense``
         (:meth:`TrackTerms.from_flat` reads such a mapping).
-    stiff_stage : float, optional
-        The stiffness of a first stage (default 10, ``STIFF_STAGE``; None: off): the frame
-        is first fitted at this stiffness from its start and then at
-        ``stiffness`` from there (with tracks, their spread measured again from the stiff
-        stage's result). A fast limb then turns as a whole towards its part of the
-        target before the softer fit places its surface, instead of sliding its material
-        along the limb (benches/README.md, trackfit10: textured fast capture with tracks,
-        mean drift ratio over ten seeds 0.419 -> 0.416, seed 25's lost frame kept; held out
-        0.483 / 0.386 -> 0.435 / 0.425 and 3 lost frames -> 0).
-    stiff_stage_frames : {"first", "all"}
-        Where the stiff stage runs: "first" (default) the frames fitted without a motion
-        prediction (the first frame on each side of the rest frame: a limb's first step
-        from rest, where the start is the rest pose), "all" every frame but the rest frame
-        (twice the fit's CPU; textured fast capture, ten tuning seeds, not held out: mean
-        drift ratio 0.416 -> 0.394; benches/README.md, trackfit10, item 6).
     done : mapping of int to (N, 3) array, optional
         Frames already fitted (e.g. read back after an interrupted run): they are not
         refitted, and their neighbours start from them.
@@ -290,18 +217,30 @@ def fit_sequence(
     ------
     InvalidInputError
         A 2-D model or one without a surface, ``rest_frame`` out of range, a bad target
-        (empty hull, non-watertight mesh), bad options.
+        (empty hull, non-watertight mesh), bad options (an option object's own checks run
+        when it is made; here: an object of the wrong type, a positive silhouette weight
+        without cameras and masks).
     ConvergenceError
         A frame's system matrix is found not positive definite (it cannot be with a
         positive stiffness; reported, not hidden). A linear solve that stops at its
         iteration cap is not an error: the frame's ``solver_converged`` metric is False.
     """
-    if silhouette is None:
-        silhouette = SILHOUETTE if cameras is not None and masks is not None and model.dim == 3 else 0.0
-    if silhouette > 0 and (cameras is None or masks is None):
-        raise InvalidInputError("silhouette > 0 needs cameras and masks")
-    if silhouette_stage not in ("chain", "refine", "joint"):
-        raise InvalidInputError(f"silhouette_stage must be 'chain', 'refine' or 'joint', got {silhouette_stage!r}")
+    for name, value, kind in (("self_intersection", self_intersection, SelfIntersection),
+                              ("silhouette", silhouette, SilhouetteTerm), ("stiff_stage", stiff_stage, StiffStage),
+                              ("stopping", stopping, StoppingRules), ("track_terms", track_terms, TrackTerms)):
+        if value is not None and not isinstance(value, kind):
+            raise InvalidInputError(f"{name} must be an elastocap.{kind.__name__} or None, got {value!r} "
+                                    f"(before session 27 some of these options were numbers or bools: "
+                                    f"elastocap.elastic.fit_options.grouped_keywords reads them)")
+    contacts = self_intersection
+    views_given = cameras is not None and masks is not None
+    silhouette_weight = 0.0 if silhouette is None else silhouette.weight_for(model.dim, views_given)
+    silhouette_stage = "chain" if silhouette is None else silhouette.stage
+    if silhouette_weight > 0 and not views_given:
+        raise InvalidInputError("SilhouetteTerm.weight > 0 needs cameras and masks")
+    stop = StoppingRules() if stopping is None else stopping
+    if track_terms is None:
+        track_terms = TrackTerms()
     if len(model.surface_faces) == 0:
         raise InvalidInputError(
             "fit_sequence needs a model with a surface (ElasticModel.from_mesh or ElasticModel.from_mask)"
@@ -316,23 +255,12 @@ def fit_sequence(
     tracks = check_tracks(tracks, frames)
     if tracks is not None and model.dim != 3:
         raise InvalidInputError("tracks are 3-D points: a 2-D model does not take them")
-    for name, value in (("stop_fraction", stop_fraction), ("staged_stop_fraction", staged_stop_fraction)):
-        if not (np.isfinite(value) and 0 <= value < 1):
-            raise InvalidInputError(f"{name} must be in [0, 1), got {value}")
-    if track_terms is None:
-        track_terms = TrackTerms()
-    elif not isinstance(track_terms, TrackTerms):
-        raise InvalidInputError(f"track_terms must be an elastocap.TrackTerms or None, got {type(track_terms).__name__}")
     node_spacing = float(np.mean(model.volumes) ** (1 / 3))
     sigma = track_terms.lengths(node_spacing).sigma
-    if stiff_stage is not None and not (np.isfinite(stiff_stage) and stiff_stage > 0):
-        raise InvalidInputError(f"stiff_stage must be None or a finite positive number, got {stiff_stage}")
-    if stiff_stage_frames not in ("first", "all"):
-        raise InvalidInputError(f"stiff_stage_frames must be 'first' or 'all', got {stiff_stage_frames!r}")
     attachments = None if tracks is None or track_terms.weight == 0 else TrackAttachments.build(
         tracks, rest_frame, model.neighbors.shape[1], track_terms, node_spacing)
     fitter = _core.FitCore(model._core, model.surface_nodes, model.surface_faces)
-    stage_stiffness = 0.0 if stiff_stage is None else float(stiff_stage)
+    stage_stiffness = 0.0 if stiff_stage is None else stiff_stage.stiffness
     rest_volume = model.enclosed_measure(model.nodes)
     field_of = target_field if model.dim == 3 else mask_field
     result = SequenceFit(model, rest_frame)
@@ -366,10 +294,10 @@ def fit_sequence(
                 # frame is met half-way instead of pulled back onto the nearest limb.
                 start = 2 * start - starts[second]
                 predicted = True
-        stiff = stiff_stage is not None and neighbour is not None and (stiff_stage_frames == "all" or not predicted)
+        stiff = stiff_stage is not None and neighbour is not None and (stiff_stage.frames == "all" or not predicted)
         values, origin, spacing = field_arrays(field_of(targets[frame]))
         views = None
-        if silhouette > 0 and cameras is not None and masks is not None:
+        if silhouette_weight > 0 and cameras is not None and masks is not None:
             # Only the band of each image the term can read is transformed exactly: a
             # person fills a few percent of a frame (8 cameras of 1024 x 768: 0.57 s per
             # frame exact everywhere).
@@ -391,20 +319,22 @@ def fit_sequence(
             return frame_spread(attachments, frame, track_arrays, at, model.surface_nodes, model.surface_faces)
 
         pulling = spread(start)
-        options: dict[str, Any] = dict(stiffness=stiffness, contact=contact, max_iterations=max_iterations,
-                       stop_fraction=stop_fraction, invalidate=invalidate,
-                       self_intersection=self_intersection, hold_contacts=hold_contacts, coverage=coverage,
+        options: dict[str, Any] = dict(stiffness=stiffness, contact=1.0 if contacts is None else contacts.weight,
+                       max_iterations=stop.max_iterations, stop_fraction=stop.stop_fraction, invalidate=invalidate,
+                       self_intersection=contacts is not None, hold_contacts=contacts is not None and contacts.hold,
+                       coverage=coverage,
                        # A body keeps its volume; a 2-D silhouette does not keep its area.
                        volume=volume if model.dim == 3 else 0.0,
-                       solver_tolerance=solver_tolerance,
+                       solver_tolerance=stop.solver_tolerance,
                        tracks=pulling, track_weight=track_terms.weight, track_sigma=sigma,
                        track_scale=track_terms.scale)
         clock = time.perf_counter()
         staged = views is not None and silhouette_stage != "joint"
-        first = dict(options, solver_tolerance=staged_tolerance, stop_fraction=staged_stop_fraction) if staged else options
+        first = (dict(options, solver_tolerance=stop.staged_tolerance, stop_fraction=stop.staged_stop_fraction)
+                 if staged else options)
         stiff_iterations = 0
         if stiff:
-            # A first stage at ``stiff_stage`` (module constant STIFF_STAGE's comment): the
+            # A first stage at ``stiff_stage`` (fit_options.STIFF_STAGE's comment): the
             # fast limbs turn as a whole; the frame's own fit then starts from there, its
             # tracks' spread measured from there.
             start, stiff_metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start),
@@ -414,7 +344,7 @@ def fit_sequence(
             options["tracks"] = pulling
             first = dict(first, tracks=pulling)
         positions, metrics = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(start), **first,
-                                              silhouette=0.0 if staged else silhouette,
+                                              silhouette=0.0 if staged else silhouette_weight,
                                               views=None if staged else views)
         # Per-step timings are for profiling the core (``_core.FitCore.fit_frame``); a
         # frame's metrics are figures that compare across runs.
@@ -426,7 +356,7 @@ def fit_sequence(
             # to the hull alone (whose terms have their invalidation), then refined
             # against the masks from there, where the nearest outline is the limb's own.
             refined_positions, refined = fitter.fit_frame(values, origin, spacing, np.ascontiguousarray(chained),
-                                                          **options, silhouette=silhouette, views=views)
+                                                          **options, silhouette=silhouette_weight, views=views)
             refined.pop("step_seconds", None)
             # A refinement that takes the volume farther from rest than the volume bound
             # (5%) is not the masks' precision but their coarseness: on images where a limb

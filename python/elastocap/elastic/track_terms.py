@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from elastocap._core import InvalidInputError
+from elastocap.elastic.option_checks import checked
 
 __all__ = ["TrackLengths", "TrackTerms"]
 
@@ -199,7 +200,7 @@ class TrackTerms:
             value = getattr(self, name)
             if kind == "length" and value is None:
                 continue
-            object.__setattr__(self, name, _checked(name, kind, value, least, closed))
+            object.__setattr__(self, name, checked("TrackTerms", name, kind, value, least, closed))
 
     @classmethod
     def from_flat(cls, options: Mapping[str, Any]) -> TrackTerms:
@@ -235,23 +236,3 @@ class TrackTerms:
             spread_radius=length(self.spread_radius, TRACK_SPREAD_RADIUS),
         )
 
-
-def _checked(name: str, kind: str, value: Any, least: float, closed: bool) -> Any:
-    """``value`` as a Python bool / int / float after checking it (``kind``: "bool", "int",
-    "float" or "length"; numbers finite and at least ``least``, strictly above it unless
-    ``closed``)."""
-    if kind == "bool":
-        if not isinstance(value, (bool, np.bool_)):
-            raise InvalidInputError(f"TrackTerms.{name} must be a bool, got {value!r}")
-        return bool(value)
-    if kind == "int":
-        # A bool is an int to Python; as a count it is a mistake.
-        if isinstance(value, (bool, np.bool_)) or not (isinstance(value, (int, np.integer)) and value >= least):
-            raise InvalidInputError(f"TrackTerms.{name} must be a non-negative int, got {value!r}")
-        return int(value)
-    bound = f">= {least:g}" if closed else f"> {least:g}"
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidInputError(f"TrackTerms.{name} must be a finite number {bound}, got {value!r}")
-    if not (np.isfinite(value) and (value >= least if closed else value > least)):
-        raise InvalidInputError(f"TrackTerms.{name} must be a finite number {bound}, got {value}")
-    return float(value)

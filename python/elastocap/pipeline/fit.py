@@ -28,6 +28,7 @@ from elastocap._io import load_npz, save_bytes, save_mesh, save_npz
 from elastocap.capture.folder import Capture
 from elastocap.elastic.model import ElasticModel
 from elastocap.elastic.fit import FrameFit, SequenceFit, fit_sequence
+from elastocap.elastic.fit_options import SilhouetteTerm
 from elastocap.elastic.rest import least_volume_frame
 from elastocap.elastic.tracks import select_frames
 from elastocap.tracking.tracks import load_tracks
@@ -100,8 +101,9 @@ def run_fit_stage(
     n_nodes, k, rotation
         As in :meth:`ElasticModel.from_mesh`.
     stiffness, silhouette : float
-        As in :func:`~elastocap.elastic.fit.fit_sequence`; the silhouette term uses the
-        capture's cameras and masks. Off by default here for time, not accuracy: its
+        The fit's stiffness (:func:`~elastocap.elastic.fit.fit_sequence`) and the silhouette
+        term's weight (:class:`~elastocap.elastic.fit_options.SilhouetteTerm`, >= 0; 0: off);
+        the silhouette term uses the capture's cameras and masks. Off by default here for time, not accuracy: its
         refinement makes the fit stage about 1.55x slower (the demo's 30 frames of 8
         cameras at 1024 x 768: mean fit-to-truth 8.2 -> 7.4 mm, CPU +25%), which the
         demo's 60 s cannot take (benches/README.md, branch limbs3). Its fits are
@@ -119,6 +121,8 @@ def run_fit_stage(
     progress : bool
         Show progress bars.
     """
+    # Checked before the hull stage runs (a negative weight is refused by name).
+    term = SilhouetteTerm(weight=silhouette)
     cap = capture if isinstance(capture, Capture) else Capture.open(capture)
     out = Path(out)
     frames = list(cap.frames)
@@ -173,11 +177,11 @@ def run_fit_stage(
         bar.update(1)
 
     targets = _LazyHulls(out, frames)
-    masks = _LazyMasks(cap) if silhouette > 0 else None
+    masks = _LazyMasks(cap) if term.weight else None
     tracked = None
     if tracks and any((out / "tracks").glob("[0-9]*.npz")):
         tracked = select_frames(load_tracks(out), frames)
-    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, silhouette=silhouette,
+    result = fit_sequence(model, targets, rest_frame=rest, stiffness=stiffness, silhouette=term,
                           cameras=cap.rig.cameras, masks=masks, done=done, callback=write, tracks=tracked)
     bar.close()
     # Frames fitted before an interruption come back with their positions only: their

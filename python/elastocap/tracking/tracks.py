@@ -36,6 +36,24 @@ class Tracks:
         Covariance of ``positions`` (world units squared): the forward intersection's,
         with the drift of the views' anchors (:mod:`elastocap.tracking.drift`), after the
         fusion; NaN where not tracked.
+
+        What it is calibrated for: a track's motion from its own first position. Measured
+        against the true surface point each track was seeded on (textured fast capture,
+        tuning seeds 10 and 42, main's tracks; benches/README.md, "Session 26, lead", item
+        5), the displacement from the first position has a median squared Mahalanobis
+        distance d^2 of 2.6-2.8 where a calibrated 3-D Gaussian has 2.37, but a heavy tail
+        (mean d^2 14-15 against 3; the displacement error's p90 14-18 mm against a sigma of
+        5-8 mm). The elastic fit uses exactly that motion and meets the tail with a floor
+        on the sigma and a Cauchy loss (:class:`elastocap.TrackTerms` ``sigma`` and
+        ``scale``).
+
+        What it omits: the seed's own offset from the surface (its first triangulation).
+        Read as the error of the absolute position it is optimistic: median d^2 5.1-6.2,
+        mean 300-460; the error's p50 is 10-13 mm at the seeding frame of late seeds
+        (22-29% beyond 22 mm) and 6-7 mm five or more frames on, while the covariance's
+        sqrt(trace) is ~3 mm at seeding and ~7.5-7.8 mm twenty frames on. Its largest axis
+        (the views' depth) is too small (median e^2 / variance 1.6-2.9) and the two across
+        it too large (0.35-0.43).
     flags : (F, N) uint8
         :class:`TrackFlag` codes: 0 where tracked, else why not.
     views : (F, N, C, 2) float64, optional
