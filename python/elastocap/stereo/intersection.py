@@ -135,11 +135,17 @@ def intersect(
         raise InvalidInputError("uv holds infinity (use NaN for a missing view)")
     n = obs.shape[0]
     sigma_ = as_positive("sigma", sigma)
-    cov = _covariance(covariance, n, c, sigma_)
     critical_ = as_positive("critical", critical)
     iterations = as_count("max_iterations", max_iterations)
     tol = as_positive("tolerance", tolerance)
     scale = max(float(np.max(np.linalg.norm(np.array([cam.center for cam in cams]), axis=1))), 1.0)
+    if covariance is not None and np.shape(covariance) == (n, c, 2, 2):
+        # One covariance per view: the weights are block diagonal, solved as such.
+        from elastocap.stereo.intersection_blocks import intersect_blocks
+
+        return Intersection(*intersect_blocks(cams, obs, as_float_array("covariance", covariance), reject=reject,
+                                              critical=critical_, iterations=iterations, step_tolerance=tol * scale))
+    cov = _covariance(covariance, n, c, sigma_)
 
     blocks = cov.reshape(n, c, 2, c, 2)[:, np.arange(c), :, np.arange(c), :]  # (C, N, 2, 2)
     observed: NDArray[np.bool_] = np.asarray(np.isfinite(obs).all(axis=2) & np.isfinite(blocks).all(axis=(2, 3)).T)
