@@ -143,8 +143,8 @@ def intersect(
         # One covariance per view: the weights are block diagonal, solved as such.
         from elastocap.stereo.intersection_blocks import intersect_blocks
 
-        return Intersection(*intersect_blocks(cams, obs, as_float_array("covariance", covariance), reject=reject,
-                                              critical=critical_, iterations=iterations, step_tolerance=tol * scale))
+        return intersect_blocks(cams, obs, as_float_array("covariance", covariance), reject=reject, critical=critical_,
+                                iterations=iterations, step_tolerance=tol * scale)
     cov = _covariance(covariance, n, c, sigma_)
 
     blocks = cov.reshape(n, c, 2, c, 2)[:, np.arange(c), :, np.arange(c), :]  # (C, N, 2, 2)
@@ -163,19 +163,29 @@ def intersect(
             break
         used[np.flatnonzero(drop), np.argmax(worst[drop], axis=1)] = False
 
-    count = used.sum(axis=1)
     quad = np.einsum("ni,nij,nj->n", resid, weight, resid)
+    return _result(cams, x, point_cov, resid.reshape(n, c, 2), normalised, used, quad, converged)
+
+
+def _result(cams: list[Camera], x: NDArray[np.float64], point_cov: NDArray[np.float64], resid: NDArray[np.float64],
+            normalised: NDArray[np.float64], used: NDArray[np.bool_], quad: NDArray[np.float64],
+            converged: NDArray[np.bool_]) -> Intersection:
+    """The :class:`Intersection` of the solved points ``x`` (N, 3) with their covariance, the
+    residuals (N, C, 2) and weighted squared residual sums ``quad`` (N,) at the solution:
+    sigma0 from the redundancy, validity (two views, converged, in front of every used
+    camera), NaN where fewer than two views were used."""
+    count = used.sum(axis=1)
     redundancy = 2 * count - 3
     with np.errstate(invalid="ignore", divide="ignore"):
         sigma0 = np.where(redundancy > 0, np.sqrt(quad / np.maximum(redundancy, 1)), np.nan)
-    depth_ok = np.ones(n, bool)
+    depth_ok = np.ones(len(x), bool)
     for k, cam in enumerate(cams):
         depth = cam.to_camera(np.nan_to_num(x))[:, 2]
         depth_ok &= ~used[:, k] | (depth > 0)
     valid = (count >= 2) & converged & depth_ok & np.isfinite(x).all(axis=1)
     x[count < 2] = np.nan
     point_cov[count < 2] = np.nan
-    residuals = np.where(used[..., None], resid.reshape(n, c, 2), np.nan)
+    residuals = np.where(used[..., None], resid, np.nan)
     return Intersection(
         points=x,
         covariance=point_cov,

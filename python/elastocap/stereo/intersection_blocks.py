@@ -8,32 +8,35 @@ with the weight matrix kept as its C diagonal blocks: the normal matrix is a sum
 of ``J_c^T W_c J_c`` (3x2 @ 2x2 @ 2x3) instead of a product through a dense ``2C x 2C``
 matrix that is zero off its blocks, and each rejection round solves again only the points
 that dropped a view. On the tracker's frame (2,500 points, 8 cameras, ~1.7 views each)
-this is ~5x fewer CPU seconds than the dense path (benches/README.md, "speed1"); the
+this is ~7x fewer CPU seconds than the dense path (benches/README.md, "speed1"); the
 results agree with it to rounding (tests/test_intersection.py).
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from elastocap.cameras import Camera
 
+if TYPE_CHECKING:
+    from elastocap.stereo.intersection import Intersection
+
 __all__ = ["intersect_blocks"]
 
 
 def intersect_blocks(cams: list[Camera], obs: NDArray[np.float64], cov: NDArray[np.float64], *, reject: bool,
-                     critical: float, iterations: int, step_tolerance: float) -> tuple[NDArray[np.float64], ...]:
-    """The intersection of ``obs`` (N, C, 2; NaN where not observed) with per-view
-    covariances ``cov`` (N, C, 2, 2, pixels squared; ignored where not observed), checked by
-    the caller. Returns the fields of :class:`~elastocap.stereo.Intersection` in its order:
-    points (N, 3), covariance (N, 3, 3), residuals (N, C, 2), normalised (N, C), used (N, C),
-    sigma0 (N,), valid (N,)."""
-    from elastocap.stereo.intersection import _inverse
+                     critical: float, iterations: int, step_tolerance: float) -> Intersection:
+    """The :class:`~elastocap.stereo.Intersection` of ``obs`` (N, C, 2, pixels; NaN where
+    not observed) with per-view covariances ``cov`` (N, C, 2, 2, pixels squared; ignored
+    where not observed), checked by the caller; ``critical``, ``iterations`` as in
+    :func:`~elastocap.stereo.intersect`, ``step_tolerance`` in world units."""
+    from elastocap.stereo.intersection import _inverse, _result
 
     n, c = obs.shape[:2]
-    observed = np.isfinite(obs).all(axis=2) & np.isfinite(cov).all(axis=(2, 3))
-    used = observed.copy()
+    used: NDArray[np.bool_] = np.asarray(np.isfinite(obs).all(axis=2) & np.isfinite(cov).all(axis=(2, 3)))
     normalised = np.full((n, c), np.nan)
     x = np.full((n, 3), np.nan)
     point_cov = np.full((n, 3, 3), np.nan)
@@ -55,24 +58,12 @@ def intersect_blocks(cams: list[Camera], obs: NDArray[np.float64], cov: NDArray[
         used[todo[drop], np.argmax(worst[drop], axis=1)] = False
         todo = todo[drop]
 
-    count = used.sum(axis=1)
     quad = np.einsum("nca,ncab,ncb->n", resid, weight, resid)
-    redundancy = 2 * count - 3
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sigma0 = np.where(redundancy > 0, np.sqrt(quad / np.maximum(redundancy, 1)), np.nan)
-    depth_ok = np.ones(n, bool)
-    for k, cam in enumerate(cams):
-        depth = cam.to_camera(np.nan_to_num(x))[:, 2]
-        depth_ok &= ~used[:, k] | (depth > 0)
-    valid = (count >= 2) & converged & depth_ok & np.isfinite(x).all(axis=1)
-    x[count < 2] = np.nan
-    point_cov[count < 2] = np.nan
-    residuals = np.where(used[..., None], resid, np.nan)
-    return x, point_cov, residuals, normalised, used, sigma0, valid
+    return _result(cams, x, point_cov, resid, normalised, used, quad, converged)
 
 
 def _solve(cams: list[Camera], obs: NDArray[np.float64], cov: NDArray[np.float64], used: NDArray[np.bool_],
-           iterations: int, step_tolerance: float) -> tuple[NDArray[np.float64], ...]:
+           iterations: int, step_tolerance: float) -> tuple[NDArray[Any], ...]:
     """Gauss-Newton from the linear midpoint over the used views; returns the point (M, 3),
     the weights (M, C, 2, 2; zero for views not used), the Jacobian (M, C, 2, 3) and the
     residual (M, C, 2) at the solution (zero for views not used), and which converged."""
@@ -113,7 +104,7 @@ def _midpoint(cams: list[Camera], obs: NDArray[np.float64], used: NDArray[np.boo
         if rows.size == 0:
             continue
         origin, direction = cam.rays(obs[rows, k])
-        ok = np.isfinite(direction).all(axis=1)
+        ok: NDArray[np.bool_] = np.asarray(np.isfinite(direction).all(axis=1))
         direction = np.where(ok[:, None], direction, 0.0)
         proj = np.eye(3) - direction[:, :, None] * direction[:, None, :]
         proj[~ok] = 0.0

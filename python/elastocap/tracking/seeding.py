@@ -88,7 +88,7 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
     image, and are seen by at least half of them (the visual hull; space that few cameras
     see is not bounded by it: right in front of a camera of a ring, the cameras across see
     the space behind the subject and count it inside)."""
-    inside = np.isfinite(flat).all(axis=1)
+    inside: NDArray[np.bool_] = np.asarray(np.isfinite(flat).all(axis=1))
     x = np.nan_to_num(flat)
     seen_by = np.zeros(len(x), int)
     for other, mask in zip(cameras, masks):
