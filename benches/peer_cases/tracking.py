@@ -267,8 +267,8 @@ def _pipeline_speed_row(folder: Path, repeats: int) -> dict[str, Any]:
     """Whole frames of ``track_points`` (temporal step, anchors, re-tie, intersection,
     filters, re-acquisition, revival) on a decoded capture: the speed line's frame as a
     user runs it. ``spacing`` (``ELASTOCAP_TRACK_SPACING``, default 5) sets the density:
-    at 5 the 1024x768 textured capture holds ~1,000-1,600 tracked points (each in ~2.5 of
-    the 8 cameras). Every other option is ``track_points``' default, so frames 0, 5, 10,
+    at 5 the 1024x768 textured capture holds ~1,050-1,550 tracked points in its first 8
+    frames and up to 2,600 by frame 15 (each in ~2.5 of the 8 cameras). Every other option is ``track_points``' default, so frames 0, 5, 10,
     ... seed new points (``reseed_every``): they are reported apart (``seeding_*``), the
     line's figure is the median over the frames between them (``ours_s``, wall, and
     ``ours_cpu_s``, every thread of the process). The peer (``peer_s``): LK forward +
