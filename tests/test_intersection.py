@@ -197,3 +197,65 @@ def test_the_covariance_is_positive_definite_however_near_parallel_the_rays(seed
     assert (w[:, 0] > 0).all()
     ray = X[fin] / np.linalg.norm(X[fin], axis=1, keepdims=True)
     assert np.median(np.abs(np.einsum("ni,ni->n", v[:, :, -1], ray))) > 0.9
+
+
+def _ring(count: int) -> list[Camera]:
+    """Cameras on an arc 5 units from the origin, all looking at it (0.25 rad apart), with
+    distortion and skew."""
+    cams = []
+    for i in range(count):
+        yaw = 0.25 * i - 0.125 * (count - 1)
+        R = cv2.Rodrigues(np.array([0.0, -yaw, 0.02 * i]))[0]
+        centre = np.array([-5 * np.sin(yaw), 0.0, -5 * np.cos(yaw)])
+        K = np.array([[810.0, 2.5, 330.0], [0.0, 790.0, 245.0], [0.0, 0.0, 1.0]])
+        cams.append(Camera(f"r{i}", K, DISTORTION, R, -R @ centre, 640, 480))
+    return cams
+
+
+def _per_view_as_joint(cov: np.ndarray) -> np.ndarray:
+    """(N, C, 2, 2) per-view covariances as the (N, 2C, 2C) joint matrix, zero between views."""
+    n, c = cov.shape[:2]
+    full = np.zeros((n, 2 * c, 2 * c))
+    for k in range(c):
+        full[:, 2 * k:2 * k + 2, 2 * k:2 * k + 2] = cov[:, k]
+    return full
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(2, 8))
+@settings(max_examples=40, deadline=None)
+def test_per_view_covariances_solve_as_the_joint_matrix_does(seed: int, views: int) -> None:
+    # The tracker passes one 2x2 covariance per view, solved in blocks
+    # (stereo/intersection_blocks.py); the joint path on the same matrix written out in full
+    # is the reference: the same points, covariances, residuals, rejections and validity to
+    # rounding, with missing views, failed matches (NaN covariance) and blunders to reject.
+    rng = np.random.default_rng(seed)
+    cams = _ring(views)
+    X = rng.uniform(-0.6, 0.6, (300, 3))
+    X = X[np.all([c.visible(X) for c in cams], axis=0)][:60]
+    n = len(X)
+    uv = np.stack([c.project(X)[0] for c in cams], axis=1)
+    a = rng.normal(size=(n, views, 2, 2))
+    cov = np.einsum("nkij,nklj->nkil", a, a) * 0.05 + 0.02 * np.eye(2)
+    uv += np.einsum("nkij,nkj->nki", np.linalg.cholesky(cov), rng.normal(size=(n, views, 2)))
+    blunder = rng.random((n, views)) < 0.1
+    uv += blunder[..., None] * rng.choice([-12.0, 12.0], size=(n, views, 2))
+    uv[rng.random((n, views)) < 0.2] = np.nan
+    cov[rng.random((n, views)) < 0.05] = np.nan
+    blocks = intersect(cams, uv, covariance=cov)
+    joint = intersect(cams, uv, covariance=_per_view_as_joint(cov))
+    # Points whose Gauss-Newton does not converge (a blunder among two or three views) are
+    # invalid in both, wherever their last iterate lies; the rest agree to rounding.
+    np.testing.assert_array_equal(blocks.valid, joint.valid)
+    ok = blocks.valid & joint.valid
+    assert n >= 30 and ok.sum() >= 10
+    np.testing.assert_array_equal(blocks.used[ok], joint.used[ok])
+    np.testing.assert_allclose(blocks.points[ok], joint.points[ok], rtol=0, atol=1e-9)
+    # The covariances relative to each point's largest variance (the depth direction's).
+    size = np.abs(joint.covariance[ok]).max(axis=(1, 2))[:, None, None]
+    assert (np.abs(blocks.covariance[ok] - joint.covariance[ok]) <= 1e-7 * size).all()
+    np.testing.assert_allclose(blocks.residuals[ok], joint.residuals[ok], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(blocks.normalised[ok], joint.normalised[ok], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(blocks.sigma0[ok], joint.sigma0[ok], rtol=1e-6, atol=1e-12)
+    # The blunders were there to reject: some view was dropped.
+    if views >= 3:
+        assert blocks.used.sum() < (np.isfinite(uv[..., 0]) & np.isfinite(cov).all(axis=(2, 3))).sum()

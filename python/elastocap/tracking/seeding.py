@@ -88,19 +88,40 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
     image, and are seen by at least half of them (the visual hull; space that few cameras
     see is not bounded by it: right in front of a camera of a ring, the cameras across see
     the space behind the subject and count it inside)."""
-    inside = np.isfinite(flat).all(axis=1)
+    inside: NDArray[np.bool_] = np.asarray(np.isfinite(flat).all(axis=1))
     x = np.nan_to_num(flat)
     seen_by = np.zeros(len(x), int)
     for other, mask in zip(cameras, masks):
         if other is cam:
             continue
-        uv, depth = other.project(x)
+        # Only the points no camera has yet put outside (most ray samples leave the hull
+        # in the first camera checked; the answer for the others is already False).
+        rows = np.flatnonzero(inside)
+        if rows.size == 0:
+            break
+        uv, depth = _project_chunked(other, x[rows])
         seen = (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < other.width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < other.height - 0.5)
         iu = np.clip(np.nan_to_num(uv[:, 0]), -1, other.width).round().astype(int).clip(0, other.width - 1)
         iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
-        inside &= ~seen | mask[iv, iu]
-        seen_by += seen
+        inside[rows] = ~seen | mask[iv, iu]
+        seen_by[rows] += seen
     return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+
+
+# Rows per projection of ray samples. OpenBLAS splits a matrix product over threads once
+# m * n * k reaches 4 * 65536 (29,000 rows of a 3x3 rotation): on two shared cores its threads
+# spin against the tracker's own and the product of a seeding frame's ~300,000 samples took
+# 10x the CPU seconds of single-threaded chunks, with the same numbers (benches/README.md,
+# "speed1").
+_CHUNK = 16384
+
+
+def _project_chunked(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``camera.project(points)`` (N, 3) in chunks of ``_CHUNK`` rows."""
+    if len(points) <= _CHUNK:
+        return camera.project(points)
+    parts = [camera.project(points[i:i + _CHUNK]) for i in range(0, len(points), _CHUNK)]
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
@@ -156,7 +177,7 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             if todo.size == 0:
                 break
             other = cameras[p]
-            uv, _ = other.project(np.nan_to_num(points[todo].reshape(-1, 3)))
+            uv, _ = _project_chunked(other, np.nan_to_num(points[todo].reshape(-1, 3)))
             uv = uv.reshape(len(todo), _DEPTHS, 2)
             uv[~hull[todo]] = -1e6  # outside any image: no score
             scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)

@@ -14,11 +14,11 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap.cameras import Camera
-from elastocap.stereo import intersect, match_patches
-from elastocap.stereo.matching import MatchStatus
+from elastocap.stereo import intersect
+from elastocap.stereo.matching import MatchStatus, checked_image, checked_weights, match_checked
 
-__all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_warped_tiles", "project_all", "spatial_match",
-           "spatial_search"]
+__all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_affine_from", "plane_offset_points",
+           "plane_warped_tiles", "project_all", "spatial_match", "spatial_search"]
 
 
 def project_all(cameras: Sequence[Camera], points: NDArray[np.float64], margin: float) -> NDArray[np.float64]:
@@ -44,17 +44,34 @@ def plane_affine(cameras: Sequence[Camera], r: int, k: int, uv: NDArray[np.float
     """(M, 2, 3) affine start maps from camera ``r``'s patch around ``uv`` (M, 2) into
     camera ``k``: the derivative of the homography the plane through ``points`` with
     ``normals`` induces (one-pixel central differences), centred on the projection."""
-    out = np.zeros((len(uv), 2, 3))
-    columns = []
-    for e in (np.array([1.0, 0.0]), np.array([0.0, 1.0])):
-        ends = []
-        for sign in (1.0, -1.0):
-            o, d = cameras[r].rays(uv + sign * e)
-            t = np.einsum("ij,ij->i", points - o, normals) / np.einsum("ij,ij->i", d, normals)
-            ends.append(cameras[k].project(o + t[:, None] * d)[0])
-        columns.append(0.5 * (ends[0] - ends[1]))
-    out[:, :, 0], out[:, :, 1] = columns
-    out[:, :, 2] = cameras[k].project(points)[0]
+    return plane_affine_from(cameras[k], plane_offset_points(cameras[r], uv, points, normals), points)
+
+
+def plane_offset_points(camera: Camera, uv: NDArray[np.float64], points: NDArray[np.float64],
+                        normals: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(M, 4, 3) where the rays of ``camera`` through ``uv`` (M, 2) shifted by +u, -u, +v,
+    -v one pixel meet the planes through ``points`` with ``normals``: what
+    :func:`plane_affine` differences, the same for every target camera (computed once per
+    reference camera, not once per camera pair: the rays' undistortion is most of it)."""
+    out = np.empty((len(uv), 4, 3))
+    for j, (e, sign) in enumerate(((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))):
+        shift = np.zeros(2)
+        shift[e] = sign
+        o, d = camera.rays(uv + shift)
+        t = np.einsum("ij,ij->i", points - o, normals) / np.einsum("ij,ij->i", d, normals)
+        out[:, j] = o + t[:, None] * d
+    return out
+
+
+def plane_affine_from(camera: Camera, ends: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(M, 2, 3) :func:`plane_affine` into ``camera`` from the plane's offset points
+    ``ends`` (M, 4, 3; :func:`plane_offset_points`) and the points (M, 3)."""
+    m = len(points)
+    out = np.zeros((m, 2, 3))
+    projected = camera.project(ends.reshape(-1, 3))[0].reshape(m, 4, 2)
+    out[:, :, 0] = 0.5 * (projected[:, 0] - projected[:, 1])
+    out[:, :, 1] = 0.5 * (projected[:, 2] - projected[:, 3])
+    out[:, :, 2] = camera.project(points)[0]
     return out
 
 
@@ -120,23 +137,39 @@ def spatial_match(
     cov = np.full((n, c, 2, 2), np.nan)
     wanted = np.all(np.isfinite(targets), axis=2)
     tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
+    # Each image (and mask) checked once here, not once per camera pair.
+    references = np.unique(reference[wanted.any(axis=1)])
+    checked = {int(k): checked_image(images[k]) for k in np.union1d(np.flatnonzero(wanted.any(axis=0)), references)}
+    checked_w = {} if weights is None else {int(r): checked_weights(weights[r], checked[int(r)].shape) for r in references}
+    plane = cameras is not None and points is not None and normals is not None
     for r in range(c):
+        mine = (reference == r) & wanted.any(axis=1)
+        if not mine.any():
+            continue
+        ends = None
+        if plane:
+            assert cameras is not None and points is not None and normals is not None
+            # The plane's points under the template's one-pixel offsets, once per reference
+            # camera for every target camera.
+            ends = np.full((n, 4, 3), np.nan)
+            ends[mine] = plane_offset_points(cameras[r], template_uv[mine], points[mine], normals[mine])
         for k in range(c):
-            rows = np.flatnonzero((reference == r) & wanted[:, k])
+            rows = np.flatnonzero(mine & wanted[:, k])
             if k == r or rows.size == 0:
                 continue
             initial: NDArray[np.float64] = targets[rows, k][:, None, :]
-            if cameras is not None and points is not None and normals is not None:
-                affine = plane_affine(cameras, r, k, template_uv[rows], points[rows], normals[rows])
+            if ends is not None:
+                assert cameras is not None and points is not None
+                affine = plane_affine_from(cameras[k], ends[rows], points[rows])
                 affine[:, :, 2] = targets[rows, k]
                 det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
                 if not (np.isfinite(affine).all() and (det > 0).all()):
                     affine[~(np.isfinite(affine).all(axis=(1, 2)) & (det > 0))] = np.array([[1.0, 0, 0], [0, 1.0, 0]])
                     affine[:, :, 2] = targets[rows, k]
                 initial = affine[:, None]
-            m = match_patches(images[r], template_uv[rows], [images[k]], initial=initial,
+            m = match_checked(checked[r], template_uv[rows], [checked[k]], initial=initial,
                               size=size, min_texture=min_texture, max_iterations=20,
-                              weights=None if weights is None else weights[r])
+                              weights=None if weights is None else checked_w[r])
             pos = m.positions[:, 0]
             good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
                     & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tol[rows]))
