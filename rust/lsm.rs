@@ -35,7 +35,8 @@ mod types;
 
 pub(crate) use resample::wide;
 pub use types::{
-    ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Status, Warp, PARAMETERS,
+    ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Refined, Stage, Status, Warp,
+    PARAMETERS,
 };
 
 use rayon::prelude::*;
@@ -96,7 +97,46 @@ pub fn match_weighted_patches(
     options: &MatchOptions,
     out: MatchOutput<'_>,
 ) -> Result<()> {
+    let mut stages = vec![Stage::NONE; out.status.len()];
+    match_staged_patches(
+        template,
+        weights,
+        points,
+        searches,
+        starts,
+        lines,
+        options,
+        out,
+        &mut stages,
+    )
+}
+
+/// [`match_weighted_patches`] that also reports, per point and search image, what the
+/// richer stage did and the affine centre it started from (`stages`, indexed as the
+/// outputs; [`Stage::NONE`] where `options.extra` is off).
+///
+/// # Errors
+/// As [`match_weighted_patches`], and [`Error::OutputSize`] for `stages` of the wrong
+/// length.
+#[allow(clippy::too_many_arguments)]
+pub fn match_staged_patches(
+    template: &ImageView<'_>,
+    weights: Option<&ImageView<'_>>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    options: &MatchOptions,
+    out: MatchOutput<'_>,
+    stages: &mut [Stage],
+) -> Result<()> {
     validate(template, points, searches, starts, lines, options, &out)?;
+    if stages.len() != out.status.len() {
+        return Err(Error::OutputSize {
+            expected: out.status.len(),
+            got: stages.len(),
+        });
+    }
     if let Some(w) = weights {
         let expected = template.width * template.height;
         if w.width != template.width || w.height != template.height || w.data.len() != expected {
@@ -117,13 +157,20 @@ pub fn match_weighted_patches(
         .zip(out.correlation.par_chunks_mut(s))
         .zip(out.iterations.par_chunks_mut(s))
         .zip(out.covariance.par_chunks_mut(block))
+        .zip(stages.par_chunks_mut(s))
         .enumerate()
         .for_each_init(
             Scratch::default,
             |scratch,
              (
                 p,
-                ((((((status, affine), radiometry), sigma0), correlation), iterations), covariance),
+                (
+                    (
+                        (((((status, affine), radiometry), sigma0), correlation), iterations),
+                        covariance,
+                    ),
+                    stage,
+                ),
             )| {
                 match_point(
                     template,
@@ -142,6 +189,7 @@ pub fn match_weighted_patches(
                         correlation,
                         iterations,
                         covariance,
+                        stage,
                     },
                 );
             },
@@ -222,6 +270,12 @@ fn validate(
             "a finite number >= 0 (0: no prior)",
         )?;
     }
+    option(
+        "extra.skip_correlation",
+        extra.skip_correlation,
+        !extra.skip_correlation.is_nan(),
+        "a number (infinite: never skipped)",
+    )?;
     if searches.is_empty() {
         return Err(Error::Empty {
             argument: "search_images",

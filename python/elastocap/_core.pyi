@@ -357,6 +357,7 @@ def lsm_match_patches(
     extra_gain_sigma: float = 0.0,
     extra_fallback: bool = False,
     extra_jacobian: str = "search",
+    extra_skip_correlation: float = ...,
 ) -> tuple[
     NDArray[np.uint8],
     NDArray[np.float64],
@@ -365,6 +366,8 @@ def lsm_match_patches(
     NDArray[np.float64],
     NDArray[np.uint32],
     NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.uint8],
 ]: ...
 
 @final

@@ -17,7 +17,7 @@ use super::resample::{sample_search, sample_search_ring};
 use super::rich::refine;
 use super::sample::{dot, TemplatePatch};
 use super::sandwich::{meat, sandwich, sensitivity};
-use super::types::{ImageView, MatchOptions, Status};
+use super::types::{ImageView, MatchOptions, Refined, Stage, Status};
 
 /// Unknowns per search image: `[d_u, d_v, D11, D12, D21, D22, gain, offset]`.
 const U: usize = MAX;
@@ -90,6 +90,8 @@ pub(crate) struct Outcome {
     pub map: [[f64; U]; U],
     /// The sums at the final state (the cross-image covariance needs them).
     pub sums: Sums,
+    /// What the richer stage did, and the affine centre it started from.
+    pub stage: Stage,
 }
 
 impl Outcome {
@@ -103,7 +105,12 @@ impl Outcome {
             cofactor: [[f64::NAN; U]; U],
             map: [[f64::NAN; U]; U],
             sums: Sums::default(),
+            stage: Stage::NONE,
         }
+    }
+
+    fn with_stage(self, stage: Stage) -> Self {
+        Self { stage, ..self }
     }
 }
 
@@ -258,12 +265,33 @@ pub(crate) fn match_image(
     // The richer model (off by default) from the converged affine match; not with a line
     // (the temporal match it is for has none).
     if status == Status::Converged && options.extra.iterations > 0 && line.is_none() {
+        // The affine match's own outcome first: its centre is reported beside the richer
+        // one (a caller that smooths the richer model's departure from it needs no second
+        // match), and its correlation decides whether the richer stage is worth running.
+        let affine = finish(
+            patch, image, state, line, options, status, iterations, samples, residuals, work,
+        );
+        let converged = affine.status == Status::Converged;
+        let centre = if converged { state.b } else { [f64::NAN; 2] };
+        let stage = |refined| Stage {
+            affine: centre,
+            refined,
+        };
+        if converged && affine.correlation >= options.extra.skip_correlation {
+            return affine.with_stage(stage(Refined::Skipped));
+        }
+        // The richer stage overwrites the residuals; the affine ones are kept for the
+        // fallback (the cross-image covariance reads them). `work` is free after `finish`.
+        let n = residuals.len();
+        work[..n].copy_from_slice(residuals);
         let refined = refine(
             patch, image, state, start_a, start_b, options, iterations, residuals,
         );
         if refined.status == Status::Converged || !options.extra.fallback {
-            return refined;
+            return refined.with_stage(stage(Refined::Reported));
         }
+        residuals.copy_from_slice(&work[..n]);
+        return affine.with_stage(stage(Refined::FellBack));
     }
     finish(
         patch, image, state, line, options, status, iterations, samples, residuals, work,
@@ -393,6 +421,7 @@ fn finish(
         cofactor,
         map,
         sums,
+        stage: Stage::NONE,
     }
 }
 

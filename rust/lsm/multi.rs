@@ -11,7 +11,7 @@
 use super::dense::{product, product_transposed, MAX};
 use super::gauss_newton::{match_image, work_len, Line, Outcome, State};
 use super::sample::TemplatePatch;
-use super::types::{ImageView, MatchOptions, Status, PARAMETERS};
+use super::types::{ImageView, MatchOptions, Stage, Status, PARAMETERS};
 
 const U: usize = MAX;
 /// Least total weight of a weighted template patch: twice the unknowns of a search image.
@@ -40,6 +40,7 @@ pub(crate) struct PointOutput<'a> {
     pub correlation: &'a mut [f64],
     pub iterations: &'a mut [u32],
     pub covariance: &'a mut [f64],
+    pub stage: &'a mut [Stage],
 }
 
 /// Matches the template patch around `point` into every search image.
@@ -86,6 +87,7 @@ pub(crate) fn match_point(
                 cofactor: [[f64::NAN; U]; U],
                 map: [[f64::NAN; U]; U],
                 sums: Default::default(),
+                stage: Stage::NONE,
             },
             None => {
                 let line = lines.and_then(|l| Line::new(l[s]));
@@ -107,6 +109,7 @@ pub(crate) fn match_point(
         out.sigma0[s] = outcome.sigma0;
         out.correlation[s] = outcome.correlation;
         out.iterations[s] = outcome.iterations;
+        out.stage[s] = outcome.stage;
         scratch.outcomes.push(outcome);
     }
     joint_covariance(scratch, n, out.covariance);

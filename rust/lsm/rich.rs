@@ -30,7 +30,7 @@ use super::gauss_newton::{Outcome, State};
 use super::multi::to_parameters;
 use super::normal::Sums;
 use super::sample::TemplatePatch;
-use super::types::{ImageView, MatchOptions, Status};
+use super::types::{ImageView, MatchOptions, Stage, Status};
 use evaluate::evaluate;
 use model::{apply, prior, ran_away, unknowns, Layout, RichState, R};
 
@@ -140,6 +140,7 @@ pub(crate) fn refine(
         cofactor,
         map: cofactor,
         sums: Sums::default(),
+        stage: Stage::NONE,
     }
 }
 

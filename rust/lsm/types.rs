@@ -140,6 +140,11 @@ pub struct ExtraModel {
     /// apart from the gain columns, the update composed on the template side) instead of
     /// the search image's at the warped points (exact, forward-additive).
     pub template_jacobian: bool,
+    /// The richer stage is skipped where the converged affine match's correlation is at
+    /// least this (the affine model already explains the patch: nothing for the extra
+    /// terms to take up but noise), and the affine match is reported; infinite = never
+    /// skipped.
+    pub skip_correlation: f64,
 }
 
 impl Default for ExtraModel {
@@ -152,7 +157,50 @@ impl Default for ExtraModel {
             gain_sigma: 0.0,
             fallback: false,
             template_jacobian: false,
+            skip_correlation: f64::INFINITY,
         }
+    }
+}
+
+/// What the richer stage did for one match (stored as `u8`; the codes are part of the
+/// Python API).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Refined {
+    /// No richer stage: not asked for, a line constraint, or the affine match did not
+    /// converge.
+    No = 0,
+    /// The richer model ran; its outcome is reported.
+    Reported = 1,
+    /// The richer model did not converge; the affine match is reported (`fallback`).
+    FellBack = 2,
+    /// Skipped by `skip_correlation`; the affine match is reported.
+    Skipped = 3,
+}
+
+/// The richer stage's record of one match: what it did, and the converged affine match it
+/// started from (so that a caller wanting both centres needs no second, affine-only match).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stage {
+    /// The affine match's centre `(u, v)`, search pixels, where the richer stage was asked
+    /// for and the affine match converged (its own outcome, covariance included, would
+    /// have been [`Status::Converged`]); NaN elsewhere.
+    pub affine: [f64; 2],
+    /// What the richer stage did.
+    pub refined: Refined,
+}
+
+impl Stage {
+    /// No richer stage, no affine centre.
+    pub const NONE: Self = Self {
+        affine: [f64::NAN; 2],
+        refined: Refined::No,
+    };
+}
+
+impl Default for Stage {
+    fn default() -> Self {
+        Self::NONE
     }
 }
 

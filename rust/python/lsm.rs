@@ -8,8 +8,8 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{
-    match_weighted_patches, ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Warp,
-    PARAMETERS,
+    match_staged_patches, ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Stage,
+    Warp, PARAMETERS,
 };
 
 type Matches<'py> = (
@@ -20,6 +20,8 @@ type Matches<'py> = (
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<u32>>,
     Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<u8>>,
 );
 
 fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
@@ -32,7 +34,9 @@ fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<Im
 }
 
 /// `(status (N, S) uint8, affine (N, S, 2, 3), radiometry (N, S, 2) [gain, offset],
-/// sigma0 (N, S), correlation (N, S), iterations (N, S) uint32, covariance (N, 8S, 8S))`.
+/// sigma0 (N, S), correlation (N, S), iterations (N, S) uint32, covariance (N, 8S, 8S),
+/// affine_centre (N, S, 2), refined (N, S) uint8)`: the last two the richer stage's record
+/// (`Stage`: the converged affine match's centre, NaN where none, and the `Refined` code).
 /// Images are C-contiguous float32; `initial` is `(N, S, 6)` row-major 2x3 maps;
 /// `epipolar` `(N, S, 3)` lines. `weights`, the template's shape (float32), weighs its
 /// pixels (weighted least squares). `threads` runs the batch on its own pool of that size.
@@ -40,14 +44,16 @@ fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<Im
 /// "affine", "projective" or "quadratic", `extra_gain_gradient`, the priors' standard
 /// deviations `extra_warp_sigma` px and `extra_gain_sigma`, 0 = none, `extra_fallback`:
 /// the affine match where the richer one does not converge, `extra_jacobian` "search" or
-/// "template"); 0 is the affine match.
+/// "template", `extra_skip_correlation`: no richer stage where the affine match's
+/// correlation is at least this); 0 is the affine match.
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 #[pyo3(signature = (template, points, search_images, initial, epipolar=None, *, size=11,
     max_iterations=30, tolerance=0.01, max_shift=5.0, max_scale=3.0, min_texture=0.0,
     line_sigma=0.0, shift_only_iterations=1, interpolation="bicubic", threads=None, weights=None,
     extra_iterations=0, extra_warp="affine", extra_gain_gradient=false, extra_warp_sigma=0.0,
-    extra_gain_sigma=0.0, extra_fallback=false, extra_jacobian="search"))]
+    extra_gain_sigma=0.0, extra_fallback=false, extra_jacobian="search",
+    extra_skip_correlation=f64::INFINITY))]
 fn lsm_match_patches<'py>(
     py: Python<'py>,
     template: PyReadonlyArray2<'py, f32>,
@@ -73,6 +79,7 @@ fn lsm_match_patches<'py>(
     extra_gain_sigma: f64,
     extra_fallback: bool,
     extra_jacobian: &str,
+    extra_skip_correlation: f64,
 ) -> PyResult<Matches<'py>> {
     let template_view = view(&template, "template")?;
     let weights_view = weights.as_ref().map(|w| view(w, "weights")).transpose()?;
@@ -159,6 +166,7 @@ fn lsm_match_patches<'py>(
             gain_sigma: extra_gain_sigma,
             fallback: extra_fallback,
             template_jacobian,
+            skip_correlation: extra_skip_correlation,
         },
     };
     let width = PARAMETERS * s;
@@ -169,6 +177,7 @@ fn lsm_match_patches<'py>(
     let correlation = PyArray2::<f64>::zeros(py, [n, s], false);
     let iterations = PyArray2::<u32>::zeros(py, [n, s], false);
     let covariance = PyArray3::<f64>::zeros(py, [n, width, width], false);
+    let mut stages = vec![Stage::NONE; n * s];
     {
         let mut status_w = status.readwrite();
         let mut affine_w = affine.readwrite();
@@ -187,7 +196,7 @@ fn lsm_match_patches<'py>(
             covariance: covariance_w.as_slice_mut()?,
         };
         let run = || {
-            match_weighted_patches(
+            match_staged_patches(
                 &template_view,
                 weights_view.as_ref(),
                 points_rows,
@@ -196,6 +205,7 @@ fn lsm_match_patches<'py>(
                 lines,
                 &options,
                 out,
+                &mut stages,
             )
         };
         super::detach(py, || match threads {
@@ -207,6 +217,18 @@ fn lsm_match_patches<'py>(
         })
         .map_err(pyo3::exceptions::PyRuntimeError::new_err)??;
     }
+    let affine_centre = PyArray3::<f64>::zeros(py, [n, s, 2], false);
+    let refined = PyArray2::<u8>::zeros(py, [n, s], false);
+    {
+        let mut centre_w = affine_centre.readwrite();
+        let mut refined_w = refined.readwrite();
+        let centres = centre_w.as_slice_mut()?.as_chunks_mut::<2>().0;
+        let codes = refined_w.as_slice_mut()?;
+        for ((centre, code), stage) in centres.iter_mut().zip(codes.iter_mut()).zip(&stages) {
+            *centre = stage.affine;
+            *code = stage.refined as u8;
+        }
+    }
     Ok((
         status,
         affine,
@@ -215,6 +237,8 @@ fn lsm_match_patches<'py>(
         correlation,
         iterations,
         covariance,
+        affine_centre,
+        refined,
     ))
 }
 

@@ -20,7 +20,7 @@ from elastocap import _core
 from elastocap._core import InvalidInputError
 from elastocap._validate import as_count, as_float_array, as_positive
 
-__all__ = ["MatchStatus", "Matches", "PARAMETERS", "match_patches", "noise_level"]
+__all__ = ["MatchStatus", "Matches", "PARAMETERS", "Refined", "match_patches", "noise_level"]
 
 #: Parameters per search image in :attr:`Matches.covariance`, in this order.
 PARAMETERS = ("u", "v", "a11", "a12", "a21", "a22", "gain", "offset")
@@ -57,6 +57,19 @@ class MatchStatus(IntEnum):
     REJECTED = 5
 
 
+class Refined(IntEnum):
+    """What ``match_patches(refine=)``'s richer stage did for a match (:attr:`Matches.refined`)."""
+
+    #: No richer stage: not asked for, an epipolar line, or the affine match did not converge.
+    NO = 0
+    #: The richer model ran; its outcome is reported.
+    REPORTED = 1
+    #: The richer model did not converge; the affine match is reported (``"fallback"``).
+    FELL_BACK = 2
+    #: Skipped: the affine match's correlation reached ``"skip_correlation"``; it is reported.
+    SKIPPED = 3
+
+
 class Matches(NamedTuple):
     """Result of :func:`match_patches` for N points and S search images.
 
@@ -91,6 +104,12 @@ class Matches(NamedTuple):
         at the final estimate.
     iterations : (N, S) uint32
         Gauss-Newton iterations run.
+    affine_centre : (N, S, 2) float64
+        With ``refine``: the converged affine match's centre the richer stage started from
+        (the centre ``match_patches`` without ``refine`` reports), NaN where the affine
+        match did not converge; NaN without ``refine``.
+    refined : (N, S) uint8
+        :class:`Refined` codes: what the richer stage did.
     """
 
     status: NDArray[np.uint8]
@@ -102,6 +121,8 @@ class Matches(NamedTuple):
     covariance: NDArray[np.float64]
     correlation: NDArray[np.float64]
     iterations: NDArray[np.uint32]
+    affine_centre: NDArray[np.float64] | None = None
+    refined: NDArray[np.uint8] | None = None
 
     @property
     def converged(self) -> NDArray[np.bool_]:
@@ -230,7 +251,9 @@ def match_patches(
         report the affine match; default False), ``"jacobian"`` (``"search"``: the
         search image's gradients at the warped points, the update added; ``"template"``:
         the template's gradients, the update composed on the template side as in the
-        affine loop; default ``"search"``). Every extra term vanishes at the
+        affine loop; default ``"search"``), ``"skip_correlation"`` (no richer stage
+        where the affine match's correlation is at least this, the affine match
+        reported; default inf: never skipped). Every extra term vanishes at the
         template point, so the position keeps its meaning; :attr:`Matches.affine` holds
         the centre and linear part, ``gain`` is ``g0``, ``correlation`` that of ``T`` with
         ``G S(W)``, the covariance that of the richer model's normal equations. On a
@@ -334,7 +357,7 @@ def _run(template: NDArray[np.float32], points: NDArray[np.float64], searches: l
          interpolation: str, threads: int | None, weights: NDArray[np.float32] | None, extra: dict[str, Any],
          max_sigma0: float | None, min_correlation: float | None) -> Matches:
     """The core's match on checked arrays, wrapped in :class:`Matches`."""
-    status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_patches(
+    status, affine, radiometry, sigma0, correlation, iterations, covariance, centre, refined = _core.lsm_match_patches(
         template,
         points,
         searches,
@@ -363,6 +386,8 @@ def _run(template: NDArray[np.float32], points: NDArray[np.float64], searches: l
         covariance=covariance,
         correlation=correlation,
         iterations=iterations,
+        affine_centre=centre,
+        refined=refined,
     )
 
 
@@ -384,7 +409,7 @@ def _reject_poor(
 
 _REFINE_DEFAULTS: dict[str, Any] = {
     "iterations": 10, "warp": "quadratic", "gain_gradient": True, "warp_sigma": 0.0, "gain_sigma": 0.0,
-    "fallback": False, "jacobian": "search",
+    "fallback": False, "jacobian": "search", "skip_correlation": float("inf"),
 }
 
 
@@ -412,6 +437,10 @@ def _refine_options(refine: Mapping[str, Any] | None) -> dict[str, Any]:
         if number is None or not (np.isfinite(number) and number >= 0):
             raise InvalidInputError(f"refine[{key!r}] must be a finite number >= 0 (0: no prior), got {value!r}")
         sigmas[key] = number
+    skip = given["skip_correlation"]
+    skip_number = None if isinstance(skip, (str, bytes, bool)) else float(skip)
+    if skip_number is None or np.isnan(skip_number):
+        raise InvalidInputError(f"refine['skip_correlation'] must be a number (inf: never skipped), got {skip!r}")
     return {
         "extra_iterations": as_count("refine['iterations']", given["iterations"]),
         "extra_warp": given["warp"],
@@ -419,6 +448,7 @@ def _refine_options(refine: Mapping[str, Any] | None) -> dict[str, Any]:
         "extra_warp_sigma": sigmas["warp_sigma"],
         "extra_gain_sigma": sigmas["gain_sigma"],
         "extra_fallback": bool(given["fallback"]),
+        "extra_skip_correlation": skip_number,
         "extra_jacobian": given["jacobian"],
     }
 

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap.stereo import match_patches
-from elastocap.stereo.matching import MatchStatus
+from elastocap.stereo.matching import Matches, MatchStatus, Refined
 from elastocap.tracking import settings
 
 __all__ = ["Anchors"]
@@ -44,6 +44,9 @@ class Anchors:
         # The richer model's centre minus the affine one, smoothed over the frames since the
         # patch was cut (``settings.ANCHOR_REFINE_SMOOTH``); NaN until the first.
         self.offset = np.full((0, cameras, 2), np.nan)
+        # How many corrections each patch has been through since it was cut (the richer
+        # stage's age gate, ``settings.ANCHOR_REFINE_MIN_AGE`` / ``ANCHOR_REFINE_EVERY``).
+        self.age = np.zeros((0, cameras), np.int64)
 
     def grow(self, n: int) -> None:
         """Room for ``n`` points in all."""
@@ -57,6 +60,7 @@ class Anchors:
             self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
             self.cuts = np.concatenate([self.cuts, np.zeros((extra, c), np.int64)])
             self.offset = np.concatenate([self.offset, np.full((extra, c, 2), np.nan)])
+            self.age = np.concatenate([self.age, np.zeros((extra, c), np.int64)])
 
     def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
             weights: Sequence[NDArray[np.float32]] | None = None) -> None:
@@ -73,6 +77,7 @@ class Anchors:
         self.uv[: len(where)][where] = uv[where]
         self.cuts[: len(where)][where] += 1
         self.offset[: len(where)][where] = np.nan
+        self.age[: len(where)][where] = 0
 
     def drop(self, where: NDArray[np.bool_]) -> None:
         self.held[: len(where)] &= ~where
@@ -170,29 +175,99 @@ class Anchors:
             if rows.size == 0:
                 continue
             mosaic, weighs, centres = self._mosaic(rows, k)
-            m = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
-                              size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
-                              weights=weighs, refine=refine)
-            pos = m.positions[:, 0]
             alpha = settings.ANCHOR_REFINE_SMOOTH
             if refine is not None and smooth and alpha < 1.0:
-                # The richer centre's departure from the affine one, smoothed over frames:
-                # the departure (the affine model's slide on a turning, shaded patch) grows
-                # slowly with the anchor's age, while its noise (8 more unknowns; the
-                # fallback's switching) is new every frame and ends tracks in the trajectory
-                # checks (benches/README.md, lsm29).
-                a = match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
-                                  size=self.size, min_texture=min_texture, max_iterations=15, max_shift=reach,
-                                  weights=weighs)
-                both = (m.status[:, 0] == MatchStatus.CONVERGED) & (a.status[:, 0] == MatchStatus.CONVERGED)
-                departure = pos - a.positions[:, 0]
-                before = self.offset[rows, k]
-                smoothed = np.where(np.isfinite(before), before + alpha * (departure - np.nan_to_num(before)), departure)
-                self.offset[rows[both], k] = smoothed[both]
-                pos = np.where(both[:, None], a.positions[:, 0] + smoothed, pos)
-            good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+                m, pos = self._smoothed(mosaic, weighs, centres, images[k], uv[rows, k], rows, k, alpha,
+                                        min_texture=min_texture, reach=reach, refine=refine)
+            else:
+                m = _Rows.of(match_patches(mosaic, centres, [images[k]], initial=uv[rows, k][:, None, :],
+                                           size=self.size, min_texture=min_texture, max_iterations=15,
+                                           max_shift=reach, weights=weighs, refine=refine))
+                pos = m.positions
+            good = ((m.status == MatchStatus.CONVERGED) & (m.correlation >= min_correlation)
                     & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
             out[rows[good], k] = pos[good]
             cov[rows[good], k] = m.covariance[good, :2, :2]
             matched[rows[good], k] = True
         return out, cov, matched
+
+    def _smoothed(self, mosaic: NDArray[np.float32], weighs: NDArray[np.float32], centres: NDArray[np.float64],
+                  image: NDArray[np.float32], start: NDArray[np.float64], rows: NDArray[np.int64], k: int,
+                  alpha: float, *, min_texture: float, reach: float,
+                  refine: dict[str, object]) -> tuple[_Rows, NDArray[np.float64]]:
+        """Camera ``k``'s anchor match of ``rows`` (started at ``start`` (M, 2)) with the
+        richer model's departure from the affine centre smoothed over frames; returns the
+        match (status, correlation, covariance per row) and the corrected centres (M, 2).
+
+        The departure (the affine model's slide on a turning, shaded patch) grows slowly
+        with the anchor's age, while its noise (8 more unknowns; the fallback's switching)
+        is new every frame and ends tracks in the trajectory checks (benches/README.md,
+        lsm29). So the richer stage need not run on every view every frame: where it is
+        skipped (the patch younger than ``settings.ANCHOR_REFINE_MIN_AGE`` corrections,
+        off its ``ANCHOR_REFINE_EVERY`` turn, or its affine correlation at or above
+        ``refine["skip_correlation"]``) the affine centre carries the last smoothed
+        departure (none before the first)."""
+        age = self.age[rows, k]
+        self.age[rows, k] += 1
+        every = max(int(settings.ANCHOR_REFINE_EVERY), 1)
+        due = (age >= settings.ANCHOR_REFINE_MIN_AGE) & ((age - settings.ANCHOR_REFINE_MIN_AGE) % every == 0)
+
+        def match(part: NDArray[np.bool_], how: dict[str, object] | None) -> Matches:
+            return match_patches(mosaic, centres[part], [image], initial=start[part][:, None, :], size=self.size,
+                                 min_texture=min_texture, max_iterations=15, max_shift=reach, weights=weighs,
+                                 refine=how)
+
+        if due.all():
+            # One batch (the richer stage reports the affine centre it started from).
+            m = _Rows.of(match(due, refine))
+        else:
+            m = _Rows.empty(len(rows))
+            for part, how in ((due, refine), (~due, None)):
+                if part.any():
+                    m.fill(part, match(part, how))
+        pos = m.positions
+        converged = (m.status == MatchStatus.CONVERGED) & np.isfinite(m.affine[:, 0])
+        ran = converged & (m.refined != Refined.SKIPPED)
+        departure = pos - m.affine
+        before = self.offset[rows, k]
+        smoothed = np.where(np.isfinite(before), before + alpha * (departure - np.nan_to_num(before)), departure)
+        self.offset[rows[ran], k] = smoothed[ran]
+        pos = np.where(ran[:, None], m.affine + smoothed, pos)
+        carried = converged & ~ran & np.isfinite(before[:, 0])
+        return m, np.where(carried[:, None], m.affine + before, pos)
+
+
+class _Rows:
+    """The parts of one search image's :class:`Matches` the anchors use, per row: status,
+    positions (M, 2), correlation, covariance (M, 8, 8), the affine centre (M, 2) and the
+    richer stage's code; rows matched without the richer stage count as skipped."""
+
+    def __init__(self, status: NDArray[np.uint8], positions: NDArray[np.float64], correlation: NDArray[np.float64],
+                 covariance: NDArray[np.float64], affine: NDArray[np.float64], refined: NDArray[np.uint8]) -> None:
+        self.status, self.positions, self.correlation = status, positions, correlation
+        self.covariance, self.affine, self.refined = covariance, affine, refined
+
+    @classmethod
+    def empty(cls, n: int) -> _Rows:
+        return cls(np.full(n, MatchStatus.LOW_TEXTURE, np.uint8), np.full((n, 2), np.nan), np.full(n, np.nan),
+                   np.full((n, 8, 8), np.nan), np.full((n, 2), np.nan), np.zeros(n, np.uint8))
+
+    @classmethod
+    def of(cls, m: Matches) -> _Rows:
+        assert m.affine_centre is not None and m.refined is not None
+        return cls(m.status[:, 0], m.positions[:, 0], m.correlation[:, 0], m.covariance, m.affine_centre[:, 0],
+                   m.refined[:, 0])
+
+    def fill(self, where: NDArray[np.bool_], m: Matches) -> None:
+        self.status[where] = m.status[:, 0]
+        self.positions[where] = m.positions[:, 0]
+        self.correlation[where] = m.correlation[:, 0]
+        self.covariance[where] = m.covariance
+        if m.refined is not None and (m.refined != Refined.NO).any():
+            assert m.affine_centre is not None
+            self.affine[where] = m.affine_centre[:, 0]
+            self.refined[where] = m.refined[:, 0]
+        else:
+            # Matched affine only: its converged centre is the affine one, the stage skipped.
+            self.affine[where] = np.where((m.status[:, 0] == MatchStatus.CONVERGED)[:, None], m.positions[:, 0], np.nan)
+            self.refined[where] = Refined.SKIPPED

@@ -41,6 +41,14 @@ ANCHOR_REFINE_RESCUE = False
 # tracks in the trajectory checks (benches/README.md, lsm29). Costs a second affine match
 # per anchor view.
 ANCHOR_REFINE_SMOOTH = 1.0
+# With the smoothed departure (ANCHOR_REFINE_SMOOTH < 1), the richer stage runs on a view
+# only from this many corrections after its patch was cut, and then every this many
+# corrections; in between the affine centre carries the last smoothed departure. The
+# departure grows slowly with the anchor's age and the smoothing already spreads it over
+# frames, while the richer stage costs ~7x the affine match (benches/README.md,
+# anchorcost1). 0 and 1: every correction (lsm29's W).
+ANCHOR_REFINE_MIN_AGE = 0
+ANCHOR_REFINE_EVERY = 1
 # Gauss-Newton iterations of the frame-to-frame match: from the box search's start a
 # match that will converge does so in a few; the rest wander along the weak direction of a
 # smooth texture (measured on the textured capture: 8 instead of 15 keeps 1.6% more views

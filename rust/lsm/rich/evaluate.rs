@@ -90,28 +90,16 @@ pub(super) fn evaluate(
             let unweigh = if r > 0.0 { 1.0 / r } else { 0.0 };
             let tx = f64::from(patch.geo[i]) * unweigh - value * s.gain[1] / h;
             let ty = f64::from(patch.geo[n + i]) * unweigh - value * s.gain[2] / h;
-            row[0] = tx;
-            row[1] = ty;
-            row[2] = tx * dx;
-            row[3] = tx * dy;
-            row[4] = ty * dx;
-            row[5] = ty * dy;
-            match layout.warp {
-                Warp::Affine => {}
-                Warp::Projective => {
-                    // x -> x / (1 + p . xi): the template-side change -x (dp . xi).
-                    let along = -(tx * dx + ty * dy);
-                    row[6] = along * xi;
-                    row[7] = along * eta;
-                }
-                Warp::Quadratic => {
-                    let m = [xi * xi, xi * eta, eta * eta];
-                    for k in 0..3 {
-                        row[6 + k] = tx * m[k];
-                        row[9 + k] = ty * m[k];
-                    }
-                }
-            }
+            // x -> x / (1 + p . xi): the template-side change -x (dp . xi).
+            warp_columns(
+                &mut row,
+                layout.warp,
+                [tx, ty],
+                [dx, dy],
+                1.0,
+                [xi, eta],
+                || -(tx * dx + ty * dy),
+            );
         } else {
             let su = f64::from(
                 sample(base, [off[0] + DIFF, off[1]]) - sample(base, [off[0] - DIFF, off[1]]),
@@ -120,28 +108,16 @@ pub(super) fn evaluate(
                 sample(base, [off[0], off[1] + DIFF]) - sample(base, [off[0], off[1] - DIFF]),
             ) / (2.0 * f64::from(DIFF));
             let (gu, gv) = (g * su, g * sv);
-            row[0] = gu;
-            row[1] = gv;
-            row[2] = gu * dx / d;
-            row[3] = gu * dy / d;
-            row[4] = gv * dx / d;
-            row[5] = gv * dy / d;
-            match layout.warp {
-                Warp::Affine => {}
-                Warp::Projective => {
-                    // d/dp (A x / d) = -A x xi / d^2 (eta for p2).
-                    let along = -(gu * lin[0] + gv * lin[1]) / (d * d);
-                    row[6] = along * xi;
-                    row[7] = along * eta;
-                }
-                Warp::Quadratic => {
-                    let m = [xi * xi, xi * eta, eta * eta];
-                    for k in 0..3 {
-                        row[6 + k] = gu * m[k];
-                        row[9 + k] = gv * m[k];
-                    }
-                }
-            }
+            // d/dp (A x / d) = -A x xi / d^2 (eta for p2).
+            warp_columns(
+                &mut row,
+                layout.warp,
+                [gu, gv],
+                [dx, dy],
+                d,
+                [xi, eta],
+                || -(gu * lin[0] + gv * lin[1]) / (d * d),
+            );
         }
         row[layout.gain()] = value;
         row[layout.offset()] = 1.0;
@@ -173,6 +149,42 @@ pub(super) fn evaluate(
         square,
         correlation: st / (ss * tt).sqrt(),
     })
+}
+
+/// The geometric columns of a Jacobian row from the image gradient `g` (search pixels'
+/// worth, either side's): the shift, the linear part (`g x^T / d`), and the extra warp
+/// terms; `along` gives the projective terms' common factor (each side its own).
+#[inline(always)]
+fn warp_columns(
+    row: &mut [f64; R],
+    warp: Warp,
+    g: [f64; 2],
+    x: [f64; 2],
+    d: f64,
+    [xi, eta]: [f64; 2],
+    along: impl FnOnce() -> f64,
+) {
+    row[0] = g[0];
+    row[1] = g[1];
+    row[2] = g[0] * x[0] / d;
+    row[3] = g[0] * x[1] / d;
+    row[4] = g[1] * x[0] / d;
+    row[5] = g[1] * x[1] / d;
+    match warp {
+        Warp::Affine => {}
+        Warp::Projective => {
+            let along = along();
+            row[6] = along * xi;
+            row[7] = along * eta;
+        }
+        Warp::Quadratic => {
+            let m = [xi * xi, xi * eta, eta * eta];
+            for k in 0..3 {
+                row[6 + k] = g[0] * m[k];
+                row[9 + k] = g[1] * m[k];
+            }
+        }
+    }
 }
 
 #[cfg(test)]
