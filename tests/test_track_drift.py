@@ -166,11 +166,11 @@ def test_positions_whose_intersection_covariance_is_indefinite_are_withheld(tmp_
     # indefinite here (their covariance negated for every fifth point) are written as
     # UNCERTAIN with NaN, and every position written as tracked has a positive definite
     # covariance (without the check, the drift term and the rigid fusion pass them on).
-    from elastocap.tracking import step
+    from elastocap.tracking import new_points, step_points
 
     write_scene(tmp_path / "s", frames=4, cameras=6, seed=1, points=500)
     capture = elastocap.Capture.open(tmp_path / "s")
-    real = step.intersect_views
+    real = step_points.intersect_views
 
     def broken(*args, **kwargs):
         x, cov, used, rejected = real(*args, **kwargs)
@@ -178,7 +178,9 @@ def test_positions_whose_intersection_covariance_is_indefinite_are_withheld(tmp_
         cov[::5] *= -1.0
         return x, cov, used, rejected
 
-    monkeypatch.setattr(step, "intersect_views", broken)
+    # The frame's intersections and the new points'.
+    monkeypatch.setattr(step_points, "intersect_views", broken)
+    monkeypatch.setattr(new_points, "intersect_views", broken)
     tracks = track_points(capture)
     ok = tracks.flags == TrackFlag.TRACKED
     unsure = tracks.flags == TrackFlag.UNCERTAIN

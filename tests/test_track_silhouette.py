@@ -15,6 +15,7 @@ from elastocap.cameras import Camera
 from elastocap.tracking import TrackFlag, settings, track_points
 from elastocap.tracking.silhouette import outside_silhouettes
 from elastocap.tracking.step import FrameTracker
+from elastocap.tracking.step_report import reported
 from track_scene import write_scene
 
 PIXEL = 0.003  # world units per pixel 3 m from a camera with f = 1000 px
@@ -103,7 +104,7 @@ def test_outside_is_the_distance_transform_beyond_the_margin(seed, margin):
 
 
 def _reporter(cameras: list[Camera], masks: list[np.ndarray], n: int) -> FrameTracker:
-    """The part of a FrameTracker that ``_reported`` reads (the tests turn the fusion and
+    """The part of a FrameTracker that ``reported`` reads (the tests turn the fusion and
     SLID off: the checks here are the last ones)."""
     tracker = object.__new__(FrameTracker)
     tracker.cameras = cameras
@@ -131,19 +132,19 @@ def test_the_tracker_withholds_points_outside_a_silhouette_on_that_frame_only(mo
     monkeypatch.setattr(settings, "SLIDE", float("inf"))
     monkeypatch.setattr(settings, "OUTSIDE", 3.0)
     tracker = _reporter(cameras, masks, n)
-    got, got_cov, got_flags = tracker._reported(uv, x, cov, flags)
+    got, got_cov, got_flags = reported(tracker, uv, x, cov, flags)
     np.testing.assert_array_equal(got_flags == TrackFlag.OUTSIDE, facing)
     assert np.isnan(got[facing]).all() and np.isnan(got_cov[facing]).all()
     np.testing.assert_array_equal(got[~facing], x[~facing])
     assert np.isfinite(x).all() and (flags == 0).all()  # the tracker's state is not touched
     # Back on the surface next frame: kept (not sticky).
     x[facing] -= 8 * PIXEL * np.array([0.0, 0.0, -1.0])
-    _, _, again = tracker._reported(uv, x, cov, flags)
+    _, _, again = reported(tracker, uv, x, cov, flags)
     assert (again == TrackFlag.TRACKED).all()
     # Off: main's output.
     monkeypatch.setattr(settings, "OUTSIDE", float("inf"))
     x[facing] += 8 * PIXEL * np.array([0.0, 0.0, -1.0])
-    off, _, off_flags = FrameTracker._reported(_reporter(cameras, masks, n), uv, x, cov, flags)
+    off, _, off_flags = reported(_reporter(cameras, masks, n), uv, x, cov, flags)
     assert (off_flags == TrackFlag.TRACKED).all()
     np.testing.assert_array_equal(off, x)
 
@@ -167,11 +168,11 @@ def test_a_wide_drift_covariance_before_the_fusion_is_withheld(monkeypatch):
     monkeypatch.setattr(settings, "RIGID", False)
     monkeypatch.setattr(settings, "SLIDE", float("inf"))
     monkeypatch.setattr(settings, "UNCERTAIN_DRIFT_SD", 4.0)
-    got, _, got_flags = _reporter(cameras, masks, n)._reported(uv, x, cov, flags)
+    got, _, got_flags = reported(_reporter(cameras, masks, n), uv, x, cov, flags)
     np.testing.assert_array_equal(got_flags == TrackFlag.UNCERTAIN, sd > 4.0)
     assert np.isnan(got[sd > 4.0]).all() and np.isfinite(got[sd < 4.0]).all()
     monkeypatch.setattr(settings, "UNCERTAIN_DRIFT_SD", float("inf"))
-    _, _, off = _reporter(cameras, masks, n)._reported(uv, x, cov, flags)
+    _, _, off = reported(_reporter(cameras, masks, n), uv, x, cov, flags)
     assert (off == TrackFlag.TRACKED).all()
 
 

@@ -1,6 +1,6 @@
 """Points that slide along the surface in both views, withheld against their neighbours'
 rigid map since their seeding frame (``settings.SLIDE``, :func:`elastocap.tracking.rigidity.rigid_residuals`,
-``FrameTracker._withhold_slid``)."""
+``step_report.withhold_slid``)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from elastocap.tracking import settings
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
 from elastocap.tracking.step import FrameTracker
+from elastocap.tracking.step_report import withhold_slid
 
 PIXEL = 0.003  # world units per pixel at the points (3 m, f = 1000 px)
 
@@ -74,7 +75,7 @@ def test_a_point_sliding_in_both_views_is_withheld_and_its_neighbours_are_not(mo
         fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
                                    sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
                                    candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
-        out, _, flags = tracker._withhold_slid(x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
+        out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
         withheld = flags == TrackFlag.SLID
         np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
         assert not withheld[np.arange(m) != slider].any(), f"a rigidly moving neighbour withheld on frame {f}"
