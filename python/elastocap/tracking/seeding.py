@@ -47,7 +47,7 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
     kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
     inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
-    texture = np.sqrt(np.maximum(cv2.cornerMinEigenVal(grey, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
+    texture = _texture(grey, inner, size)
     cells = np.zeros(((h + spacing - 1) // spacing, (w + spacing - 1) // spacing), bool)
     ok = np.isfinite(covered).all(axis=1)
     if ok.any():
@@ -73,6 +73,28 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
             best = where[np.argmax(distance.ravel()[where])]
             seeds.append(np.array([[best % w, best // w]], float))
     return np.concatenate(seeds)
+
+
+def _texture(grey: NDArray[np.float32], inner: NDArray[np.bool_], size: int) -> NDArray[np.float32]:
+    """(H, W) float32 texture (the square root of the smallest eigenvalue of the
+    ``size x size`` structure tensor, grey levels per pixel) where ``inner`` (H, W) holds
+    (and on the box around it); 0 outside the box.
+
+    Computed on ``inner``'s bounding box widened by the window's reach (the box filter's
+    half side and the 3x3 Sobel's pixel, with a margin): a subject's masks cover ~10% of
+    an image, the whole image cost ~15 ms a camera, and the values inside the box equal the
+    whole image's bit for bit (their windows see the same pixels; benches/README.md,
+    "seedframe1")."""
+    texture = np.zeros(grey.shape, np.float32)
+    vs, us = np.nonzero(inner)
+    if vs.size == 0:
+        return texture
+    pad = size + 4
+    v0, v1 = max(0, int(vs.min()) - pad), min(grey.shape[0], int(vs.max()) + pad + 1)
+    u0, u1 = max(0, int(us.min()) - pad), min(grey.shape[1], int(us.max()) + pad + 1)
+    box = np.ascontiguousarray(grey[v0:v1, u0:u1])
+    texture[v0:v1, u0:u1] = np.sqrt(np.maximum(cv2.cornerMinEigenVal(box, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
+    return texture
 
 
 def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
@@ -118,9 +140,8 @@ def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[n
     The same floating-point operations as :meth:`Camera.project` (its pixels equal, bit for
     bit, wherever they are finite and inside the image: the only rows the hull reads)
     without the terms of the lens model whose coefficient is zero (each adds an exact
-    zero to a finite value) and without its input checks: the hull search projects a
-    seeding frame's ~10^6 ray samples, and the full model on three undistorted cameras
-    of eight was half of the seeding frame's projection time (benches/README.md,
+    zero to a finite value: three cameras of the test rig have none) and without its input
+    checks: the hull search projects a seeding frame's ~10^7 ray samples (benches/README.md,
     "seedframe1")."""
     n = len(points)
     x = np.empty((n, 3))
