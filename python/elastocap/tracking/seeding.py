@@ -18,6 +18,7 @@ from elastocap.cameras import Camera
 from elastocap.cameras.distortion import padded
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
+from elastocap.tracking import settings
 from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
 
 __all__ = ["seed_candidates", "seed_points"]
@@ -254,7 +255,13 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             # one: the best peak must stand out from every candidate away from it.
             padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
             local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
-            away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+            if settings.SEED_PEAK_PIXELS is None:
+                away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+            else:
+                # Apart in the partner's image: the samples' spacing there varies from
+                # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
+                offset = uv - uv[np.arange(len(todo)), best][:, None, :]
+                away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
             second = np.where(local & away, scores, -np.inf).max(axis=1)
             # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
             with np.errstate(invalid="ignore"):
