@@ -15,8 +15,10 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap.cameras import Camera
+from elastocap.cameras.distortion import padded
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
+from elastocap.tracking import settings
 from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
 
 __all__ = ["seed_candidates", "seed_points"]
@@ -46,7 +48,7 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
     kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
     inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
-    texture = np.sqrt(np.maximum(cv2.cornerMinEigenVal(grey, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
+    texture = _texture(grey, inner, size)
     cells = np.zeros(((h + spacing - 1) // spacing, (w + spacing - 1) // spacing), bool)
     ok = np.isfinite(covered).all(axis=1)
     if ok.any():
@@ -74,6 +76,28 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
     return np.concatenate(seeds)
 
 
+def _texture(grey: NDArray[np.float32], inner: NDArray[np.bool_], size: int) -> NDArray[np.float32]:
+    """(H, W) float32 texture (the square root of the smallest eigenvalue of the
+    ``size x size`` structure tensor, grey levels per pixel) where ``inner`` (H, W) holds
+    (and on the box around it); 0 outside the box.
+
+    Computed on ``inner``'s bounding box widened by the window's reach (the box filter's
+    half side and the 3x3 Sobel's pixel, with a margin): a subject's masks cover ~10% of
+    an image, the whole image cost ~15 ms a camera, and the values inside the box equal the
+    whole image's bit for bit (their windows see the same pixels; benches/README.md,
+    "seedframe1")."""
+    texture = np.zeros(grey.shape, np.float32)
+    vs, us = np.nonzero(inner)
+    if vs.size == 0:
+        return texture
+    pad = size + 4
+    v0, v1 = max(0, int(vs.min()) - pad), min(grey.shape[0], int(vs.max()) + pad + 1)
+    u0, u1 = max(0, int(us.min()) - pad), min(grey.shape[1], int(us.max()) + pad + 1)
+    box = np.ascontiguousarray(grey[v0:v1, u0:u1])
+    texture[v0:v1, u0:u1] = np.sqrt(np.maximum(cv2.cornerMinEigenVal(box, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
+    return texture
+
+
 def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
     """(C, C-1): the other cameras by angle between optical axes, nearest first."""
     axes = np.array([cam.R[2] for cam in cameras])
@@ -99,13 +123,64 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
         rows = np.flatnonzero(inside)
         if rows.size == 0:
             break
-        uv, depth = _project_chunked(other, x[rows])
-        seen = (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < other.width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < other.height - 0.5)
-        iu = np.clip(np.nan_to_num(uv[:, 0]), -1, other.width).round().astype(int).clip(0, other.width - 1)
-        iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
-        inside[rows] = ~seen | mask[iv, iu]
+        uv, seen = _seen_pixels(other, x[rows])
+        # The mask is read only where the point is seen (in the image, in front); the
+        # pixel is the rounded position, as the whole-pixel footprint test implies.
+        at = np.flatnonzero(seen)
+        held = np.ones(rows.size, bool)
+        held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]
+        inside[rows] = held
         seen_by[rows] += seen
     return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+
+
+def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """``camera.project(points)`` (N, 3) finite world points -> pixels (N, 2), and whether
+    each is seen (N,): in front (depth > 0) and inside the image's pixel footprints.
+
+    The same floating-point operations as :meth:`Camera.project` (its pixels equal, bit for
+    bit, wherever they are finite and inside the image: the only rows the hull reads)
+    without the terms of the lens model whose coefficient is zero (each adds an exact
+    zero to a finite value: three cameras of the test rig have none) and without its input
+    checks: the hull search projects a seeding frame's ~10^7 ray samples (benches/README.md,
+    "seedframe1")."""
+    n = len(points)
+    x = np.empty((n, 3))
+    for i in range(0, n, _CHUNK):
+        # Chunks: OpenBLAS threads larger products and spins on shared cores ("speed1").
+        x[i:i + _CHUNK] = points[i:i + _CHUNK] @ camera.R.T + camera.t
+    depth = x[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ab = x[:, :2] / depth[:, None]
+        a, b = ab[:, 0], ab[:, 1]
+        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = (float(v) for v in padded(camera.dist))
+        if k1 or k2 or k3 or k4 or k5 or k6 or p1 or p2 or s1 or s2 or s3 or s4:
+            # distortion.distort's expression, term for term, in its order.
+            r2 = a * a + b * b
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            if k4 or k5 or k6:
+                radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            a2 = a * radial
+            b2 = b * radial
+            if p1:
+                a2 = a2 + 2 * p1 * a * b
+                b2 = b2 + p1 * (r2 + 2 * b * b)
+            if p2:
+                a2 = a2 + p2 * (r2 + 2 * a * a)
+                b2 = b2 + 2 * p2 * a * b
+            if s1 or s2:
+                a2 = a2 + r2 * (s1 + r2 * s2)
+            if s3 or s4:
+                b2 = b2 + r2 * (s3 + r2 * s4)
+        else:
+            a2, b2 = a, b
+        K = camera.K
+        uv = np.empty((n, 2))
+        uv[:, 0] = K[0, 0] * a2 + K[0, 1] * b2 + K[0, 2]
+        uv[:, 1] = K[1, 1] * b2 + K[1, 2]
+    seen = ((depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < camera.width - 0.5)
+            & (uv[:, 1] >= -0.5) & (uv[:, 1] < camera.height - 0.5))
+    return uv, seen
 
 
 # Rows per projection of ray samples. OpenBLAS splits a matrix product over threads once
@@ -114,14 +189,6 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
 # 10x the CPU seconds of single-threaded chunks, with the same numbers (benches/README.md,
 # "speed1").
 _CHUNK = 16384
-
-
-def _project_chunked(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``camera.project(points)`` (N, 3) in chunks of ``_CHUNK`` rows."""
-    if len(points) <= _CHUNK:
-        return camera.project(points)
-    parts = [camera.project(points[i:i + _CHUNK]) for i in range(0, len(points), _CHUNK)]
-    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
@@ -177,7 +244,7 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             if todo.size == 0:
                 break
             other = cameras[p]
-            uv, _ = _project_chunked(other, np.nan_to_num(points[todo].reshape(-1, 3)))
+            uv, _ = _seen_pixels(other, np.nan_to_num(points[todo].reshape(-1, 3)))
             uv = uv.reshape(len(todo), _DEPTHS, 2)
             uv[~hull[todo]] = -1e6  # outside any image: no score
             scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
@@ -188,7 +255,13 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             # one: the best peak must stand out from every candidate away from it.
             padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
             local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
-            away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+            if settings.SEED_PEAK_PIXELS is None:
+                away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+            else:
+                # Apart in the partner's image: the samples' spacing there varies from
+                # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
+                offset = uv - uv[np.arange(len(todo)), best][:, None, :]
+                away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
             second = np.where(local & away, scores, -np.inf).max(axis=1)
             # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
             with np.errstate(invalid="ignore"):

@@ -393,3 +393,15 @@ PYRAMID_PEAK_EXCLUSION = 2.0
 PYRAMID_PEAK_MARGIN = 0.03
 PYRAMID_POOL = 8
 PYRAMID_POOL_REACH = 30.0
+
+# A seed's depth search along its partner's epipolar line (tracking/seeding.py): the best
+# correlation must beat every other local maximum of the line's correlation by 0.1, the
+# maxima within 3 depth samples of the best counting as its own peak. The 96 samples span the
+# ray's run through the visual hull; in the nearest partner (a stereo pair's short
+# baseline) that run is ~9 px long, so 3 samples are ~0.3 px, and the bilinear sampling's
+# kinks at pixel crossings make a second maximum ~0.7 px from the best, ~0.01 lower, with a
+# dip of ~0.005 between: the same peak. On big0's frame 5 that refuses 69-83% of the seeds
+# whose peak reaches 0.75 (benches/README.md, "seedframe1"). A number: the maxima within
+# this many pixels of the partner's image from the best count as its own peak instead.
+# None: the 3 samples (unchanged; the option is off pending the tracking and fit figures).
+SEED_PEAK_PIXELS: float | None = None

@@ -1,0 +1,112 @@
+"""The seeding's visual-hull test and texture map, cut for speed (benches/README.md,
+"seedframe1"): they must give what the plain formulation gives, bit for bit, since the
+seeds (and so every track) follow from them."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from elastocap.cameras import Camera
+from elastocap.tracking.seeding import _inside_hull, _seen_pixels, _texture
+
+SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
+
+
+def _camera(rng: np.random.Generator, name: str, coefficients: int, zero: np.ndarray, skew: bool) -> Camera:
+    """A camera 3-5 units from the origin looking roughly at it, with ``coefficients``
+    distortion coefficients of moderate size, those flagged in ``zero`` set to 0."""
+    fx = rng.uniform(300, 1500)
+    K = np.array([[fx, rng.uniform(-0.02, 0.02) * fx if skew else 0.0, rng.uniform(150, 350)],
+                  [0.0, fx * rng.uniform(0.9, 1.1), rng.uniform(100, 250)],
+                  [0.0, 0.0, 1.0]])
+    scale = np.array([0.2, 0.05, 0.01, 0.01, 0.01, 0.05, 0.01, 0.005, 0.002, 0.001, 0.002, 0.001])[:coefficients]
+    dist = np.where(zero[:coefficients], 0.0, rng.uniform(-1, 1, coefficients) * scale)
+    R, _ = cv2.Rodrigues(rng.normal(scale=0.4, size=3))
+    t = np.array([rng.normal(scale=0.2), rng.normal(scale=0.2), rng.uniform(3, 5)])
+    return Camera(name, K, dist, R, t, 400, 300)
+
+
+def _points(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Points about the origin, some far off (behind some cameras, outside the images)."""
+    near = rng.normal(scale=0.6, size=(n, 3))
+    far = rng.normal(scale=8.0, size=(n // 4, 3))
+    return np.concatenate([near, far])
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=SEEDS, coefficients=st.sampled_from([4, 5, 8, 12]), zero=st.lists(st.booleans(), min_size=12, max_size=12),
+       skew=st.booleans())
+def test_seen_pixels_are_the_cameras_projection_bit_for_bit(seed, coefficients, zero, skew):
+    # The lean projection drops the lens model's zero terms: wherever the camera's own
+    # projection is finite its pixels must be the same numbers, and "seen" its footprint test.
+    rng = np.random.default_rng(seed)
+    camera = _camera(rng, "c", coefficients, np.array(zero), skew)
+    x = _points(rng, 400)
+    uv, seen = _seen_pixels(camera, x)
+    ref, depth = camera.project(x)
+    footprint = ((depth > 0) & (ref[:, 0] >= -0.5) & (ref[:, 0] < camera.width - 0.5)
+                 & (ref[:, 1] >= -0.5) & (ref[:, 1] < camera.height - 0.5))
+    assert np.array_equal(seen, footprint)
+    finite = np.isfinite(ref).all(axis=1)
+    assert np.array_equal(uv[finite], ref[finite])
+    assert seen.any() and (~seen).any()
+
+
+def _hull_reference(flat: np.ndarray, cam: Camera, cameras: list[Camera], masks: list[np.ndarray]) -> np.ndarray:
+    """The visual-hull test written plainly: every point projected into every other camera."""
+    finite = np.isfinite(flat).all(axis=1)
+    x = np.nan_to_num(flat)
+    inside = finite.copy()
+    seen_by = np.zeros(len(x), int)
+    for other, mask in zip(cameras, masks):
+        if other is cam:
+            continue
+        uv, depth = other.project(x)
+        seen = (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < other.width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < other.height - 0.5)
+        iu = np.clip(np.nan_to_num(uv[:, 0]), -1, other.width).round().astype(int).clip(0, other.width - 1)
+        iv = np.clip(np.nan_to_num(uv[:, 1]), -1, other.height).round().astype(int).clip(0, other.height - 1)
+        inside &= ~seen | mask[iv, iu]
+        seen_by += seen
+    return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, count=st.integers(min_value=3, max_value=6))
+def test_the_hull_test_is_the_plain_one(seed, count):
+    # A sphere's silhouettes (so that the hull holds points); the early rejection and the
+    # mask read only where seen must not change any answer, NaN rows included.
+    rng = np.random.default_rng(seed)
+    cameras = [_camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, False) for i in range(count)]
+    masks = []
+    for camera in cameras:
+        centre, _ = camera.project(np.zeros((1, 3)))
+        vs, us = np.mgrid[:camera.height, :camera.width]
+        masks.append(np.hypot(us - centre[0, 0], vs - centre[0, 1]) < rng.uniform(40, 120))
+    flat = _points(rng, 3000)
+    flat[rng.uniform(size=len(flat)) < 0.02] = np.nan
+    got = _inside_hull(flat, cameras[0], cameras, masks)
+    want = _hull_reference(flat, cameras[0], cameras, masks)
+    assert np.array_equal(got, want)
+    assert want.any() and (~want).any()
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=SEEDS, size=st.sampled_from([7, 11, 15]))
+def test_texture_on_the_masks_box_is_the_whole_images(seed, size):
+    # The texture map computed on the mask's bounding box must equal the whole image's
+    # where the mask holds (seed_candidates reads it nowhere else).
+    rng = np.random.default_rng(seed)
+    h, w = 240, 320
+    grey = cv2.GaussianBlur(rng.uniform(0, 255, (h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 2.0))
+    inner = np.zeros((h, w), bool)
+    for _ in range(int(rng.integers(1, 4))):
+        v, u = rng.integers(0, h), rng.integers(0, w)
+        inner[max(0, v - 30):v + 30, max(0, u - 40):u + 40] = True
+    got = _texture(grey, inner, size)
+    whole = np.sqrt(np.maximum(cv2.cornerMinEigenVal(grey, size, ksize=3), 0)) * 8
+    assert got.dtype == whole.dtype
+    assert np.array_equal(got[inner], whole[inner])
+    assert np.array_equal(_texture(grey, np.zeros((h, w), bool), size), np.zeros((h, w), np.float32))
