@@ -18,6 +18,8 @@ use nalgebra::DMatrix;
 
 use crate::error::{check_finite, Error, Result};
 
+mod lens;
+
 /// OpenCV's distortion coefficients elastocap models: k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4.
 pub const DIST_LEN: usize = 12;
 

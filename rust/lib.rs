@@ -12,6 +12,7 @@ pub mod elastic;
 pub mod error;
 pub mod fit;
 pub mod grid_sample;
+pub mod intersect;
 pub mod linalg;
 pub mod lm;
 pub mod lsm;

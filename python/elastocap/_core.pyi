@@ -27,6 +27,7 @@ __all__ = [
     "signed_distance",
     "SparseCholesky",
     "camera_project",
+    "intersect_per_view",
     "active_contour",
     "lsm_match_patches",
     "TriangleMesh",
@@ -315,6 +316,26 @@ def camera_project(
     width: int,
     height: int,
 ) -> NDArray[np.float64]: ...
+def intersect_per_view(
+    obs: NDArray[np.float64],
+    cov: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    reject: bool,
+    critical: float,
+    iterations: int,
+    step_tolerance: float,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]: ...
 def active_contour(
     image: NDArray[np.float64],
     init: NDArray[np.float64],
