@@ -20,6 +20,7 @@ pub mod mesh;
 pub mod mls;
 pub mod polar;
 pub mod raster;
+pub mod rigid;
 pub mod sdf;
 pub mod snake;
 pub mod solve;

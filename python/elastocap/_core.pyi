@@ -28,6 +28,7 @@ __all__ = [
     "SparseCholesky",
     "camera_project",
     "intersect_per_view",
+    "rigid_fits",
     "active_contour",
     "lsm_match_patches",
     "TriangleMesh",
@@ -336,6 +337,9 @@ def intersect_per_view(
     NDArray[np.float64],
     NDArray[np.bool_],
 ]: ...
+def rigid_fits(
+    a: NDArray[np.float64], b: NDArray[np.float64], weights: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 def active_contour(
     image: NDArray[np.float64],
     init: NDArray[np.float64],

@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 use super::{c_slice, invalid_input};
 use crate::camera::Camera;
 use crate::intersect::{intersect_views, IntersectOptions};
+use crate::rigid::rigid_motions;
 
 /// The arrays of the intersection: points `(N, 3)`, covariances `(N, 3, 3)`, residuals
 /// `(N, C, 2)`, normalised residuals `(N, C)`, used views `(N, C)`, weighted squared
@@ -97,6 +98,39 @@ fn intersect_per_view<'py>(
     ))
 }
 
+/// Weighted rigid fits `b ~ R a + t` of `a`, `b` `(M, K, 3)` with `weights` `(M, K)`
+/// (non-negative, a positive sum per set): `R` `(M, 3, 3)`, `t` `(M, 3)`. The algorithm:
+/// `crate::rigid`.
+#[pyfunction]
+fn rigid_fits<'py>(
+    py: Python<'py>,
+    a: PyReadonlyArray3<'py, f64>,
+    b: PyReadonlyArray3<'py, f64>,
+    weights: PyReadonlyArray2<'py, f64>,
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>)> {
+    let (m, k) = (a.shape()[0], a.shape()[1]);
+    if a.shape()[2] != 3 || b.shape() != a.shape() || weights.shape() != [m, k] || k == 0 {
+        return Err(invalid_input(format!(
+            "a, b must have one shape (M, K, 3) with K > 0 and weights (M, K), got {:?}, {:?}, {:?}",
+            a.shape(),
+            b.shape(),
+            weights.shape()
+        )));
+    }
+    let a = c_slice(&a, "a")?.as_chunks::<3>().0;
+    let b = c_slice(&b, "b")?.as_chunks::<3>().0;
+    let weights = c_slice(&weights, "weights")?;
+    let fits = super::detach(py, || rigid_motions(a, b, weights, k));
+    let mut r = Vec::with_capacity(9 * m);
+    let mut t = Vec::with_capacity(3 * m);
+    for (rf, tf) in fits {
+        r.extend_from_slice(&rf);
+        t.extend_from_slice(&tf);
+    }
+    Ok((PyArray1::from_vec(py, r).reshape([m, 3, 3])?, PyArray1::from_vec(py, t).reshape([m, 3])?))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(intersect_per_view, m)?)
+    m.add_function(wrap_pyfunction!(intersect_per_view, m)?)?;
+    m.add_function(wrap_pyfunction!(rigid_fits, m)?)
 }
