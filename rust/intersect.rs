@@ -174,8 +174,9 @@ fn solve(
         for k in (0..cameras.len()).filter(|&k| used[k]) {
             let (j, w, r) = (&jac[k], &weight[k], &resid[k]);
             // J^T W (3x2).
-            let jtw: [[f64; 2]; 3] =
-                std::array::from_fn(|i| std::array::from_fn(|b| j[0][i] * w[0][b] + j[1][i] * w[1][b]));
+            let jtw: [[f64; 2]; 3] = std::array::from_fn(|i| {
+                std::array::from_fn(|b| j[0][i] * w[0][b] + j[1][i] * w[1][b])
+            });
             for i in 0..3 {
                 for l in 0..3 {
                     info[(i, l)] += jtw[i][0] * j[0][l] + jtw[i][1] * j[1][l];
@@ -191,11 +192,21 @@ fn solve(
             break;
         }
     }
-    Solved { x, jac, resid, converged }
+    Solved {
+        x,
+        jac,
+        resid,
+        converged,
+    }
 }
 
 /// The point nearest to the used views' rays: `sum (I - d d^T) X = sum (I - d d^T) C`.
-fn midpoint(cameras: &[Camera], centers: &[[f64; 3]], obs: &[[f64; 2]], used: &[bool]) -> Vector3<f64> {
+fn midpoint(
+    cameras: &[Camera],
+    centers: &[[f64; 3]],
+    obs: &[[f64; 2]],
+    used: &[bool],
+) -> Vector3<f64> {
     let mut lhs = Matrix3::zeros();
     let mut rhs = Vector3::zeros();
     for k in (0..cameras.len()).filter(|&k| used[k]) {
@@ -212,7 +223,12 @@ fn midpoint(cameras: &[Camera], centers: &[[f64; 3]], obs: &[[f64; 2]], used: &[
 }
 
 /// Jacobian and residual of every used view at `x` (zero for the others).
-fn linearised(cameras: &[Camera], obs: &[[f64; 2]], used: &[bool], x: &Vector3<f64>) -> (Vec<[[f64; 3]; 2]>, Vec<[f64; 2]>) {
+fn linearised(
+    cameras: &[Camera],
+    obs: &[[f64; 2]],
+    used: &[bool],
+    x: &Vector3<f64>,
+) -> (Vec<[[f64; 3]; 2]>, Vec<[f64; 2]>) {
     let p = [x[0], x[1], x[2]];
     let mut jac = vec![[[0.0; 3]; 2]; cameras.len()];
     let mut resid = vec![[0.0; 2]; cameras.len()];
@@ -275,7 +291,12 @@ fn inverse_normal(a: &Matrix3<f64>) -> Matrix3<f64> {
 /// The larger of a view's two normalised residuals `|r_i| / sqrt(Q_rr,ii)`, `Q_rr = Sigma -
 /// J Sigma_X J^T`; NaN where neither coordinate is determined (the Python
 /// `_normalised_residuals`).
-fn normalised_residual(cov: &[f64; 4], jac: &[[f64; 3]; 2], point_cov: &Matrix3<f64>, resid: &[f64; 2]) -> f64 {
+fn normalised_residual(
+    cov: &[f64; 4],
+    jac: &[[f64; 3]; 2],
+    point_cov: &Matrix3<f64>,
+    resid: &[f64; 2],
+) -> f64 {
     let mut best = f64::NAN;
     for a in 0..2 {
         let diag = cov[3 * a];

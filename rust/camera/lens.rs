@@ -39,7 +39,11 @@ pub(crate) fn distort(dist: &[f64; DIST_LEN], a: f64, b: f64) -> [f64; 2] {
 
 /// The distortion map at `(a, b)` and its Jacobian `[[da'/da, da'/db], [db'/da, db'/db]]`.
 #[inline]
-pub(crate) fn distort_jacobian(dist: &[f64; DIST_LEN], a: f64, b: f64) -> ([f64; 2], [[f64; 2]; 2]) {
+pub(crate) fn distort_jacobian(
+    dist: &[f64; DIST_LEN],
+    a: f64,
+    b: f64,
+) -> ([f64; 2], [[f64; 2]; 2]) {
     let [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4] = *dist;
     let r2 = a * a + b * b;
     let numerator = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
@@ -76,7 +80,8 @@ impl Camera {
     #[inline]
     pub fn project_jacobian(&self, p: &[f64; 3]) -> ([f64; 2], [[f64; 3]; 2]) {
         let r = &self.r;
-        let x: [f64; 3] = std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + self.t[i]);
+        let x: [f64; 3] =
+            std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + self.t[i]);
         let z = x[2];
         let (a, b) = (x[0] / z, x[1] / z);
         let (d, lens) = distort_jacobian(&self.dist, a, b);
@@ -90,8 +95,9 @@ impl Camera {
             std::array::from_fn(|j| k[i][0] * lens[0][j] + k[i][1] * lens[1][j])
         });
         let dab = [[1.0 / z, 0.0, -a / z], [0.0, 1.0 / z, -b / z]];
-        let kld: [[f64; 3]; 2] =
-            std::array::from_fn(|i| std::array::from_fn(|j| kl[i][0] * dab[0][j] + kl[i][1] * dab[1][j]));
+        let kld: [[f64; 3]; 2] = std::array::from_fn(|i| {
+            std::array::from_fn(|j| kl[i][0] * dab[0][j] + kl[i][1] * dab[1][j])
+        });
         let jacobian = std::array::from_fn(|i| {
             std::array::from_fn(|j| kld[i][0] * r[0][j] + kld[i][1] * r[1][j] + kld[i][2] * r[2][j])
         });
@@ -163,7 +169,8 @@ impl Camera {
         }
         let back = distort(dist, ab[0], ab[1]);
         let residual = nan_max((back[0] - target[0]).abs(), (back[1] - target[1]).abs());
-        let bound = UNDISTORT_RESIDUAL_TOL * nan_max(1.0, nan_max(target[0].abs(), target[1].abs()));
+        let bound =
+            UNDISTORT_RESIDUAL_TOL * nan_max(1.0, nan_max(target[0].abs(), target[1].abs()));
         if residual <= bound {
             ab
         } else {

@@ -10,9 +10,13 @@ fn arc_camera(i: usize, n: usize) -> Camera {
     // Rows: camera x, y, z axes in world; z points to the origin from (4 sin, 0.3, -4 cos).
     let r = [c, 0.0, -s, 0.0, 1.0, 0.0, s, 0.0, c];
     let center = [-4.0 * s, 0.3, -4.0 * c];
-    let t: [f64; 3] = std::array::from_fn(|k| -(r[3 * k] * center[0] + r[3 * k + 1] * center[1] + r[3 * k + 2] * center[2]));
+    let t: [f64; 3] = std::array::from_fn(|k| {
+        -(r[3 * k] * center[0] + r[3 * k + 1] * center[1] + r[3 * k + 2] * center[2])
+    });
     let k = [800.0, 1.5, 320.0, 0.0, 790.0, 240.0, 0.0, 0.0, 1.0];
-    let dist = [-0.2, 0.05, 1e-3, -5e-4, 0.01, 0.02, 0.0, 0.0, 1e-3, 0.0, -1e-3, 0.0];
+    let dist = [
+        -0.2, 0.05, 1e-3, -5e-4, 0.01, 0.02, 0.0, 0.0, 1e-3, 0.0, -1e-3, 0.0,
+    ];
     Camera::new(k, dist, r, t, 640, 480).unwrap()
 }
 
@@ -39,7 +43,11 @@ fn jacobian_matches_central_differences() {
         let (ub, _) = cam.project_jacobian(&b);
         for i in 0..2 {
             let fd = (ua[i] - ub[i]) / (2.0 * h);
-            assert!((fd - jac[i][j]).abs() <= 1e-5 * jac[i][j].abs().max(1.0), "{i} {j}: {fd} vs {}", jac[i][j]);
+            assert!(
+                (fd - jac[i][j]).abs() <= 1e-5 * jac[i][j].abs().max(1.0),
+                "{i} {j}: {fd} vs {}",
+                jac[i][j]
+            );
         }
     }
 }
@@ -53,7 +61,10 @@ fn ray_passes_through_the_projected_point() {
     let c = cam.center();
     let v: [f64; 3] = std::array::from_fn(|i| p[i] - c[i]);
     let along = v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
-    let off: f64 = (0..3).map(|i| (v[i] - along * d[i]).powi(2)).sum::<f64>().sqrt();
+    let off: f64 = (0..3)
+        .map(|i| (v[i] - along * d[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
     assert!(off < 1e-12, "ray misses the point by {off}");
 }
 

@@ -1,8 +1,8 @@
 //! Binding of the per-view forward intersection (`elastocap.stereo.intersection_blocks`).
 
 use numpy::{
-    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyReadonlyArray4,
-    PyUntypedArrayMethods,
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyReadonlyArray4, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 
@@ -51,15 +51,34 @@ fn intersect_per_view<'py>(
             cov.shape()
         )));
     }
-    if c == 0 || k.shape() != [c, 3, 3] || r.shape() != [c, 3, 3] || t.shape() != [c, 3] || dist.shape()[0] != c {
-        return Err(invalid_input(format!("need K, dist, R, t for each of the {c} cameras")));
+    if c == 0
+        || k.shape() != [c, 3, 3]
+        || r.shape() != [c, 3, 3]
+        || t.shape() != [c, 3]
+        || dist.shape()[0] != c
+    {
+        return Err(invalid_input(format!(
+            "need K, dist, R, t for each of the {c} cameras"
+        )));
     }
     let width = dist.shape()[1];
-    let (k, dist, r, t) = (c_slice(&k, "K")?, c_slice(&dist, "dist")?, c_slice(&r, "R")?, c_slice(&t, "t")?);
+    let (k, dist, r, t) = (
+        c_slice(&k, "K")?,
+        c_slice(&dist, "dist")?,
+        c_slice(&r, "R")?,
+        c_slice(&t, "t")?,
+    );
     let nine = |flat: &[f64], i: usize| -> [f64; 9] { std::array::from_fn(|j| flat[9 * i + j]) };
     let cameras = (0..c)
         .map(|i| {
-            Camera::new(nine(k, i), &dist[width * i..width * (i + 1)], nine(r, i), [t[3 * i], t[3 * i + 1], t[3 * i + 2]], 1, 1)
+            Camera::new(
+                nine(k, i),
+                &dist[width * i..width * (i + 1)],
+                nine(r, i),
+                [t[3 * i], t[3 * i + 1], t[3 * i + 2]],
+                1,
+                1,
+            )
         })
         .collect::<crate::Result<Vec<_>>>()?;
     let obs = c_slice(&obs, "obs")?.as_chunks::<2>().0;
@@ -127,7 +146,10 @@ fn rigid_fits<'py>(
         r.extend_from_slice(&rf);
         t.extend_from_slice(&tf);
     }
-    Ok((PyArray1::from_vec(py, r).reshape([m, 3, 3])?, PyArray1::from_vec(py, t).reshape([m, 3])?))
+    Ok((
+        PyArray1::from_vec(py, r).reshape([m, 3, 3])?,
+        PyArray1::from_vec(py, t).reshape([m, 3])?,
+    ))
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
