@@ -25,7 +25,8 @@ fn nan_max(a: f64, b: f64) -> f64 {
     }
 }
 
-/// The distortion map of normalised coordinates `(a, b)`.
+/// The distortion map of normalised coordinates `(a, b)` (without k4..k6 the denominator
+/// is exactly 1: the division changes nothing).
 #[inline]
 pub(crate) fn distort(dist: &[f64; DIST_LEN], a: f64, b: f64) -> [f64; 2] {
     let [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4] = *dist;
