@@ -18,6 +18,8 @@ use nalgebra::DMatrix;
 
 use crate::error::{check_finite, Error, Result};
 
+mod lens;
+
 /// OpenCV's distortion coefficients elastocap models: k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4.
 pub const DIST_LEN: usize = 12;
 
@@ -111,16 +113,10 @@ impl Camera {
             return None;
         }
         let (a, b) = (x[0] / x[2], x[1] / x[2]);
-        let [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4] = self.dist;
-        let r2 = a * a + b * b;
-        if !(r2 < self.fold2) {
+        if !(a * a + b * b < self.fold2) {
             return None;
         }
-        // Without k4..k6 the denominator is exactly 1: the division changes nothing.
-        let radial =
-            (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)));
-        let ad = a * radial + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a) + r2 * (s1 + r2 * s2);
-        let bd = b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b + r2 * (s3 + r2 * s4);
+        let [ad, bd] = lens::distort(&self.dist, a, b);
         let k = &self.k;
         Some([
             k[0][0] * ad + k[0][1] * bd + k[0][2],

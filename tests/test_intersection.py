@@ -259,3 +259,22 @@ def test_per_view_covariances_solve_as_the_joint_matrix_does(seed: int, views: i
     # The blunders were there to reject: some view was dropped.
     if views >= 3:
         assert blocks.used.sum() < (np.isfinite(uv[..., 0]) & np.isfinite(cov).all(axis=(2, 3))).sum()
+
+
+@given(st.integers(0, 2**32 - 1))
+@settings(max_examples=20, deadline=None)
+def test_per_view_points_are_solved_each_on_its_own(seed: int) -> None:
+    # The core solves each point on its own (rayon over points): a point's result must not
+    # depend on which other points share the call, to the bit.
+    rng = np.random.default_rng(seed)
+    cams = _ring(5)
+    X = rng.uniform(-0.5, 0.5, (40, 3))
+    uv = np.stack([c.project(X)[0] for c in cams], axis=1) + rng.normal(0, 0.4, (40, 5, 2))
+    uv[rng.random((40, 5)) < 0.1] += 15.0
+    uv[rng.random((40, 5)) < 0.2] = np.nan
+    cov = np.tile(0.16 * np.eye(2), (40, 5, 1, 1))
+    whole = intersect(cams, uv, covariance=cov)
+    order = rng.permutation(40)[:17]
+    part = intersect(cams, uv[order], covariance=cov[order])
+    for field in whole._fields:
+        np.testing.assert_array_equal(getattr(part, field), getattr(whole, field)[order], err_msg=field)

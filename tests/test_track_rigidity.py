@@ -302,3 +302,36 @@ def test_fused_covariances_are_positive_definite_by_construction(seed, condition
         p = (2.0 * PIXEL) ** 2 * np.eye(3)
         plain = cov - np.einsum("nij,njk->nik", cov, np.linalg.solve(cov + p, cov))
         np.testing.assert_allclose(c1, plain, rtol=1e-6, atol=1e-9 * across)
+
+
+def _kabsch_svd(a, b, w):
+    """Reference: the weighted Kabsch fit by an SVD per set."""
+    w = w / w.sum(axis=1, keepdims=True)
+    ca, cb = np.einsum("nk,nki->ni", w, a), np.einsum("nk,nki->ni", w, b)
+    h = np.einsum("nk,nki,nkj->nij", w, a - ca[:, None], b - cb[:, None])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
+    fix = np.ones((len(a), 3))
+    fix[:, 2] = d
+    r = np.einsum("nji,nj,nkj->nik", vt, fix, u)
+    return r, cb - np.einsum("nij,nj->ni", r, ca)
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(3, 12), st.floats(0.0, 0.5))
+@hsettings(max_examples=40, deadline=None)
+def test_rigid_motions_equal_the_svd_kabsch_fit_of_noisy_and_planar_sets(seed, k, noise):
+    # The core fits the rotation nearest to H^T (a polar decomposition) instead of an SVD
+    # per set: the same proper rotation wherever it is unique, also for planar sets (a
+    # limb's neighbours on a surface) and for sets mirrored by the noise.
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(30, k, 3))
+    a[:10, :, 2] = 0.0  # planar sets
+    rot = Rotation.random(30, random_state=seed).as_matrix()
+    b = np.einsum("nij,nkj->nki", rot, a) + rng.normal(size=(30, 1, 3)) + rng.normal(0, noise, (30, k, 3))
+    w = rng.uniform(0.0, 2.0, (30, k))
+    w[:, :3] += 0.5
+    r, t = rigid_motions(a, b, w)
+    r0, t0 = _kabsch_svd(a, b, w)
+    np.testing.assert_allclose(r, r0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(t, t0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-12)

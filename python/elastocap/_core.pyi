@@ -27,6 +27,8 @@ __all__ = [
     "signed_distance",
     "SparseCholesky",
     "camera_project",
+    "intersect_per_view",
+    "rigid_fits",
     "active_contour",
     "lsm_match_patches",
     "TriangleMesh",
@@ -315,6 +317,29 @@ def camera_project(
     width: int,
     height: int,
 ) -> NDArray[np.float64]: ...
+def intersect_per_view(
+    obs: NDArray[np.float64],
+    cov: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    reject: bool,
+    critical: float,
+    iterations: int,
+    step_tolerance: float,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]: ...
+def rigid_fits(
+    a: NDArray[np.float64], b: NDArray[np.float64], weights: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 def active_contour(
     image: NDArray[np.float64],
     init: NDArray[np.float64],

@@ -8,6 +8,7 @@ mod efg;
 mod elastic;
 mod errors;
 mod fit;
+mod intersect;
 mod lsm;
 mod mesh;
 mod mls;
@@ -73,6 +74,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     lsm::register(m)?;
     mesh::register(m)?;
     track::register(m)?;
+    intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 
     Ok(())

@@ -65,6 +65,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from elastocap._core import rigid_fits
 from elastocap.tracking import settings
 
 __all__ = ["rigid_fusion", "rigid_motions", "rigid_residuals"]
@@ -75,16 +76,12 @@ def rigid_motions(a: NDArray[np.float64], b: NDArray[np.float64],
     """Batched least-squares rigid fits ``b ~ R a + t`` (Kabsch) of (M, K, 3) point sets,
     optionally weighted per point (``weights`` (M, K), non-negative with a positive sum per
     set): ``R`` (M, 3, 3) proper rotations, ``t`` (M, 3)."""
-    w = np.ones(a.shape[:2]) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum(axis=1, keepdims=True)
-    ca, cb = np.einsum("nk,nki->ni", w, a), np.einsum("nk,nki->ni", w, b)
-    h = np.einsum("nk,nki,nkj->nij", w, a - ca[:, None], b - cb[:, None])
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("nji,nkj->nik", vt, u)))
-    fix = np.ones((len(a), 3))
-    fix[:, 2] = np.where(d == 0, 1.0, d)
-    r = np.einsum("nji,nj,nkj->nik", vt, fix, u)
-    return r, cb - np.einsum("nij,nj->ni", r, ca)
+    w = np.ones(a.shape[:2]) if weights is None else weights
+    # The core's batched Kabsch: the rotation nearest to H^T by a polar decomposition, not
+    # an SVD per set (the tracker fits tens of thousands of 8-point sets a frame).
+    r, t = rigid_fits(np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
+                      np.ascontiguousarray(w, dtype=np.float64))
+    return r, t
 
 
 def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel: NDArray[np.float64],
