@@ -19,6 +19,7 @@ from elastocap.cameras.distortion import padded
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import MatchStatus
 from elastocap.tracking import settings
+from elastocap.tracking.seed_check import rematch_depth
 from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
 
 __all__ = ["seed_candidates", "seed_points"]
@@ -298,6 +299,10 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
         x, _, used, _ = intersect_views(cameras, matched, mcov, max_residual=max_residual, floor=floor)
         keep = used.sum(axis=1) >= min_views
         new = np.where(used[keep][..., None], matched[keep], np.nan)
+        if settings.SEED_DEPTH_SIZE:
+            # The partner's depth with a small window (seed_check: a large one lies behind a limb).
+            new = rematch_depth(images, cameras, k, new, size=settings.SEED_DEPTH_SIZE,
+                                min_correlation=min_correlation, min_texture=min_texture)
         views.append(new)
         for j in range(c):
             cover[j] = np.concatenate([cover[j], new[:, j]])

@@ -405,3 +405,9 @@ PYRAMID_POOL_REACH = 30.0
 # this many pixels of the partner's image from the best count as its own peak instead.
 # None: the 3 samples (unchanged; the option is off pending the tracking and fit figures).
 SEED_PEAK_PIXELS: float | None = None
+
+# The window (pixels, odd) with which a seed's other views are matched again from its pixel
+# on the epipolar line (tracking.seed_check.rematch_depth); 0: off. The tracker's window on a
+# limb puts the seed's depth behind the surface (drift15: median 2.6 px-eq on fit seed 51's
+# late seeds, a quarter of them beyond 5).
+SEED_DEPTH_SIZE = 0
