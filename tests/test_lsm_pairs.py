@@ -151,3 +151,44 @@ def test_the_batch_refuses_cameras_it_was_not_given() -> None:
     empty = match_checked_pairs(checked, np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 2, 3)), size=11,
                                 min_texture=0.0, max_iterations=20)
     assert empty.status.shape == (0, 1) and empty.covariance.shape == (0, 8, 8)
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_the_anchors_batched_correction_equals_one_match_per_camera(seed: int) -> None:
+    """``Anchors.correct`` / ``rescue`` (affine, the default) match every camera's mosaic in
+    one call; the former loop matched camera by camera with ``match_patches``."""
+    from elastocap.stereo import match_patches
+    from elastocap.tracking.anchors import Anchors
+
+    images, weights, maps = scene(seed)
+    rng = np.random.default_rng(seed)
+    n = 80
+    x = np.column_stack([rng.uniform(15, W - 15, n), rng.uniform(12, H - 12, n)])
+    uv = np.einsum("cij,nj->nci", maps[:, :, :2], x) + maps[:, :, 2]
+    held = rng.random((n, C)) < 0.7
+    anchors = Anchors(C, 11)
+    masks = [w if w is not None else np.ones((H, W), np.float32) for w in weights]
+    anchors.cut(images, uv, held, 0, weights=masks)
+    # The next frame: the images a little brighter, the tracked positions a little off.
+    later = [image * np.float32(1.05) + np.float32(3.0) for image in images]
+    tracked = np.where(held[..., None], uv + rng.uniform(-0.8, 0.8, uv.shape), np.nan)
+    got, recut = anchors.correct(later, tracked, min_correlation=0.8, reach=2.0, min_texture=0.5)
+    got_pos, got_cov = anchors.rescue(later, tracked, held, min_correlation=0.8, reach=2.0, min_texture=0.5)
+    want = tracked.copy()
+    want_cov = np.full((n, C, 2, 2), np.nan)
+    good = np.zeros((n, C), bool)
+    for k in range(C):
+        rows = np.flatnonzero(held[:, k])
+        mosaic, weighs, centres = anchors._mosaic(rows, k)
+        m = match_patches(mosaic, centres, [later[k]], initial=tracked[rows, k][:, None, :], size=11, min_texture=0.5,
+                          max_iterations=15, max_shift=2.0, weights=weighs)
+        pos = m.positions[:, 0]
+        ok = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= 0.8)
+              & (np.linalg.norm(pos - tracked[rows, k], axis=1) <= 2.0))
+        want[rows[ok], k] = pos[ok]
+        want_cov[rows[ok], k] = m.covariance[ok, :2, :2]
+        good[rows[ok], k] = True
+    assert same(got, want) and same(recut, held & ~good)
+    assert same(got_pos, np.where(good[..., None], want, np.nan))
+    assert same(got_cov, np.where(good[..., None, None], want_cov, np.nan))
+    assert good.sum() > held.sum() // 2  # most anchors still match

@@ -353,16 +353,20 @@ def match_checked(template: NDArray[np.float32], points: NDArray[np.float64], se
 
 def match_checked_pairs(images: Sequence[NDArray[np.float32] | None], cameras: NDArray[np.int64],
                         points: NDArray[np.float64], initial: NDArray[np.float64], *, size: int, min_texture: float,
-                        max_iterations: int, weights: Sequence[NDArray[np.float32] | None] | None = None) -> Matches:
+                        max_iterations: int, weights: Sequence[NDArray[np.float32] | None] | None = None,
+                        max_shift: float | None = None) -> Matches:
     """:func:`match_checked` for many camera pairs in one core call: patch ``i`` around
     ``points[i]`` (N, 2) in ``images[cameras[i, 0]]`` matched into ``images[cameras[i, 1]]``
     (``cameras`` (N, 2) indices into the per-camera ``images``, checked by
     :func:`checked_image`, None for a camera no patch uses) from ``initial`` (N, 2, 3) affine
     maps, the template weighed by ``weights[cameras[i, 0]]`` (:func:`checked_weights`) where
-    given. The tracker's spatial matches of a frame (~80-100 camera pairs of a few dozen
-    patches) run as one parallel batch instead of one call a pair; each patch's result is
-    bit-identical to :func:`match_checked` on its pair alone. Returns :class:`Matches` with
-    S = 1 (the patch's one search image)."""
+    given; ``max_shift`` as in :func:`match_patches` (default ``size / 2``). The tracker's
+    spatial matches of a frame (~80-100 camera pairs of a few dozen patches) run as one
+    parallel batch instead of one call a pair; each patch's result is bit-identical to
+    :func:`match_checked` (or :func:`match_patches` with the same options) on its pair
+    alone. The "cameras" are any list of images: the anchors' mosaics and the frame's
+    images together, say. Returns :class:`Matches` with S = 1 (the patch's one search
+    image)."""
     n = len(points)
     status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_pairs(
         list(images),
@@ -372,7 +376,7 @@ def match_checked_pairs(images: Sequence[NDArray[np.float32] | None], cameras: N
         size=size,
         max_iterations=max_iterations,
         tolerance=0.01,
-        max_shift=size / 2,
+        max_shift=size / 2 if max_shift is None else as_positive("max_shift", max_shift),
         max_scale=3.0,
         min_texture=float(min_texture),
         interpolation="bicubic",
