@@ -222,18 +222,18 @@ class Anchors:
             return
         rows = np.concatenate(rows_of)
         pairs = np.concatenate(pairs_of)
-        k = pairs[:, 0]
+        camera = pairs[:, 0]
         starts = np.zeros((rows.size, 2, 3))
         starts[:, 0, 0] = starts[:, 1, 1] = 1.0
-        starts[:, :, 2] = uv[rows, k]
+        starts[:, :, 2] = uv[rows, camera]
         m = match_checked_pairs(mosaics, pairs, np.concatenate(centres_of), starts, size=self.size,
                                 min_texture=min_texture, max_iterations=15, max_shift=reach, weights=weighs)
         pos = m.positions[:, 0]
         good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
-                & (np.linalg.norm(pos - uv[rows, k], axis=1) <= reach))
-        out[rows[good], k[good]] = pos[good]
-        cov[rows[good], k[good]] = m.covariance[good, :2, :2]
-        matched[rows[good], k[good]] = True
+                & (np.linalg.norm(pos - uv[rows, camera], axis=1) <= reach))
+        out[rows[good], camera[good]] = pos[good]
+        cov[rows[good], camera[good]] = m.covariance[good, :2, :2]
+        matched[rows[good], camera[good]] = True
 
     def _smoothed(self, mosaic: NDArray[np.float32], weighs: NDArray[np.float32], centres: NDArray[np.float64],
                   image: NDArray[np.float32], start: NDArray[np.float64], rows: NDArray[np.int64], k: int,
