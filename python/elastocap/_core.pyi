@@ -29,6 +29,7 @@ __all__ = [
     "camera_project",
     "active_contour",
     "lsm_match_patches",
+    "lsm_match_pairs",
     "TriangleMesh",
     "track_step",
     "track_box_search",
