@@ -15,8 +15,9 @@
 //! resampling), `normal` (normal equations from patch sums), `gauss_newton` (one search
 //! image; `line` its epipolar constraint), `sandwich` (its covariance under noisy template
 //! gradients), `rich` (second-order warp terms and a gain gradient after convergence, an
-//! option), `multi` (all search images of a point, joint covariance), `dense` (Cholesky
-//! and inverses of small systems), `types` (options, status, outputs).
+//! option), `multi` (all search images of a point, joint covariance), `pairs` (many patches
+//! across many camera pairs in one parallel call), `dense` (Cholesky and inverses of small
+//! systems), `types` (options, status, outputs).
 
 mod dense;
 #[cfg(target_arch = "x86_64")]
@@ -25,6 +26,9 @@ mod gauss_newton;
 mod line;
 mod multi;
 mod normal;
+mod pairs;
+#[cfg(test)]
+mod pairs_tests;
 mod resample;
 mod rich;
 mod sample;
@@ -33,6 +37,7 @@ mod sandwich;
 mod tests;
 mod types;
 
+pub use pairs::match_pair_patches;
 pub(crate) use resample::wide;
 pub use types::{
     ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Refined, Stage, Status, Warp,
@@ -206,6 +211,12 @@ fn validate(
     options: &MatchOptions,
     out: &MatchOutput<'_>,
 ) -> Result<()> {
+    validate_options(options)?;
+    validate_shapes(template, points, searches, starts, lines, out)
+}
+
+/// The options' ranges (shared with [`match_pair_patches`]).
+fn validate_options(options: &MatchOptions) -> Result<()> {
     let option = |argument, value: f64, ok: bool, expected| {
         if ok {
             Ok(())
@@ -276,6 +287,17 @@ fn validate(
         !extra.skip_correlation.is_nan(),
         "a number (infinite: never skipped)",
     )?;
+    Ok(())
+}
+
+fn validate_shapes(
+    template: &ImageView<'_>,
+    points: &[[f64; 2]],
+    searches: &[ImageView<'_>],
+    starts: &[[f64; 6]],
+    lines: Option<&[[f64; 3]]>,
+    out: &MatchOutput<'_>,
+) -> Result<()> {
     if searches.is_empty() {
         return Err(Error::Empty {
             argument: "search_images",

@@ -31,6 +31,7 @@ __all__ = [
     "rigid_fits",
     "active_contour",
     "lsm_match_patches",
+    "lsm_match_pairs",
     "TriangleMesh",
     "track_step",
     "track_box_search",
@@ -393,6 +394,30 @@ def lsm_match_patches(
     NDArray[np.float64],
     NDArray[np.float64],
     NDArray[np.uint8],
+]: ...
+def lsm_match_pairs(
+    images: list[NDArray[np.float32] | None],
+    cameras: NDArray[np.int64],
+    points: NDArray[np.float64],
+    initial: NDArray[np.float64],
+    *,
+    size: int = 11,
+    max_iterations: int = 30,
+    tolerance: float = 0.01,
+    max_shift: float = 5.0,
+    max_scale: float = 3.0,
+    min_texture: float = 0.0,
+    shift_only_iterations: int = 1,
+    interpolation: str = "bicubic",
+    weights: list[NDArray[np.float32] | None] | None = None,
+) -> tuple[
+    NDArray[np.uint8],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.uint32],
+    NDArray[np.float64],
 ]: ...
 
 @final

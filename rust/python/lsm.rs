@@ -1,15 +1,15 @@
 //! Binding of least-squares matching.
 
 use numpy::{
-    PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyArray1, PyArray2, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
     PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{
-    match_staged_patches, ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Stage,
-    Warp, PARAMETERS,
+    match_pair_patches, match_staged_patches, ExtraModel, ImageView, Interpolation, MatchOptions,
+    MatchOutput, Stage, Warp, PARAMETERS,
 };
 
 type Matches<'py> = (
@@ -242,6 +242,169 @@ fn lsm_match_patches<'py>(
     ))
 }
 
+type PairMatches<'py> = (
+    Bound<'py, PyArray1<u8>>,
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<u32>>,
+    Bound<'py, PyArray3<f64>>,
+);
+
+fn optional_views<'a>(
+    images: &'a [Option<PyReadonlyArray2<'_, f32>>],
+    argument: &str,
+) -> PyResult<Vec<Option<ImageView<'a>>>> {
+    images
+        .iter()
+        .map(|image| image.as_ref().map(|i| view(i, argument)).transpose())
+        .collect()
+}
+
+/// Many patches across many camera pairs in one call (the tracker's spatial matches of a
+/// frame): patch `i` around `points[i]` in `images[cameras[i, 0]]` matched into
+/// `images[cameras[i, 1]]` from the start map `initial[i]` (`(N, 6)` row-major 2x3),
+/// the template weighed by `weights[cameras[i, 0]]` where given. `images` (and `weights`)
+/// are per camera, C-contiguous float32, `None` for a camera no patch uses. Runs in
+/// parallel over patches with the GIL released; each patch's result is bit-identical to
+/// `lsm_match_patches` on its pair alone (one search image, no epipolar line, no richer
+/// stage). Returns `(status (N,) uint8, affine (N, 2, 3), radiometry (N, 2), sigma0 (N,),
+/// correlation (N,), iterations (N,) uint32, covariance (N, 8, 8))`.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (images, cameras, points, initial, *, size=11, max_iterations=30,
+    tolerance=0.01, max_shift=5.0, max_scale=3.0, min_texture=0.0, shift_only_iterations=1,
+    interpolation="bicubic", weights=None))]
+fn lsm_match_pairs<'py>(
+    py: Python<'py>,
+    images: Vec<Option<PyReadonlyArray2<'py, f32>>>,
+    cameras: PyReadonlyArray2<'py, i64>,
+    points: PyReadonlyArray2<'py, f64>,
+    initial: PyReadonlyArray2<'py, f64>,
+    size: usize,
+    max_iterations: usize,
+    tolerance: f64,
+    max_shift: f64,
+    max_scale: f64,
+    min_texture: f64,
+    shift_only_iterations: usize,
+    interpolation: &str,
+    weights: Option<Vec<Option<PyReadonlyArray2<'py, f32>>>>,
+) -> PyResult<PairMatches<'py>> {
+    let image_views = optional_views(&images, "images")?;
+    let weight_views = weights
+        .as_ref()
+        .map(|w| optional_views(w, "weights"))
+        .transpose()?;
+    let points_rows = rows::<2>(&points, "points")?;
+    let n = points_rows.len();
+    if cameras.shape() != [n, 2] {
+        return Err(invalid_input(format!(
+            "cameras must have shape ({n}, 2), got {:?}",
+            cameras.shape()
+        )));
+    }
+    let pairs = c_slice(&cameras, "cameras")?
+        .as_chunks::<2>()
+        .0
+        .iter()
+        .map(|&[r, k]| match (usize::try_from(r), usize::try_from(k)) {
+            (Ok(r), Ok(k)) => Ok([r, k]),
+            _ => Err(invalid_input(format!(
+                "cameras must hold indices >= 0, got [{r}, {k}]"
+            ))),
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    if initial.shape() != [n, 6] {
+        return Err(invalid_input(format!(
+            "initial must have shape ({n}, 6), got {:?}",
+            initial.shape()
+        )));
+    }
+    let starts = c_slice(&initial, "initial")?.as_chunks::<6>().0;
+    let interpolation = match interpolation {
+        "bilinear" => Interpolation::Bilinear,
+        "bicubic" => Interpolation::Bicubic,
+        other => {
+            return Err(invalid_input(format!(
+                "interpolation must be 'bilinear' or 'bicubic', got {other:?}"
+            )))
+        }
+    };
+    // `lsm_match_patches`' defaults for everything not given here: no line, no richer stage.
+    let options = MatchOptions {
+        size,
+        max_iterations,
+        tolerance,
+        max_shift,
+        max_scale,
+        min_texture,
+        line_sigma: 0.0,
+        shift_only_iterations,
+        interpolation,
+        sandwich: true,
+        extra: ExtraModel {
+            iterations: 0,
+            warp: Warp::Affine,
+            gain_gradient: false,
+            warp_sigma: 0.0,
+            gain_sigma: 0.0,
+            fallback: false,
+            template_jacobian: false,
+            skip_correlation: f64::INFINITY,
+        },
+    };
+    let status = PyArray1::<u8>::zeros(py, [n], false);
+    let affine = PyArray3::<f64>::zeros(py, [n, 2, 3], false);
+    let radiometry = PyArray2::<f64>::zeros(py, [n, 2], false);
+    let sigma0 = PyArray1::<f64>::zeros(py, [n], false);
+    let correlation = PyArray1::<f64>::zeros(py, [n], false);
+    let iterations = PyArray1::<u32>::zeros(py, [n], false);
+    let covariance = PyArray3::<f64>::zeros(py, [n, PARAMETERS, PARAMETERS], false);
+    let mut stages = vec![Stage::NONE; n];
+    {
+        let mut status_w = status.readwrite();
+        let mut affine_w = affine.readwrite();
+        let mut radiometry_w = radiometry.readwrite();
+        let mut sigma0_w = sigma0.readwrite();
+        let mut correlation_w = correlation.readwrite();
+        let mut iterations_w = iterations.readwrite();
+        let mut covariance_w = covariance.readwrite();
+        let out = MatchOutput {
+            status: status_w.as_slice_mut()?,
+            affine: affine_w.as_slice_mut()?.as_chunks_mut::<6>().0,
+            radiometry: radiometry_w.as_slice_mut()?.as_chunks_mut::<2>().0,
+            sigma0: sigma0_w.as_slice_mut()?,
+            correlation: correlation_w.as_slice_mut()?,
+            iterations: iterations_w.as_slice_mut()?,
+            covariance: covariance_w.as_slice_mut()?,
+        };
+        super::detach(py, || {
+            match_pair_patches(
+                &image_views,
+                weight_views.as_deref(),
+                &pairs,
+                points_rows,
+                starts,
+                &options,
+                out,
+                &mut stages,
+            )
+        })?;
+    }
+    Ok((
+        status,
+        affine,
+        radiometry,
+        sigma0,
+        correlation,
+        iterations,
+        covariance,
+    ))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(lsm_match_patches, m)?)
+    m.add_function(wrap_pyfunction!(lsm_match_patches, m)?)?;
+    m.add_function(wrap_pyfunction!(lsm_match_pairs, m)?)
 }

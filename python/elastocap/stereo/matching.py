@@ -351,6 +351,52 @@ def match_checked(template: NDArray[np.float32], points: NDArray[np.float64], se
                 interpolation="bicubic", threads=None, weights=weights, extra={}, max_sigma0=None, min_correlation=None)
 
 
+def match_checked_pairs(images: Sequence[NDArray[np.float32] | None], cameras: NDArray[np.int64],
+                        points: NDArray[np.float64], initial: NDArray[np.float64], *, size: int, min_texture: float,
+                        max_iterations: int, weights: Sequence[NDArray[np.float32] | None] | None = None,
+                        max_shift: float | None = None) -> Matches:
+    """:func:`match_checked` for many camera pairs in one core call: patch ``i`` around
+    ``points[i]`` (N, 2) in ``images[cameras[i, 0]]`` matched into ``images[cameras[i, 1]]``
+    (``cameras`` (N, 2) indices into the per-camera ``images``, checked by
+    :func:`checked_image`, None for a camera no patch uses) from ``initial`` (N, 2, 3) affine
+    maps, the template weighed by ``weights[cameras[i, 0]]`` (:func:`checked_weights`) where
+    given; ``max_shift`` as in :func:`match_patches` (default ``size / 2``). The tracker's
+    spatial matches of a frame (~80-100 camera pairs of a few dozen patches) run as one
+    parallel batch instead of one call a pair; each patch's result is bit-identical to
+    :func:`match_checked` (or :func:`match_patches` with the same options) on its pair
+    alone. The "cameras" are any list of images: the anchors' mosaics and the frame's
+    images together, say. Returns :class:`Matches` with S = 1 (the patch's one search
+    image)."""
+    n = len(points)
+    status, affine, radiometry, sigma0, correlation, iterations, covariance = _core.lsm_match_pairs(
+        list(images),
+        np.ascontiguousarray(cameras, dtype=np.int64).reshape(n, 2),
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(initial, dtype=np.float64).reshape(n, 6),
+        size=size,
+        max_iterations=max_iterations,
+        tolerance=0.01,
+        max_shift=size / 2 if max_shift is None else as_positive("max_shift", max_shift),
+        max_scale=3.0,
+        min_texture=float(min_texture),
+        interpolation="bicubic",
+        weights=None if weights is None else list(weights),
+    )
+    return Matches(
+        status=status[:, None],
+        positions=affine[:, None, :, 2].copy(),
+        affine=affine[:, None],
+        gain=radiometry[:, None, 0].copy(),
+        offset=radiometry[:, None, 1].copy(),
+        sigma0=sigma0[:, None],
+        covariance=covariance,
+        correlation=correlation[:, None],
+        iterations=iterations[:, None],
+        affine_centre=np.full((n, 1, 2), np.nan),
+        refined=np.zeros((n, 1), np.uint8),
+    )
+
+
 def _run(template: NDArray[np.float32], points: NDArray[np.float64], searches: list[NDArray[np.float32]],
          starts: NDArray[np.float64], lines: NDArray[np.float64] | None, *, size: int, max_iterations: int,
          tolerance: float, max_shift: float, max_scale: float, min_texture: float, line_sigma: float,

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from elastocap import _core
 from elastocap.stereo import match_patches
-from elastocap.stereo.matching import Matches, MatchStatus, Refined
+from elastocap.stereo.matching import Matches, MatchStatus, Refined, checked_image, checked_weights, match_checked_pairs
 from elastocap.tracking import settings
 
 __all__ = ["Anchors"]
@@ -170,6 +170,12 @@ class Anchors:
         out = uv.copy()
         cov = np.full((n, c, 2, 2), np.nan)
         matched = np.zeros((n, c), bool)
+        if refine is None:
+            # The affine match (the default): every camera's mosaic into its image in one
+            # parallel core call, not one call a camera.
+            self._match_batched(images, uv, where, out, cov, matched, min_correlation=min_correlation, reach=reach,
+                                min_texture=min_texture)
+            return out, cov, matched
         for k in range(c):
             rows = np.flatnonzero(where[:, k])
             if rows.size == 0:
@@ -190,6 +196,44 @@ class Anchors:
             cov[rows[good], k] = m.covariance[good, :2, :2]
             matched[rows[good], k] = True
         return out, cov, matched
+
+    def _match_batched(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_],
+                       out: NDArray[np.float64], cov: NDArray[np.float64], matched: NDArray[np.bool_], *,
+                       min_correlation: float, reach: float, min_texture: float) -> None:
+        """:meth:`_match` without the richer stage, all cameras in one call (the same
+        matches, bit for bit, as one ``match_patches`` call per camera); fills ``out``,
+        ``cov`` and ``matched`` in place. The batch's "cameras" are the C mosaics (indices
+        0..C-1, weighed by their tiles' weights) and the C images (C..2C-1)."""
+        c = uv.shape[1]
+        mosaics: list[NDArray[np.float32] | None] = [None] * (2 * c)
+        weighs: list[NDArray[np.float32] | None] = [None] * (2 * c)
+        rows_of, centres_of, pairs_of = [], [], []
+        for k in range(c):
+            rows = np.flatnonzero(where[:, k])
+            if rows.size == 0:
+                continue
+            mosaic, weigh, centres = self._mosaic(rows, k)
+            mosaics[k], mosaics[c + k] = checked_image(mosaic), checked_image(images[k])
+            weighs[k] = checked_weights(weigh, mosaic.shape)
+            rows_of.append(rows)
+            centres_of.append(centres)
+            pairs_of.append(np.broadcast_to(np.array([k, c + k]), (rows.size, 2)))
+        if not rows_of:
+            return
+        rows = np.concatenate(rows_of)
+        pairs = np.concatenate(pairs_of)
+        camera = pairs[:, 0]
+        starts = np.zeros((rows.size, 2, 3))
+        starts[:, 0, 0] = starts[:, 1, 1] = 1.0
+        starts[:, :, 2] = uv[rows, camera]
+        m = match_checked_pairs(mosaics, pairs, np.concatenate(centres_of), starts, size=self.size,
+                                min_texture=min_texture, max_iterations=15, max_shift=reach, weights=weighs)
+        pos = m.positions[:, 0]
+        good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+                & (np.linalg.norm(pos - uv[rows, camera], axis=1) <= reach))
+        out[rows[good], camera[good]] = pos[good]
+        cov[rows[good], camera[good]] = m.covariance[good, :2, :2]
+        matched[rows[good], camera[good]] = True
 
     def _smoothed(self, mosaic: NDArray[np.float32], weighs: NDArray[np.float32], centres: NDArray[np.float64],
                   image: NDArray[np.float32], start: NDArray[np.float64], rows: NDArray[np.int64], k: int,

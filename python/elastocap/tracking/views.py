@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.cameras import Camera
 from elastocap.stereo import intersect
-from elastocap.stereo.matching import MatchStatus, checked_image, checked_weights, match_checked
+from elastocap.stereo.matching import MatchStatus, checked_image, checked_weights, match_checked_pairs
 
 __all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_affine_from", "plane_offset_points",
            "plane_warped_tiles", "project_all", "spatial_match", "spatial_search"]
@@ -142,6 +142,10 @@ def spatial_match(
     checked = {int(k): checked_image(images[k]) for k in np.union1d(np.flatnonzero(wanted.any(axis=0)), references)}
     checked_w = {} if weights is None else {int(r): checked_weights(weights[r], checked[int(r)].shape) for r in references}
     plane = cameras is not None and points is not None and normals is not None
+    # Every camera pair's patches gathered (their start maps built per pair, as numpy), then
+    # matched in one parallel core call: ~80-100 pairs of a few dozen patches a frame.
+    identity = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    gathered_rows, gathered_pairs, gathered_starts = [], [], []
     for r in range(c):
         mine = (reference == r) & wanted.any(axis=1)
         if not mine.any():
@@ -157,24 +161,33 @@ def spatial_match(
             rows = np.flatnonzero(mine & wanted[:, k])
             if k == r or rows.size == 0:
                 continue
-            initial: NDArray[np.float64] = targets[rows, k][:, None, :]
             if ends is not None:
                 assert cameras is not None and points is not None
                 affine = plane_affine_from(cameras[k], ends[rows], points[rows])
                 affine[:, :, 2] = targets[rows, k]
                 det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
                 if not (np.isfinite(affine).all() and (det > 0).all()):
-                    affine[~(np.isfinite(affine).all(axis=(1, 2)) & (det > 0))] = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+                    affine[~(np.isfinite(affine).all(axis=(1, 2)) & (det > 0))] = identity
                     affine[:, :, 2] = targets[rows, k]
-                initial = affine[:, None]
-            m = match_checked(checked[r], template_uv[rows], [checked[k]], initial=initial,
-                              size=size, min_texture=min_texture, max_iterations=20,
-                              weights=None if weights is None else checked_w[r])
-            pos = m.positions[:, 0]
-            good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
-                    & (np.linalg.norm(pos - targets[rows, k], axis=1) <= tol[rows]))
-            uv[rows[good], k] = pos[good]
-            cov[rows[good], k] = m.position_covariance()[good]
+            else:
+                affine = np.broadcast_to(identity, (rows.size, 2, 3)).copy()
+                affine[:, :, 2] = targets[rows, k]
+            gathered_rows.append(rows)
+            gathered_pairs.append(np.broadcast_to(np.array([r, k]), (rows.size, 2)))
+            gathered_starts.append(affine)
+    if not gathered_rows:
+        return uv, cov
+    rows = np.concatenate(gathered_rows)
+    pairs = np.concatenate(gathered_pairs)
+    m = match_checked_pairs([checked.get(k) for k in range(c)], pairs, template_uv[rows], np.concatenate(gathered_starts),
+                            size=size, min_texture=min_texture, max_iterations=20,
+                            weights=None if weights is None else [checked_w.get(k) for k in range(c)])
+    pos = m.positions[:, 0]
+    target = pairs[:, 1]
+    good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+            & (np.linalg.norm(pos - targets[rows, target], axis=1) <= tol[rows]))
+    uv[rows[good], target[good]] = pos[good]
+    cov[rows[good], target[good]] = m.position_covariance()[good]
     return uv, cov
 
 
