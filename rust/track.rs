@@ -15,10 +15,14 @@
 //!
 //! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
-//! one camera), `flags` (why a point is not tracked).
+//! one camera), `flags` (why a point is not tracked), `seed_ncc` (`ncc_at`'s scores along a
+//! seed's line, several candidates at a time), `seed_hull` (the seeding's visual-hull test
+//! of ray samples).
 
 mod flags;
 mod ncc;
+mod seed_hull;
+mod seed_ncc;
 mod step;
 #[cfg(test)]
 mod tests;
@@ -28,4 +32,6 @@ mod weighted_tests;
 
 pub use flags::Flag;
 pub use ncc::{box_search_scores, ncc_at, NccBest};
+pub use seed_hull::HullCamera;
+pub use seed_ncc::line_ncc;
 pub use step::{track_camera, CameraStep, TrackOptions};

@@ -17,6 +17,7 @@ mod polar;
 mod pool;
 mod raster;
 mod sdf;
+mod seeding;
 mod snake;
 mod solve;
 mod track;
@@ -74,6 +75,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     lsm::register(m)?;
     mesh::register(m)?;
     track::register(m)?;
+    seeding::register(m)?;
     intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 

@@ -124,12 +124,15 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
         rows = np.flatnonzero(inside)
         if rows.size == 0:
             break
-        uv, seen = _seen_pixels(other, x[rows])
         # The mask is read only where the point is seen (in the image, in front); the
-        # pixel is the rounded position, as the whole-pixel footprint test implies.
-        at = np.flatnonzero(seen)
-        held = np.ones(rows.size, bool)
-        held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]
+        # pixel is the rounded position, as the whole-pixel footprint test implies. The
+        # pixel and the read in the core, one pass per sample, with _seen_pixels'
+        # operations (benches/README.md, "seednear1").
+        if mask.shape != (other.height, other.width):
+            raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
+        held, seen = _core.seed_hull_held(_camera_frame(other, x[rows]), np.ascontiguousarray(other.K, dtype=float),
+                                          np.ascontiguousarray(padded(other.dist), dtype=float),
+                                          np.ascontiguousarray(mask, dtype=bool))
         inside[rows] = held
         seen_by[rows] += seen
     return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
@@ -146,10 +149,7 @@ def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[n
     checks: the hull search projects a seeding frame's ~10^7 ray samples (benches/README.md,
     "seedframe1")."""
     n = len(points)
-    x = np.empty((n, 3))
-    for i in range(0, n, _CHUNK):
-        # Chunks: OpenBLAS threads larger products and spins on shared cores ("speed1").
-        x[i:i + _CHUNK] = points[i:i + _CHUNK] @ camera.R.T + camera.t
+    x = _camera_frame(camera, points)
     depth = x[:, 2]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         ab = x[:, :2] / depth[:, None]
@@ -182,6 +182,16 @@ def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[n
     seen = ((depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < camera.width - 0.5)
             & (uv[:, 1] >= -0.5) & (uv[:, 1] < camera.height - 0.5))
     return uv, seen
+
+
+def _camera_frame(camera: Camera, points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3) world points -> (N, 3) camera coordinates ``R X + t``, as
+    :meth:`Camera.project` computes them (a BLAS product, then the translation)."""
+    x = np.empty((len(points), 3))
+    for i in range(0, len(points), _CHUNK):
+        # Chunks: OpenBLAS threads larger products and spins on shared cores ("speed1").
+        x[i:i + _CHUNK] = points[i:i + _CHUNK] @ camera.R.T + camera.t
+    return x
 
 
 # Rows per projection of ray samples. OpenBLAS splits a matrix product over threads once
@@ -248,7 +258,8 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             uv, _ = _seen_pixels(other, np.nan_to_num(points[todo].reshape(-1, 3)))
             uv = uv.reshape(len(todo), _DEPTHS, 2)
             uv[~hull[todo]] = -1e6  # outside any image: no score
-            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
+            # track_ncc_at's numbers, several candidates' sums interleaved (benches/README.md, "seednear1").
+            scores = _core.seed_line_ncc(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
             scores = np.where(np.isfinite(scores), scores, -np.inf)
             best = np.argmax(scores, axis=1)
             peak = scores[np.arange(len(todo)), best]
