@@ -36,6 +36,8 @@ __all__ = [
     "track_step",
     "track_box_search",
     "track_ncc_at",
+    "seed_line_ncc",
+    "seed_hull_held",
 ]
 
 __version__: str
@@ -474,3 +476,17 @@ def track_ncc_at(
     *,
     size: int = 11,
 ) -> NDArray[np.float64]: ...
+def seed_line_ncc(
+    template: NDArray[np.float32],
+    points: NDArray[np.float64],
+    search: NDArray[np.float32],
+    candidates: NDArray[np.float64],
+    *,
+    size: int = 11,
+) -> NDArray[np.float64]: ...
+def seed_hull_held(
+    x: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    mask: NDArray[np.bool_],
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]: ...
