@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_track_seeding_hull import _camera
 
 from elastocap import _core
 from elastocap.cameras import Camera
@@ -58,18 +59,6 @@ def test_line_ncc_finds_the_shift():
     assert abs(scores[0, 20] - 1.0) < 1e-5
 
 
-def _camera(rng: np.random.Generator, coefficients: int, zero: np.ndarray, skew: bool) -> Camera:
-    fx = rng.uniform(300, 1500)
-    K = np.array([[fx, rng.uniform(-0.02, 0.02) * fx if skew else 0.0, rng.uniform(150, 350)],
-                  [0.0, fx * rng.uniform(0.9, 1.1), rng.uniform(100, 250)],
-                  [0.0, 0.0, 1.0]])
-    scale = np.array([0.2, 0.05, 0.01, 0.01, 0.01, 0.05, 0.01, 0.005, 0.002, 0.001, 0.002, 0.001])[:coefficients]
-    dist = np.where(zero[:coefficients], 0.0, rng.uniform(-1, 1, coefficients) * scale)
-    R, _ = cv2.Rodrigues(rng.normal(scale=0.4, size=3))
-    t = np.array([rng.normal(scale=0.2), rng.normal(scale=0.2), rng.uniform(3, 5)])
-    return Camera("c", K, dist, R, t, 400, 300)
-
-
 def _held(camera: Camera, x: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _core.seed_hull_held(_camera_frame(camera, x), np.ascontiguousarray(camera.K, dtype=float),
                                 np.ascontiguousarray(padded(camera.dist), dtype=float), mask)
@@ -80,7 +69,7 @@ def _held(camera: Camera, x: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, 
        skew=st.booleans())
 def test_hull_held_is_the_numpy_projection_and_read(seed, coefficients, zero, skew):
     rng = np.random.default_rng(seed)
-    camera = _camera(rng, coefficients, np.array(zero), skew)
+    camera = _camera(rng, "c", coefficients, np.array(zero), skew)
     x = np.concatenate([rng.normal(scale=0.6, size=(2000, 3)), rng.normal(scale=8.0, size=(500, 3))])
     mask = rng.uniform(size=(camera.height, camera.width)) < 0.5
     held, seen = _held(camera, x, mask)
