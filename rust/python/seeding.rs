@@ -8,8 +8,8 @@ use numpy::{
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
-use crate::lsm::ImageView;
 use crate::camera::DIST_LEN;
+use crate::lsm::ImageView;
 use crate::track::{line_ncc, HullCamera};
 
 fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {

@@ -57,7 +57,10 @@ impl HullCamera {
             }
         }
         let k = &self.k;
-        [k[0][0] * a2 + k[0][1] * b2 + k[0][2], k[1][1] * b2 + k[1][2]]
+        [
+            k[0][0] * a2 + k[0][1] * b2 + k[0][2],
+            k[1][1] * b2 + k[1][2],
+        ]
     }
 
     /// Whether camera coordinates `x` are seen (in front, inside the image's pixel
@@ -103,7 +106,9 @@ mod tests {
 
     #[test]
     fn seen_and_mask_read_at_the_rounded_pixel() {
-        let cam = camera([-0.1, 0.02, 0.001, -0.002, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let cam = camera([
+            -0.1, 0.02, 0.001, -0.002, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ]);
         let mut mask = vec![false; 640 * 480];
         let x = [0.05, 0.03, 1.5];
         let [u, v] = cam.pixel(x);
@@ -120,7 +125,9 @@ mod tests {
     fn a_zero_coefficient_changes_nothing() {
         // The skipped terms add exact zeros: with a rational term whose coefficients are
         // tiny but nonzero the pixel moves, with zeros it equals the plain polynomial.
-        let plain = camera([-0.1, 0.02, 0.0, 0.0, 0.003, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let plain = camera([
+            -0.1, 0.02, 0.0, 0.0, 0.003, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ]);
         let mut rational = plain;
         rational.dist[5] = 1e-3;
         let x = [0.2, -0.1, 1.0];
@@ -128,6 +135,12 @@ mod tests {
         let (a, b) = (0.2, -0.1);
         let r2: f64 = a * a + b * b;
         let radial = 1.0 + r2 * (-0.1 + r2 * (0.02 + r2 * 0.003));
-        assert_eq!(plain.pixel(x), [800.0 * (a * radial) + 0.3 * (b * radial) + 320.0, 790.0 * (b * radial) + 240.0]);
+        assert_eq!(
+            plain.pixel(x),
+            [
+                800.0 * (a * radial) + 0.3 * (b * radial) + 320.0,
+                790.0 * (b * radial) + 240.0
+            ]
+        );
     }
 }

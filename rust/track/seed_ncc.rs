@@ -58,7 +58,10 @@ pub fn line_ncc(
     }
     if filled > 0 {
         // The unused lanes hold older (or zero) windows: scored and dropped.
-        for (&k, score) in at[..filled].iter().zip(score_lanes(&template, &mut windows)) {
+        for (&k, score) in at[..filled]
+            .iter()
+            .zip(score_lanes(&template, &mut windows))
+        {
             scores[k] = score;
         }
     }
@@ -115,7 +118,9 @@ mod tests {
                 if u < 20 && v < 20 {
                     return 0.5; // flat
                 }
-                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 let noise = (state >> 40) as f32 / (1u64 << 24) as f32;
                 (u as f32 * 0.13).sin() * (v as f32 * 0.07).cos() + 0.3 * noise
             })
@@ -127,11 +132,21 @@ mod tests {
         let (width, height) = (96, 80);
         let a = image(width, height, 1);
         let b = image(width, height, 2);
-        let ta = ImageView { data: &a, width, height };
-        let tb = ImageView { data: &b, width, height };
+        let ta = ImageView {
+            data: &a,
+            width,
+            height,
+        };
+        let tb = ImageView {
+            data: &b,
+            width,
+            height,
+        };
         let mut state = 7u64;
         let mut next = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (state >> 11) as f64 / (1u64 << 53) as f64
         };
         for size in [3, 7, 11, 15] {
@@ -150,7 +165,10 @@ mod tests {
                     ncc_at(&ta, point, &tb, &candidates, size, &mut want);
                     line_ncc(&ta, point, &tb, &candidates, size, &mut got);
                     for (w, g) in want.iter().zip(&got) {
-                        assert!(w.to_bits() == g.to_bits() || (w.is_nan() && g.is_nan()), "{w} vs {g}");
+                        assert!(
+                            w.to_bits() == g.to_bits() || (w.is_nan() && g.is_nan()),
+                            "{w} vs {g}"
+                        );
                     }
                 }
             }
@@ -161,7 +179,11 @@ mod tests {
     fn scores_its_own_patch_one() {
         let (width, height) = (64, 64);
         let a = image(width, height, 3);
-        let ta = ImageView { data: &a, width, height };
+        let ta = ImageView {
+            data: &a,
+            width,
+            height,
+        };
         let candidates: Vec<[f64; 2]> = (0..12).map(|k| [30.0 + k as f64 * 0.25, 32.5]).collect();
         let mut scores = vec![0.0; 12];
         line_ncc(&ta, [31.0, 32.5], &ta, &candidates, 11, &mut scores);
