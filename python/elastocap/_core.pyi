@@ -36,6 +36,7 @@ __all__ = [
     "track_step",
     "track_box_search",
     "track_ncc_at",
+    "track_ncc_at_cameras",
 ]
 
 __version__: str
@@ -471,6 +472,15 @@ def track_ncc_at(
     points: NDArray[np.float64],
     search: NDArray[np.float32],
     candidates: NDArray[np.float64],
+    *,
+    size: int = 11,
+) -> NDArray[np.float64]: ...
+def track_ncc_at_cameras(
+    templates: list[NDArray[np.float32]],
+    points: NDArray[np.float64],
+    searches: list[NDArray[np.float32]],
+    candidates: NDArray[np.float64],
+    cameras: NDArray[np.int64],
     *,
     size: int = 11,
 ) -> NDArray[np.float64]: ...

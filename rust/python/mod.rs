@@ -20,6 +20,7 @@ mod sdf;
 mod snake;
 mod solve;
 mod track;
+mod track_views;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -74,6 +75,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     lsm::register(m)?;
     mesh::register(m)?;
     track::register(m)?;
+    track_views::register(m)?;
     intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 

@@ -8,9 +8,13 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
-use crate::track::{box_search_scores, ncc_at, track_camera, CameraStep, TrackOptions};
+use crate::track::{box_search_scores, ncc_at, track_cameras, CameraImages, CameraStep, TrackOptions};
 
-fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
+/// A C-contiguous float32 image as the core reads it.
+pub(super) fn view<'a>(
+    image: &'a PyReadonlyArray2<'_, f32>,
+    argument: &str,
+) -> PyResult<ImageView<'a>> {
     let shape = image.shape();
     Ok(ImageView {
         data: c_slice(image, argument)?,
@@ -81,17 +85,19 @@ fn track_step<'py>(
         .iter()
         .map(|i| view(i, "current"))
         .collect::<PyResult<Vec<_>>>()?;
-    let weight_views = match &weights {
-        Some((before_w, now_w)) => {
-            if before_w.len() != c || now_w.len() != c {
-                return Err(invalid_input(format!(
-                    "weights must hold two lists of {c} images (one per camera), got {} and {}",
-                    before_w.len(),
-                    now_w.len()
-                )));
-            }
-            let mut pairs = Vec::with_capacity(c);
-            for k in 0..c {
+    if let Some((before_w, now_w)) = &weights {
+        if before_w.len() != c || now_w.len() != c {
+            return Err(invalid_input(format!(
+                "weights must hold two lists of {c} images (one per camera), got {} and {}",
+                before_w.len(),
+                now_w.len()
+            )));
+        }
+    }
+    let mut cameras = Vec::with_capacity(c);
+    for k in 0..c {
+        let weights = match &weights {
+            Some((before_w, now_w)) => {
                 let (a, b) = (view(&before_w[k], "weights")?, view(&now_w[k], "weights")?);
                 for (w, image) in [(&a, &prev[k]), (&b, &cur[k])] {
                     if w.width != image.width || w.height != image.height {
@@ -101,12 +107,16 @@ fn track_step<'py>(
                         )));
                     }
                 }
-                pairs.push([a, b]);
+                Some([a, b])
             }
-            Some(pairs)
-        }
-        None => None,
-    };
+            None => None,
+        };
+        cameras.push(CameraImages {
+            previous: prev[k],
+            current: cur[k],
+            weights,
+        });
+    }
     let last_rows = c_slice(&last, "last")?.as_chunks::<2>().0;
     let before_rows = c_slice(&before, "before")?.as_chunks::<2>().0;
     let options = TrackOptions {
@@ -140,28 +150,47 @@ fn track_step<'py>(
         let flags_s = flags_w.as_slice_mut()?;
         let covariance_s = covariance_w.as_slice_mut()?.as_chunks_mut::<4>().0;
         let correlation_s = correlation_w.as_slice_mut()?;
+        // Every camera's points in one parallel pass per stage.
         super::detach(py, || {
-            for k in 0..c {
-                let range = k * n..(k + 1) * n;
-                track_camera(
-                    &prev[k],
-                    &cur[k],
-                    &last_rows[range.clone()],
-                    &before_rows[range.clone()],
-                    weight_views.as_ref().map(|w| [&w[k][0], &w[k][1]]),
-                    &options,
-                    CameraStep {
-                        positions: &mut positions_s[range.clone()],
-                        flags: &mut flags_s[range.clone()],
-                        covariance: &mut covariance_s[range.clone()],
-                        correlation: &mut correlation_s[range],
-                    },
-                )?;
-            }
-            Ok::<(), crate::Error>(())
+            track_cameras(
+                &cameras,
+                last_rows,
+                before_rows,
+                &options,
+                CameraStep {
+                    positions: positions_s,
+                    flags: flags_s,
+                    covariance: covariance_s,
+                    correlation: correlation_s,
+                },
+            )
         })?;
     }
     Ok((positions, flags, covariance, correlation))
+}
+
+/// The rows of a correlation at candidates: `points` (N, 2), `candidates` (N, K, 2) as
+/// `N K` rows, and `K`; checked, with the patch side `size`.
+pub(super) fn candidate_rows<'a>(
+    points: &'a PyReadonlyArray2<'_, f64>,
+    candidates: &'a PyReadonlyArray3<'_, f64>,
+    size: usize,
+) -> PyResult<(&'a [[f64; 2]], &'a [[f64; 2]], usize)> {
+    let p = rows::<2>(points, "points")?;
+    let n = p.len();
+    let shape = candidates.shape();
+    if shape[0] != n || shape[2] != 2 {
+        return Err(invalid_input(format!(
+            "candidates must have shape ({n}, K, 2), got {shape:?}"
+        )));
+    }
+    if size < 3 || size % 2 == 0 || size > 255 {
+        return Err(invalid_input(format!(
+            "size must be an odd integer from 3 to 255, got {size}"
+        )));
+    }
+    let cand = c_slice(candidates, "candidates")?.as_chunks::<2>().0;
+    Ok((p, cand, shape[1]))
 }
 
 /// `(N, K)` correlation of the template patch around each of `points` (N, 2) with the
@@ -180,21 +209,8 @@ fn track_ncc_at<'py>(
     use rayon::prelude::*;
     let t = view(&template, "template")?;
     let s = view(&search, "search")?;
-    let p = rows::<2>(&points, "points")?;
+    let (p, cand, k) = candidate_rows(&points, &candidates, size)?;
     let n = p.len();
-    let shape = candidates.shape();
-    if shape[0] != n || shape[2] != 2 {
-        return Err(invalid_input(format!(
-            "candidates must have shape ({n}, K, 2), got {shape:?}"
-        )));
-    }
-    if size < 3 || size % 2 == 0 || size > 255 {
-        return Err(invalid_input(format!(
-            "size must be an odd integer from 3 to 255, got {size}"
-        )));
-    }
-    let k = shape[1];
-    let cand = c_slice(&candidates, "candidates")?.as_chunks::<2>().0;
     let scores = PyArray2::<f64>::zeros(py, [n, k], false);
     {
         let mut w = scores.readwrite();
