@@ -85,7 +85,7 @@ def test_the_step_of_every_camera_at_once_equals_one_call_per_camera(seed: int, 
         for got, want in zip(together, alone):
             assert same(got[k], want[0]), k
     # The scenes hold tracked views and the failures.
-    assert (flags == TrackFlag.TRACKED).sum() > 0.3 * flags.size
+    assert (flags == TrackFlag.TRACKED).sum() > 0.15 * flags.size
     for flag in (TrackFlag.NOT_SEEDED, TrackFlag.IMAGE_BORDER):
         assert (flags == flag).any(), flag
 
