@@ -16,13 +16,13 @@
 //! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
 //! `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
-//! every camera), `flags` (why a point is not tracked).
+//! one camera), `flags` (why a point is not tracked).
 
-#[cfg(test)]
-mod cameras_tests;
 mod flags;
 mod ncc;
 mod ncc_batch;
+#[cfg(test)]
+mod ncc_batch_tests;
 mod step;
 #[cfg(test)]
 mod tests;
@@ -33,4 +33,4 @@ mod weighted_tests;
 pub use flags::Flag;
 pub use ncc::{box_search_scores, ncc_at, NccBest};
 pub use ncc_batch::ncc_at_cameras;
-pub use step::{track_camera, track_cameras, CameraImages, CameraStep, TrackOptions};
+pub use step::{track_camera, CameraStep, TrackOptions};

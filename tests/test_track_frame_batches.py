@@ -1,9 +1,9 @@
 """A tracked frame's work batched across cameras (branch frame1): each batched call gives
 every view the bits the per-camera call it replaces gave it.
 
-- ``_core.track_step`` of C cameras (one parallel pass per stage over all cameras' points,
-  ``rust/track/step.rs``) against one call per camera, with and without template weights,
-  with the weighted box, on images of different sizes.
+- ``_core.track_step`` of C cameras in one call (the revival's search now makes one) against
+  one call per camera, with and without template weights, with the weighted box, on images of
+  different sizes.
 - ``Anchors.search`` (the revival's search, every camera's mosaic in one step call) against
   its former loop of one ``track_step`` call per camera.
 - ``box_scores_cameras`` (the coarse-to-fine search's correlation, one core call for every

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
-use crate::track::{box_search_scores, ncc_at, track_cameras, CameraImages, CameraStep, TrackOptions};
+use crate::track::{box_search_scores, ncc_at, track_camera, CameraStep, TrackOptions};
 
 /// A C-contiguous float32 image as the core reads it.
 pub(super) fn view<'a>(
@@ -85,19 +85,17 @@ fn track_step<'py>(
         .iter()
         .map(|i| view(i, "current"))
         .collect::<PyResult<Vec<_>>>()?;
-    if let Some((before_w, now_w)) = &weights {
-        if before_w.len() != c || now_w.len() != c {
-            return Err(invalid_input(format!(
-                "weights must hold two lists of {c} images (one per camera), got {} and {}",
-                before_w.len(),
-                now_w.len()
-            )));
-        }
-    }
-    let mut cameras = Vec::with_capacity(c);
-    for k in 0..c {
-        let weights = match &weights {
-            Some((before_w, now_w)) => {
+    let weight_views = match &weights {
+        Some((before_w, now_w)) => {
+            if before_w.len() != c || now_w.len() != c {
+                return Err(invalid_input(format!(
+                    "weights must hold two lists of {c} images (one per camera), got {} and {}",
+                    before_w.len(),
+                    now_w.len()
+                )));
+            }
+            let mut pairs = Vec::with_capacity(c);
+            for k in 0..c {
                 let (a, b) = (view(&before_w[k], "weights")?, view(&now_w[k], "weights")?);
                 for (w, image) in [(&a, &prev[k]), (&b, &cur[k])] {
                     if w.width != image.width || w.height != image.height {
@@ -107,16 +105,12 @@ fn track_step<'py>(
                         )));
                     }
                 }
-                Some([a, b])
+                pairs.push([a, b]);
             }
-            None => None,
-        };
-        cameras.push(CameraImages {
-            previous: prev[k],
-            current: cur[k],
-            weights,
-        });
-    }
+            Some(pairs)
+        }
+        None => None,
+    };
     let last_rows = c_slice(&last, "last")?.as_chunks::<2>().0;
     let before_rows = c_slice(&before, "before")?.as_chunks::<2>().0;
     let options = TrackOptions {
@@ -150,20 +144,25 @@ fn track_step<'py>(
         let flags_s = flags_w.as_slice_mut()?;
         let covariance_s = covariance_w.as_slice_mut()?.as_chunks_mut::<4>().0;
         let correlation_s = correlation_w.as_slice_mut()?;
-        // Every camera's points in one parallel pass per stage.
         super::detach(py, || {
-            track_cameras(
-                &cameras,
-                last_rows,
-                before_rows,
-                &options,
-                CameraStep {
-                    positions: positions_s,
-                    flags: flags_s,
-                    covariance: covariance_s,
-                    correlation: correlation_s,
-                },
-            )
+            for k in 0..c {
+                let range = k * n..(k + 1) * n;
+                track_camera(
+                    &prev[k],
+                    &cur[k],
+                    &last_rows[range.clone()],
+                    &before_rows[range.clone()],
+                    weight_views.as_ref().map(|w| [&w[k][0], &w[k][1]]),
+                    &options,
+                    CameraStep {
+                        positions: &mut positions_s[range.clone()],
+                        flags: &mut flags_s[range.clone()],
+                        covariance: &mut covariance_s[range.clone()],
+                        correlation: &mut correlation_s[range],
+                    },
+                )?;
+            }
+            Ok::<(), crate::Error>(())
         })?;
     }
     Ok((positions, flags, covariance, correlation))

@@ -1,6 +1,6 @@
-//! One frame of every camera: predict, search the box, refine by temporal least-squares
-//! matching, check forward-backward. Each stage is one parallel pass (rayon) over all the
-//! cameras' points, the matching batched through [`crate::lsm::match_pair_patches`].
+//! One frame of one camera: predict, search the box, refine by temporal least-squares
+//! matching, check forward-backward. Parallel over points (rayon), the matching batched
+//! through [`crate::lsm::match_patches`].
 
 use rayon::prelude::*;
 
@@ -8,8 +8,7 @@ use super::flags::Flag;
 use super::ncc::{box_search, BoxScratch};
 use crate::error::{Error, Result};
 use crate::lsm::{
-    match_pair_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Stage, Status,
-    PARAMETERS,
+    match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS,
 };
 
 /// Gauss-Newton iterations of the forward-backward check's match (started at the inverse
@@ -49,7 +48,7 @@ impl Default for TrackOptions {
     }
 }
 
-/// Where a step writes, indexed by point (by camera, then point, in [`track_cameras`]).
+/// Where one camera's step writes, indexed by point.
 #[derive(Debug)]
 pub struct CameraStep<'a> {
     /// Tracked position `(u, v)`, pixels; NaN where not tracked.
@@ -71,19 +70,6 @@ fn invalid(argument: &'static str, value: f64, expected: &'static str) -> Error 
     }
 }
 
-/// One camera's images in a frame's step: the previous and the current frame's grey
-/// images and, when given, their per-pixel template weights `[previous, current]` (each
-/// of its image's size).
-#[derive(Debug, Clone, Copy)]
-pub struct CameraImages<'a> {
-    /// The frame the points are tracked from.
-    pub previous: ImageView<'a>,
-    /// The frame they are tracked into.
-    pub current: ImageView<'a>,
-    /// The weights of `previous` and `current` (silhouette masks, 0 to 1).
-    pub weights: Option<[ImageView<'a>; 2]>,
-}
-
 /// Tracks the points at `last` (their positions in `previous`; NaN rows are not
 /// tracked) into `current`, predicting linearly from `before` (the positions one frame
 /// earlier; NaN rows predict no motion). `weights`, when given, are per-pixel weights of
@@ -92,10 +78,10 @@ pub struct CameraImages<'a> {
 /// frame's, so a patch on the silhouette's edge follows the surface and not the
 /// background in its corner (see [`crate::lsm::match_weighted_patches`]).
 ///
-/// One camera of [`track_cameras`] (the same results, bit for bit).
-///
 /// # Errors
-/// As [`track_cameras`].
+/// [`Error::LengthMismatch`] when `before` or the outputs do not have one entry per point,
+/// [`Error::InvalidOption`] for options out of range, and what
+/// [`crate::lsm::match_patches`] reports for images or options.
 pub fn track_camera(
     previous: &ImageView<'_>,
     current: &ImageView<'_>,
@@ -105,45 +91,7 @@ pub fn track_camera(
     options: &TrackOptions,
     out: CameraStep<'_>,
 ) -> Result<()> {
-    let camera = CameraImages {
-        previous: *previous,
-        current: *current,
-        weights: weights.map(|[a, b]| [*a, *b]),
-    };
-    track_cameras(std::slice::from_ref(&camera), last, before, options, out)
-}
-
-/// [`track_camera`] for every camera of a frame at once: `last`, `before` and the outputs
-/// hold `N` rows per camera, camera after camera (`C N` rows for the `C` entries of
-/// `cameras`). Each stage (box search, forward match, forward-backward match) runs as one
-/// parallel pass over all cameras' points, not one pass per camera: a frame's views are a
-/// few hundred per camera, and 3 C short passes left the second core idle at every pass's
-/// end. Every point's result is computed by the same code from the same inputs as in its
-/// own camera's call (the matches by [`crate::lsm::match_pair_patches`], which runs each
-/// patch as the single-template call does), so it is the same to the bit, whatever the
-/// grouping and the thread count.
-///
-/// # Errors
-/// [`Error::LengthMismatch`] when `last` is not `C N` rows, or `before` or the outputs do
-/// not have one entry per row of `last`, [`Error::InvalidOption`] for options out of
-/// range, and what [`crate::lsm::match_pair_patches`] reports for images or options.
-pub fn track_cameras(
-    cameras: &[CameraImages<'_>],
-    last: &[[f64; 2]],
-    before: &[[f64; 2]],
-    options: &TrackOptions,
-    out: CameraStep<'_>,
-) -> Result<()> {
-    let rows = last.len();
-    let c = cameras.len();
-    if (c == 0 && rows > 0) || (c > 0 && rows % c != 0) {
-        return Err(Error::LengthMismatch {
-            argument: "last",
-            expected: c * (rows / c.max(1)),
-            got: rows,
-        });
-    }
-    let n = if c == 0 { 0 } else { rows / c };
+    let n = last.len();
     for (argument, got) in [
         ("before", before.len()),
         ("positions", out.positions.len()),
@@ -151,10 +99,10 @@ pub fn track_cameras(
         ("covariance", out.covariance.len()),
         ("correlation", out.correlation.len()),
     ] {
-        if got != rows {
+        if got != n {
             return Err(Error::LengthMismatch {
                 argument,
-                expected: rows,
+                expected: n,
                 got,
             });
         }
@@ -187,34 +135,30 @@ pub fn track_cameras(
     out.positions.fill([f64::NAN; 2]);
     out.covariance.fill([f64::NAN; 4]);
     out.correlation.fill(f64::NAN);
-    if rows == 0 {
-        return Ok(());
-    }
 
-    // Box search around the linear prediction, every camera's points in one pass.
-    let searched: Vec<(u8, [f64; 2])> = (0..rows)
+    // Box search around the linear prediction.
+    let box_weights = if options.weighted_box {
+        weights.map(|w| w[0])
+    } else {
+        None
+    };
+    let searched: Vec<(u8, [f64; 2])> = (0..n)
         .into_par_iter()
-        .map_init(BoxScratch::default, |scratch, i| {
-            let x = last[i];
+        .map_init(BoxScratch::default, |scratch, p| {
+            let x = last[p];
             if !(x[0].is_finite() && x[1].is_finite()) {
                 return (Flag::NotSeeded as u8, x);
             }
-            let camera = &cameras[i / n];
-            let b = before[i];
+            let b = before[p];
             let prediction = if b[0].is_finite() && b[1].is_finite() {
                 [2.0 * x[0] - b[0], 2.0 * x[1] - b[1]]
             } else {
                 x
             };
-            let box_weights = if options.weighted_box {
-                camera.weights.as_ref().map(|w| &w[0])
-            } else {
-                None
-            };
             match box_search(
-                &camera.previous,
+                previous,
                 x,
-                &camera.current,
+                current,
                 prediction,
                 size,
                 options.radius,
@@ -229,8 +173,8 @@ pub fn track_cameras(
             }
         })
         .collect();
-    let active: Vec<usize> = (0..rows)
-        .filter(|&i| searched[i].0 == Flag::Tracked as u8)
+    let active: Vec<usize> = (0..n)
+        .filter(|&p| searched[p].0 == Flag::Tracked as u8)
         .collect();
     for (flag, &(code, _)) in out.flags.iter_mut().zip(&searched) {
         *flag = code;
@@ -239,71 +183,52 @@ pub fn track_cameras(
         return Ok(());
     }
 
-    // The matcher's "cameras": the C previous images (0..C) then the C current ones
-    // (C..2C), each weighed by its own frame's weights where given.
-    let images: Vec<Option<ImageView<'_>>> = cameras
-        .iter()
-        .map(|k| Some(k.previous))
-        .chain(cameras.iter().map(|k| Some(k.current)))
-        .collect();
-    let weighted = cameras.iter().any(|k| k.weights.is_some());
-    let weights: Option<Vec<Option<ImageView<'_>>>> = weighted.then(|| {
-        cameras
-            .iter()
-            .map(|k| k.weights.map(|w| w[0]))
-            .chain(cameras.iter().map(|k| k.weights.map(|w| w[1])))
-            .collect()
-    });
-
     // Temporal least-squares matching, previous -> current.
-    let pairs: Vec<[usize; 2]> = active.iter().map(|&i| [i / n, c + i / n]).collect();
-    let points: Vec<[f64; 2]> = active.iter().map(|&i| last[i]).collect();
+    let points: Vec<[f64; 2]> = active.iter().map(|&p| last[p]).collect();
     let starts: Vec<[f64; 6]> = active
         .iter()
-        .map(|&i| {
-            let centre = searched[i].1;
-            [1.0, 0.0, centre[0], 0.0, 1.0, centre[1]]
+        .map(|&p| {
+            let c = searched[p].1;
+            [1.0, 0.0, c[0], 0.0, 1.0, c[1]]
         })
         .collect();
     let forward = run_matches(
-        &images,
-        weights.as_deref(),
-        &pairs,
+        previous,
+        weights.map(|w| w[0]),
         &points,
+        current,
         &starts,
         &options.matching,
     )?;
 
     // Forward-backward: the current patch matched back into the previous frame, started
     // at the inverse of the forward map, must land on the start.
-    let (mut back_pairs, mut back_points, mut back_starts, mut back_of) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for (j, &i) in active.iter().enumerate() {
-        let status = forward.status[j];
+    let (mut back_points, mut back_starts, mut back_of) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, &p) in active.iter().enumerate() {
+        let status = forward.status[k];
         let code = if status == Status::LeftImage as u8 {
             Flag::ImageBorder
         } else if !matches!(status, s if s == Status::Converged as u8 || s == Status::MaxIterations as u8)
         {
             Flag::MatchFailed
-        } else if !(forward.correlation[j] >= options.min_correlation) {
+        } else if !(forward.correlation[k] >= options.min_correlation) {
             Flag::LowCorrelation
         } else {
-            let m = forward.affine[j];
+            let m = forward.affine[k];
             let det = m[0] * m[4] - m[1] * m[3];
-            back_pairs.push([c + i / n, i / n]);
             back_points.push([m[2], m[5]]);
             back_starts.push([
                 m[4] / det,
                 -m[1] / det,
-                last[i][0],
+                last[p][0],
                 -m[3] / det,
                 m[0] / det,
-                last[i][1],
+                last[p][1],
             ]);
-            back_of.push(j);
+            back_of.push(k);
             Flag::Tracked
         };
-        out.flags[i] = code as u8;
+        out.flags[p] = code as u8;
     }
     if back_of.is_empty() {
         return Ok(());
@@ -320,30 +245,30 @@ pub fn track_cameras(
         ..options.matching
     };
     let backward = run_matches(
-        &images,
-        weights.as_deref(),
-        &back_pairs,
+        current,
+        weights.map(|w| w[1]),
         &back_points,
+        previous,
         &back_starts,
         &check,
     )?;
     let block = PARAMETERS * PARAMETERS;
-    for (b, &j) in back_of.iter().enumerate() {
-        let i = active[j];
-        let status = backward.status[b];
-        let m = backward.affine[b];
-        let miss = (m[2] - last[i][0]).hypot(m[5] - last[i][1]);
+    for (j, &k) in back_of.iter().enumerate() {
+        let p = active[k];
+        let status = backward.status[j];
+        let m = backward.affine[j];
+        let miss = (m[2] - last[p][0]).hypot(m[5] - last[p][1]);
         let has_estimate =
             status == Status::Converged as u8 || status == Status::MaxIterations as u8;
         if !has_estimate || !(miss <= options.forward_backward) {
-            out.flags[i] = Flag::ForwardBackward as u8;
+            out.flags[p] = Flag::ForwardBackward as u8;
             continue;
         }
-        let f = forward.affine[j];
-        out.positions[i] = [f[2], f[5]];
-        let cv = &forward.covariance[j * block..(j + 1) * block];
-        out.covariance[i] = [cv[0], cv[1], cv[PARAMETERS], cv[PARAMETERS + 1]];
-        out.correlation[i] = forward.correlation[j];
+        let f = forward.affine[k];
+        out.positions[p] = [f[2], f[5]];
+        let c = &forward.covariance[k * block..(k + 1) * block];
+        out.covariance[p] = [c[0], c[1], c[PARAMETERS], c[PARAMETERS + 1]];
+        out.correlation[p] = forward.correlation[k];
     }
     Ok(())
 }
@@ -356,14 +281,11 @@ struct Batch {
     covariance: Vec<f64>,
 }
 
-/// Patch `i` around `points[i]` in `images[pairs[i][0]]` matched into
-/// `images[pairs[i][1]]` from `starts[i]`, the template weighed by `weights[pairs[i][0]]`:
-/// one parallel pass over all of them.
 fn run_matches(
-    images: &[Option<ImageView<'_>>],
-    weights: Option<&[Option<ImageView<'_>>]>,
-    pairs: &[[usize; 2]],
+    template: &ImageView<'_>,
+    weights: Option<&ImageView<'_>>,
     points: &[[f64; 2]],
+    search: &ImageView<'_>,
     starts: &[[f64; 6]],
     options: &MatchOptions,
 ) -> Result<Batch> {
@@ -377,13 +299,13 @@ fn run_matches(
     let mut radiometry = vec![[0.0; 2]; m];
     let mut sigma0 = vec![0.0; m];
     let mut iterations = vec![0u32; m];
-    let mut stages = vec![Stage::NONE; m];
-    match_pair_patches(
-        images,
+    match_weighted_patches(
+        template,
         weights,
-        pairs,
         points,
+        std::slice::from_ref(search),
         starts,
+        None,
         options,
         MatchOutput {
             status: &mut batch.status,
@@ -394,7 +316,6 @@ fn run_matches(
             iterations: &mut iterations,
             covariance: &mut batch.covariance,
         },
-        &mut stages,
     )?;
     Ok(batch)
 }
