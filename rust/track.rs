@@ -14,6 +14,7 @@
 //! `elastocap.tracking`).
 //!
 //! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
+//! `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_ncc` (`ncc_at`'s scores along a
 //! seed's line, several candidates at a time), `seed_hull` (the seeding's visual-hull test
@@ -21,6 +22,9 @@
 
 mod flags;
 mod ncc;
+mod ncc_batch;
+#[cfg(test)]
+mod ncc_batch_tests;
 mod seed_hull;
 mod seed_ncc;
 mod step;
@@ -32,6 +36,7 @@ mod weighted_tests;
 
 pub use flags::Flag;
 pub use ncc::{box_search_scores, ncc_at, NccBest};
+pub use ncc_batch::ncc_at_cameras;
 pub use seed_hull::HullCamera;
 pub use seed_ncc::line_ncc;
 pub use step::{track_camera, CameraStep, TrackOptions};

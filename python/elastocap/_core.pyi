@@ -38,6 +38,7 @@ __all__ = [
     "track_ncc_at",
     "seed_line_ncc",
     "seed_hull_held",
+    "track_ncc_at_cameras",
 ]
 
 __version__: str
@@ -490,3 +491,12 @@ def seed_hull_held(
     dist: NDArray[np.float64],
     mask: NDArray[np.bool_],
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]: ...
+def track_ncc_at_cameras(
+    templates: list[NDArray[np.float32]],
+    points: NDArray[np.float64],
+    searches: list[NDArray[np.float32]],
+    candidates: NDArray[np.float64],
+    cameras: NDArray[np.int64],
+    *,
+    size: int = 11,
+) -> NDArray[np.float64]: ...

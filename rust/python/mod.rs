@@ -21,6 +21,7 @@ mod seeding;
 mod snake;
 mod solve;
 mod track;
+mod track_views;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -76,6 +77,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     mesh::register(m)?;
     track::register(m)?;
     seeding::register(m)?;
+    track_views::register(m)?;
     intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 

@@ -10,7 +10,11 @@ use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
 use crate::track::{box_search_scores, ncc_at, track_camera, CameraStep, TrackOptions};
 
-fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
+/// A C-contiguous float32 image as the core reads it.
+pub(super) fn view<'a>(
+    image: &'a PyReadonlyArray2<'_, f32>,
+    argument: &str,
+) -> PyResult<ImageView<'a>> {
     let shape = image.shape();
     Ok(ImageView {
         data: c_slice(image, argument)?,
@@ -164,6 +168,30 @@ fn track_step<'py>(
     Ok((positions, flags, covariance, correlation))
 }
 
+/// The rows of a correlation at candidates: `points` (N, 2), `candidates` (N, K, 2) as
+/// `N K` rows, and `K`; checked, with the patch side `size`.
+pub(super) fn candidate_rows<'a>(
+    points: &'a PyReadonlyArray2<'_, f64>,
+    candidates: &'a PyReadonlyArray3<'_, f64>,
+    size: usize,
+) -> PyResult<(&'a [[f64; 2]], &'a [[f64; 2]], usize)> {
+    let p = rows::<2>(points, "points")?;
+    let n = p.len();
+    let shape = candidates.shape();
+    if shape[0] != n || shape[2] != 2 {
+        return Err(invalid_input(format!(
+            "candidates must have shape ({n}, K, 2), got {shape:?}"
+        )));
+    }
+    if size < 3 || size % 2 == 0 || size > 255 {
+        return Err(invalid_input(format!(
+            "size must be an odd integer from 3 to 255, got {size}"
+        )));
+    }
+    let cand = c_slice(candidates, "candidates")?.as_chunks::<2>().0;
+    Ok((p, cand, shape[1]))
+}
+
 /// `(N, K)` correlation of the template patch around each of `points` (N, 2) with the
 /// patch of `search` around each of its `candidates` (N, K, 2); NaN where a patch leaves
 /// its image or is flat.
@@ -180,21 +208,8 @@ fn track_ncc_at<'py>(
     use rayon::prelude::*;
     let t = view(&template, "template")?;
     let s = view(&search, "search")?;
-    let p = rows::<2>(&points, "points")?;
+    let (p, cand, k) = candidate_rows(&points, &candidates, size)?;
     let n = p.len();
-    let shape = candidates.shape();
-    if shape[0] != n || shape[2] != 2 {
-        return Err(invalid_input(format!(
-            "candidates must have shape ({n}, K, 2), got {shape:?}"
-        )));
-    }
-    if size < 3 || size % 2 == 0 || size > 255 {
-        return Err(invalid_input(format!(
-            "size must be an odd integer from 3 to 255, got {size}"
-        )));
-    }
-    let k = shape[1];
-    let cand = c_slice(&candidates, "candidates")?.as_chunks::<2>().0;
     let scores = PyArray2::<f64>::zeros(py, [n, k], false);
     {
         let mut w = scores.readwrite();

@@ -124,20 +124,35 @@ class Anchors:
         out = np.full((n, c, 2), np.nan)
         cov = np.full((n, c, 2, 2), np.nan)
         where = where & self.held[:n] & np.isfinite(targets).all(axis=2)
-        for k in range(c):
-            rows = np.flatnonzero(where[:, k])
-            if rows.size == 0:
-                continue
-            mosaic, weighs, centres = self._mosaic(rows, k)
+        cams = [k for k in range(c) if where[:, k].any()]
+        if not cams:
+            return out, cov
+        # Every camera's mosaic in one step call (one parallel pass over all the views, the
+        # same result per view as a call per camera): rows padded with NaN (not searched)
+        # to the longest camera's.
+        rows_of = [np.flatnonzero(where[:, k]) for k in cams]
+        m = max(rows.size for rows in rows_of)
+        last = np.full((len(cams), m, 2), np.nan)
+        before = np.full((len(cams), m, 2), np.nan)
+        mosaics, weighs, ones = [], [], {}
+        for j, (k, rows) in enumerate(zip(cams, rows_of)):
+            mosaic, weigh, centres = self._mosaic(rows, k)
+            mosaics.append(mosaic)
+            weighs.append(weigh)
+            last[j, : rows.size] = centres
             # The step predicts 2 last - before: a prediction at the target.
-            before = 2 * centres - targets[rows, k]
-            pos, flags, pcov, corr = _core.track_step(
-                [mosaic], [images[k]], centres[None], before[None], size=self.size, radius=radius,
-                min_correlation=box_correlation, forward_backward=forward_backward, min_texture=min_texture,
-                max_iterations=max_iterations, weights=([weighs], [np.ones_like(images[k])]))
-            good = (flags[0] == 0) & (corr[0] >= min_correlation)
-            out[rows[good], k] = pos[0, good]
-            cov[rows[good], k] = pcov[0, good]
+            before[j, : rows.size] = 2 * centres - targets[rows, k]
+            shape = images[k].shape
+            if shape not in ones:
+                ones[shape] = np.ones(shape, np.float32)
+        pos, flags, pcov, corr = _core.track_step(
+            mosaics, [images[k] for k in cams], last, before, size=self.size, radius=radius,
+            min_correlation=box_correlation, forward_backward=forward_backward, min_texture=min_texture,
+            max_iterations=max_iterations, weights=(weighs, [ones[images[k].shape] for k in cams]))
+        for j, (k, rows) in enumerate(zip(cams, rows_of)):
+            good = (flags[j, : rows.size] == 0) & (corr[j, : rows.size] >= min_correlation)
+            out[rows[good], k] = pos[j, : rows.size][good]
+            cov[rows[good], k] = pcov[j, : rows.size][good]
         return out, cov
 
     def _mosaic(self, rows: NDArray[np.int64], k: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float64]]:

@@ -35,7 +35,8 @@ from elastocap import _core
 from elastocap.tracking.depth_weights import rust_step
 from elastocap.tracking.flags import TrackFlag
 
-__all__ = ["PyramidFinds", "box_scores", "check_options", "coarse_peaks", "pooled", "pyramid", "pyramid_search"]
+__all__ = ["PyramidFinds", "Pyramids", "box_scores", "box_scores_cameras", "check_options", "coarse_peaks", "pooled", "pyramid",
+           "pyramid_search"]
 
 # The frame-to-frame failures searched again (not the border: its box left the image).
 SEARCHED = (TrackFlag.LOW_CORRELATION, TrackFlag.FORWARD_BACKWARD, TrackFlag.MATCH_FAILED)
@@ -78,6 +79,49 @@ def pyramid(images: list[NDArray[np.float32]], level: int) -> list[NDArray[np.fl
     return out
 
 
+class Pyramids:
+    """The last two frames' reduced images (:func:`pyramid`), kept so that a frame's
+    current images, reduced for its search, serve the next frame as its previous ones
+    (the tracker reduces each frame's images once, not twice). An entry is found by the
+    identity of the image arrays (held here, so their ids are not reused) and the level."""
+
+    def __init__(self) -> None:
+        self._kept: list[tuple[list[NDArray[np.float32]], int, list[NDArray[np.float32]]]] = []
+
+    def get(self, images: list[NDArray[np.float32]], level: int) -> list[NDArray[np.float32]]:
+        """:func:`pyramid` of ``images`` at ``level``, computed once per list of arrays."""
+        for kept, at, reduced in self._kept:
+            if at == level and len(kept) == len(images) and all(a is b for a, b in zip(kept, images)):
+                return reduced
+        reduced = pyramid(images, level)
+        self._kept = [*self._kept[-1:], (list(images), level, reduced)]
+        return reduced
+
+
+def _shifts(radius: int) -> NDArray[np.float64]:
+    """(K, 2) the integer shifts of a box of half-side ``radius``, row-major (shift down,
+    then right), as ``(du, dv)``."""
+    off = np.arange(-radius, radius + 1, dtype=np.float64)
+    dv, du = np.meshgrid(off, off, indexing="ij")
+    return np.stack([du.ravel(), dv.ravel()], axis=1)
+
+
+def box_scores_cameras(templates: list[NDArray[np.float32]], points: NDArray[np.float64],
+                       searches: list[NDArray[np.float32]], centres: NDArray[np.float64], cameras: NDArray[np.int64], *,
+                       size: int, radius: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`box_scores` of rows of several cameras in one core call (one parallel pass,
+    :func:`elastocap._core.track_ncc_at_cameras`): row ``i`` is searched from
+    ``templates[cameras[i]]`` into ``searches[cameras[i]]``; the same positions (M, K, 2)
+    and correlations (M, K), row for row, as :func:`box_scores` of the row's camera."""
+    shifts = _shifts(radius)
+    candidates = np.ascontiguousarray(np.rint(centres)[:, None, :] + shifts[None])
+    if len(points) == 0:
+        return candidates, np.zeros((0, len(shifts)))
+    scores = _core.track_ncc_at_cameras(templates, np.ascontiguousarray(points), searches, candidates,
+                                        np.ascontiguousarray(cameras, dtype=np.int64), size=size)
+    return candidates, np.nan_to_num(scores, nan=-np.inf)
+
+
 def box_scores(template: NDArray[np.float32], points: NDArray[np.float64], search: NDArray[np.float32],
                centres: NDArray[np.float64], *, size: int,
                radius: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -86,9 +130,7 @@ def box_scores(template: NDArray[np.float32], points: NDArray[np.float64], searc
     ``radius`` around the rounded ``centres`` (M, 2) in ``search``: the shifts' positions
     (M, K, 2) and correlations (M, K), K = (2 radius + 1)^2, row-major (shift down, then
     right); -inf where a patch leaves its image or is flat."""
-    off = np.arange(-radius, radius + 1, dtype=np.float64)
-    dv, du = np.meshgrid(off, off, indexing="ij")
-    shifts = np.stack([du.ravel(), dv.ravel()], axis=1)
+    shifts = _shifts(radius)
     candidates = np.ascontiguousarray(np.rint(centres)[:, None, :] + shifts[None])
     if len(points) == 0:
         return candidates, np.zeros((0, len(shifts)))
@@ -190,7 +232,7 @@ def pyramid_search(previous: list[NDArray[np.float32]], current: list[NDArray[np
                    min_texture: float, max_iterations: int,
                    weights: tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]] | None,
                    weighted_box: bool = False, pool: int = 1, x_last: NDArray[np.float64] | None = None,
-                   reach: NDArray[np.float64] | None = None) -> PyramidFinds:
+                   reach: NDArray[np.float64] | None = None, pyramids: Pyramids | None = None) -> PyramidFinds:
     """The ``young`` views (N, C) that the step lost to a failed match (``SEARCHED`` flags
     in ``flags2d``) searched coarse to fine.
 
@@ -225,6 +267,8 @@ def pyramid_search(previous: list[NDArray[np.float32]], current: list[NDArray[np
         The coarse correlations pooled over the views of each point's ``pool`` nearest
         searched points in 3-D (:func:`pooled`; ``x_last`` (N, 3) the points on the previous
         frame, ``reach`` (N,) world units); 1: each view's own.
+    pyramids : Pyramids, optional
+        Where the reduced images are kept from frame to frame (the same images either way).
 
     Returns
     -------
@@ -237,26 +281,31 @@ def pyramid_search(previous: list[NDArray[np.float32]], current: list[NDArray[np
     if not rows.any():
         return PyramidFinds(uv, flags2d, cov2d, corr, nothing, rows, nothing.copy())
     scale = float(2 ** level)
-    coarse_previous, coarse_current = pyramid(previous, level), pyramid(current, level)
+    if pyramids is None:
+        coarse_previous, coarse_current = pyramid(previous, level), pyramid(current, level)
+    else:
+        coarse_previous, coarse_current = pyramids.get(previous, level), pyramids.get(current, level)
     # pyrDown centres coarse pixel p on full pixel 2p: positions divide by the scale.
     ahead = np.where(np.isfinite(before), 2 * last - before, last) / scale
     hit = np.zeros((n, c), bool)
     ambiguous = np.zeros((n, c), bool)
     find = np.full((n, c, 2), np.nan)
-    for k in range(c):
-        these = np.flatnonzero(rows[:, k])
-        if these.size:
-            candidates, scores = box_scores(coarse_previous[k], last[these, k] / scale, coarse_current[k], ahead[these, k],
-                                            size=coarse_size, radius=radius)
-            if pool > 1 and x_last is not None and reach is not None:
-                # The shifts relative to each box's centre are the same for every view:
-                # the neighbours' surfaces add up shift by shift.
-                scores = pooled(scores, x_last[these], pool, reach[these])
-            at, score, unique = coarse_peaks(candidates, scores, radius=radius, exclusion=exclusion, margin=margin)
-            strong = score >= coarse_correlation
-            find[these, k] = at
-            hit[these, k] = strong & unique
-            ambiguous[these, k] = strong & ~unique
+    # Every camera's boxes in one core call; the pooling is per camera (the neighbours'
+    # views in the same image), the peaks per row.
+    row, cam = np.nonzero(rows.T)[::-1]
+    candidates, scores = box_scores_cameras(coarse_previous, last[row, cam] / scale, coarse_current, ahead[row, cam],
+                                            cam, size=coarse_size, radius=radius)
+    if pool > 1 and x_last is not None and reach is not None:
+        # The shifts relative to each box's centre are the same for every view: the
+        # neighbours' surfaces add up shift by shift.
+        for k in np.unique(cam):
+            mine = cam == k
+            scores[mine] = pooled(scores[mine], x_last[row[mine]], pool, reach[row[mine]])
+    at, score, unique = coarse_peaks(candidates, scores, radius=radius, exclusion=exclusion, margin=margin)
+    strong = score >= coarse_correlation
+    find[row, cam] = at
+    hit[row, cam] = strong & unique
+    ambiguous[row, cam] = strong & ~unique
     if not hit.any():
         return PyramidFinds(uv, flags2d, cov2d, corr, nothing, rows, ambiguous)
     # The full-resolution step predicts the coarse find: ``before`` set to 2 last - find.

@@ -87,9 +87,10 @@ def rigid_predictions(cameras: Sequence[Camera], uv: NDArray[np.float64], x_last
         w = weights / weights.sum(axis=1, keepdims=True)
         moved = x + np.einsum("mk,mki->mi", w, b - a)
     for j, cam in enumerate(cameras):
-        now, _ = cam.project(x)
-        then, _ = cam.project(moved)
-        ahead = (cam.to_camera(x)[:, 2] > 0) & (cam.to_camera(moved)[:, 2] > 0)
+        # The projections' depths are the camera frame's z (one transform, not two).
+        now, depth_now = cam.project(x)
+        then, depth_then = cam.project(moved)
+        ahead = (depth_now > 0) & (depth_then > 0)
         out[rows, j] = np.where(ahead[:, None], uv[rows, j] + then - now, np.nan)
     return out
 

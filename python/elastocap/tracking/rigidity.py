@@ -68,7 +68,7 @@ from scipy.spatial import cKDTree
 from elastocap._core import rigid_fits
 from elastocap.tracking import settings
 
-__all__ = ["rigid_fusion", "rigid_motions", "rigid_residuals"]
+__all__ = ["NeighbourPlan", "neighbour_plans", "rigid_fusion", "rigid_motions", "rigid_residuals"]
 
 
 def rigid_motions(a: NDArray[np.float64], b: NDArray[np.float64],
@@ -88,7 +88,8 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
                  seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
                  sigma: float, both_frames: float = 0.0, candidates: int = 0,
                  stretch: float = float("inf"), min_neighbours: int = 3,
-                 gate: float | None = None, passes: int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                 gate: float | None = None, passes: int | None = None,
+                 plans: list[NeighbourPlan] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Positions ``x`` (N, 3; NaN where not tracked) with ``covariance`` (N, 3, 3) fused with
     their neighbours' rigid-motion prediction (module docstring).
 
@@ -113,7 +114,9 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
     own intersection and covariance stay the measurement), so that a neighbour's drift in
     depth weighs less in its neighbours' predictions. Points seeded on this frame, or with
     too few neighbours, are returned as they are. Returns the fused positions and
-    covariances."""
+    covariances. ``plans``: the neighbours as :func:`neighbour_plans` chose them with these
+    same arguments (computed here when not given: a frame that also asks
+    :func:`rigid_residuals` chooses them once for both)."""
     if gate is None:
         gate = settings.RIGID_GATE
     if passes is None:
@@ -122,8 +125,9 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
         raise ValueError(f"passes must be a whole number >= 1, got {passes!r}")
     if not gate > 0:
         raise ValueError(f"gate must be positive (or infinite), got {gate!r}")
-    plans = _neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
-                             candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
+    if plans is None:
+        plans = neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
+                                candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
     fused, fused_cov = _fuse(x, x, covariance, pixel, plans, sigma=sigma, gate=gate)
     # A history frame that is this frame's own intersections (points seeded now) predicts
     # them where they are on the first pass; later passes would only spread the
@@ -134,7 +138,7 @@ def rigid_fusion(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel:
     return fused, fused_cov
 
 
-class _Plan(NamedTuple):
+class NeighbourPlan(NamedTuple):
     """The points of one seeding frame and their chosen neighbours."""
 
     rows: NDArray[np.int64]  # (M,) the points
@@ -144,10 +148,14 @@ class _Plan(NamedTuple):
     now: bool  # that frame's positions are this frame's intersections
 
 
-def _neighbour_plans(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel: NDArray[np.float64],
-                     seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
-                     both_frames: float, candidates: int, stretch: float, min_neighbours: int) -> list[_Plan]:
-    """The neighbours of :func:`rigid_fusion`, chosen once by the intersections ``x``."""
+def neighbour_plans(x: NDArray[np.float64], covariance: NDArray[np.float64], pixel: NDArray[np.float64],
+                    seeded: NDArray[np.int64], history: dict[int, NDArray[np.float64]], *, neighbours: int,
+                    both_frames: float = 0.0, candidates: int = 0, stretch: float = float("inf"),
+                    min_neighbours: int = 3) -> list[NeighbourPlan]:
+    """The neighbours of :func:`rigid_fusion` and :func:`rigid_residuals` (the same
+    arguments), chosen once by the intersections ``x``: one plan per seeding frame in
+    ``history`` (its points, their candidate neighbours, the chosen ones' weights, every
+    point's position then). Read-only for both."""
     plans = []
     tracked = np.isfinite(x).all(axis=1) & np.isfinite(covariance).all(axis=(1, 2)) & np.isfinite(pixel)
     for key, before in history.items():
@@ -183,12 +191,12 @@ def _neighbour_plans(x: NDArray[np.float64], covariance: NDArray[np.float64], pi
             kept &= np.cumsum(kept, axis=1) <= neighbours
             enough = kept.sum(axis=1) >= min_neighbours
             take[enough] = kept[enough]
-        plans.append(_Plan(rows, near, take.astype(np.float64), then, bool(np.array_equal(then[both], x[both]))))
+        plans.append(NeighbourPlan(rows, near, take.astype(np.float64), then, bool(np.array_equal(then[both], x[both]))))
     return plans
 
 
 def _fuse(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
-          pixel: NDArray[np.float64], plans: list[_Plan], *, sigma: float,
+          pixel: NDArray[np.float64], plans: list[NeighbourPlan], *, sigma: float,
           gate: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """One pass of :func:`rigid_fusion`: each planned point's intersection ``x`` fused with
     the prediction of its neighbours' rigid motion fitted to ``moved`` (``x`` itself on the
@@ -251,7 +259,8 @@ class RigidResiduals(NamedTuple):
 def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covariance: NDArray[np.float64],
                     pixel: NDArray[np.float64], towards: NDArray[np.float64], seeded: NDArray[np.int64],
                     history: dict[int, NDArray[np.float64]], *, neighbours: int, both_frames: float = 0.0,
-                    candidates: int = 0, stretch: float = float("inf"), min_neighbours: int = 3) -> RigidResiduals:
+                    candidates: int = 0, stretch: float = float("inf"), min_neighbours: int = 3,
+                    plans: list[NeighbourPlan] | None = None) -> RigidResiduals:
     """How far each point ``x`` (N, 3; NaN where not tracked) is from where its neighbours'
     rigid motion since its seeding frame puts it (:class:`RigidResiduals`). The neighbours
     are :func:`rigid_fusion`'s (the same arguments, chosen by ``x``); their motion is fitted
@@ -259,12 +268,13 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
     (N, 3) unit directions from the point to its cameras (their mean), ``pixel`` (N,) world
     units per pixel at the point. The seeding frame is the track's whole life: a point
     that slides a little on every frame passes every one-step check, but its offset from
-    the neighbourhood's rigid map grows."""
+    the neighbourhood's rigid map grows. ``plans``: as :func:`rigid_fusion`'s."""
     n = len(x)
     across, along, spread, held_out = (np.full(n, np.nan) for _ in range(4))
     prediction = np.full((n, 3), np.nan)
-    plans = _neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
-                             candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
+    if plans is None:
+        plans = neighbour_plans(x, covariance, pixel, seeded, history, neighbours=neighbours, both_frames=both_frames,
+                                candidates=candidates, stretch=stretch, min_neighbours=min_neighbours)
     for rows, near, weight, then, now in plans:
         if now:
             continue

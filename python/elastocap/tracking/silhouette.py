@@ -62,8 +62,7 @@ def outside_silhouettes(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bo
     disk = _disk(margin)
     for cam, mask in zip(cameras, masks):
         h, w = mask.shape
-        uv, _ = cam.project(x)
-        depth = cam.to_camera(x)[:, 2]
+        uv, depth = cam.project(x)
         iu, iv = np.round(uv[:, 0]), np.round(uv[:, 1])
         inside = (depth > 0) & (iu >= 0) & (iv >= 0) & (iu <= w - 1) & (iv <= h - 1)
         at = np.flatnonzero(inside)

@@ -27,6 +27,7 @@ from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.new_points import add_new_points
+from elastocap.tracking.pyramid_search import Pyramids
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.revival import Lost, revive
 from elastocap.tracking.rigid_prediction import predicting_before, rigid_predictions
@@ -77,6 +78,9 @@ class FrameTracker:
         self.slid = np.zeros(0, bool)
         self.texture: list[float] = []
         self.keep_texture = 0.0
+        # The coarse-to-fine search's reduced images of the last two frames (a frame's
+        # current images are the next frame's previous ones: reduced once).
+        self.pyramids = Pyramids()
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         grey = [_grey(self.capture.image(name, frame)) for name in self.names]

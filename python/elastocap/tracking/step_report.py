@@ -14,7 +14,7 @@ from elastocap.tracking import settings
 from elastocap.tracking.drift import drift_covariance, not_positive_definite, weakest_sd
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
+from elastocap.tracking.rigidity import NeighbourPlan, neighbour_plans, rigid_fusion, rigid_residuals
 from elastocap.tracking.silhouette import outside_silhouettes
 from elastocap.tracking.views import facing_normals
 
@@ -44,12 +44,19 @@ def reported(tracker: FrameTracker, uv: NDArray[np.float64], x: NDArray[np.float
     pixel = pixel_size(tracker.cameras, x, views)
     xcov = drift_covariance(xcov, pixel, recuts, scale=settings.DRIFT_SCALE, variance=settings.DRIFT_VARIANCE)
     x_in, cov_in = x, xcov
+    # The fusion and the slide check choose the same neighbours (the intersections, their
+    # covariances, the same options): chosen once.
+    plans = None
+    if settings.RIGID or np.isfinite(settings.SLIDE):
+        plans = neighbour_plans(x_in, cov_in, pixel, tracker.seeded_at, tracker.history,
+                                neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
+                                candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
     if settings.RIGID:
         x, xcov = rigid_fusion(x, xcov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
                                sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
-                               candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+                               candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH, plans=plans)
     if np.isfinite(settings.SLIDE):
-        x, xcov, flags = withhold_slid(tracker, x_in, cov_in, x, xcov, flags, pixel, views)
+        x, xcov, flags = withhold_slid(tracker, x_in, cov_in, x, xcov, flags, pixel, views, plans=plans)
     if np.isfinite(settings.OUTSIDE) and tracker.masks is not None:
         outside = outside_silhouettes(tracker.cameras, tracker.masks, x, settings.OUTSIDE)
         if outside.any():
@@ -76,16 +83,19 @@ def reported(tracker: FrameTracker, uv: NDArray[np.float64], x: NDArray[np.float
 
 def withhold_slid(tracker: FrameTracker, x_in: NDArray[np.float64], cov_in: NDArray[np.float64], x: NDArray[np.float64],
                   xcov: NDArray[np.float64], flags: NDArray[np.uint8], pixel: NDArray[np.float64],
-                  views: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
+                  views: NDArray[np.bool_], *,
+                  plans: list[NeighbourPlan] | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
     """Positions withheld as SLID (``settings.SLIDE``): the intersection ``x_in`` (N, 3)
     farther across its rays from its neighbours' rigid map since its seeding frame
     (fitted to the reported ``x``) than ``SLIDE + SLIDE_SCALE`` times the neighbours'
     own held-out residual, pixel equivalents; with ``SLIDE_STICKY`` on every later
-    frame too (a slide does not come back)."""
+    frame too (a slide does not come back). ``plans``: the rigid neighbours
+    (:func:`~elastocap.tracking.rigidity.neighbour_plans` of ``x_in``, ``cov_in``), chosen
+    here when not given."""
     towards = facing_normals(tracker.cameras, np.nan_to_num(x_in), views)
     res = rigid_residuals(x_in, x, cov_in, pixel, towards, tracker.seeded_at, tracker.history,
                           neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
-                          candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+                          candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH, plans=plans)
     with np.errstate(invalid="ignore"):
         slid = res.across > settings.SLIDE + settings.SLIDE_SCALE * np.nan_to_num(res.held_out)
     if len(tracker.slid) < len(x):

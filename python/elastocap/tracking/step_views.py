@@ -122,7 +122,7 @@ def step_views(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: li
             box_correlation=min(tracker.min_correlation, settings.BOX_CORRELATION),
             forward_backward=tracker.o["forward_backward"], min_texture=tracker.keep_texture,
             max_iterations=settings.STEP_ITERATIONS, weights=pair, weighted_box=settings.WEIGHTED_BOX,
-            pool=settings.PYRAMID_POOL, x_last=tracker.x_last, reach=pool_reach)
+            pool=settings.PYRAMID_POOL, x_last=tracker.x_last, reach=pool_reach, pyramids=tracker.pyramids)
         uv, flags2d, cov2d, corr = coarse.uv, coarse.flags2d, coarse.cov2d, coarse.corr
         # A blunder found this wide must not end its point (as the second search's).
         researched = researched | coarse.found

@@ -31,8 +31,7 @@ def project_all(cameras: Sequence[Camera], points: NDArray[np.float64], margin: 
         return out
     x = points[ok]
     for k, cam in enumerate(cameras):
-        uv, _ = cam.project(x)
-        depth = cam.to_camera(x)[:, 2]
+        uv, depth = cam.project(x)
         inside = (depth > 0) & (uv[:, 0] >= margin) & (uv[:, 1] >= margin) & (uv[:, 0] <= cam.width - 1 - margin) & (uv[:, 1] <= cam.height - 1 - margin)
         block = np.where(inside[:, None], uv, np.nan)
         out[np.flatnonzero(ok), k] = block

@@ -65,8 +65,8 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
         if rows.size == 0:
             continue
         x = points[rows]
-        uv, _ = cam.project(x)
-        depth = cam.to_camera(x)[:, 2]
+        # The projection's depth is the camera frame's z (one transform, not two).
+        uv, depth = cam.project(x)
         iu, iv = np.round(uv[:, 0]), np.round(uv[:, 1])
         ok = (depth > 0) & (iu >= 0) & (iv >= 0) & (iu <= mask.shape[1] - 1) & (iv <= mask.shape[0] - 1)
         ok[ok] = mask[iv[ok].astype(np.intp), iu[ok].astype(np.intp)]
@@ -74,8 +74,7 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
         view /= np.linalg.norm(view, axis=1, keepdims=True)
         ok &= np.einsum("ij,ij->i", view, normals[rows]) > facing
         if len(occluders) and ok.any():
-            ouv, _ = cam.project(occluders)
-            odepth = cam.to_camera(occluders)[:, 2]
+            ouv, odepth = cam.project(occluders)
             front = odepth > 0
             ouv, odepth = ouv[front], odepth[front]
             if len(odepth):
