@@ -84,7 +84,7 @@ mod tests {
 
     #[test]
     fn the_sum_is_the_chunked_sequential_sum() {
-        let len = 5_000;
+        let len: usize = 5_000;
         let expected: f64 = (0..len.div_ceil(CHUNK))
             .map(|c| {
                 (c * CHUNK..((c + 1) * CHUNK).min(len))
