@@ -20,6 +20,7 @@
 use rayon::prelude::*;
 
 use crate::error::{check_finite, Error, Result};
+use crate::ordered::{sum_chunks, CHUNK};
 
 pub mod assembly;
 pub mod consistency;
@@ -370,14 +371,16 @@ impl<'a, const D: usize> NodalElasticity<'a, D> {
     pub fn energy(&self, u: &[[f64; D]]) -> Result<f64> {
         self.check_displacements(u)?;
         let s = voigt_size(D);
-        Ok((0..self.len())
-            .into_par_iter()
-            .map(|p| {
-                let eps = self.strain_at(p, u);
-                let sigma = self.stress(&eps);
-                0.5 * self.volumes[p] * (0..s).map(|r| eps[r] * sigma[r]).sum::<f64>()
-            })
-            .sum())
+        // Summed in fixed chunks (crate::ordered): the same bits on any thread count.
+        Ok(sum_chunks(self.len(), CHUNK, |range| {
+            range
+                .map(|p| {
+                    let eps = self.strain_at(p, u);
+                    let sigma = self.stress(&eps);
+                    0.5 * self.volumes[p] * (0..s).map(|r| eps[r] * sigma[r]).sum::<f64>()
+                })
+                .sum()
+        }))
     }
 
     /// Nodal forces $-K u = -\sum_p B_p^\top V_p C \varepsilon_p$, matrix-free.

@@ -18,6 +18,7 @@ pub mod lm;
 pub mod lsm;
 pub mod mesh;
 pub mod mls;
+pub mod ordered;
 pub mod polar;
 pub mod raster;
 pub mod rigid;

@@ -11,7 +11,15 @@ use super::normal::{Blocks, PartMap};
 use super::observe::{Observations, Residual, SKIN_LEVEL};
 use super::skeleton::{check_vector, Skeleton};
 use crate::lm::{levenberg_marquardt, ArrowNormal, ArrowProblem, LmOptions, LmReport};
+use crate::ordered::sum_chunks;
 use crate::Result;
+
+/// Residuals per chunk of the cost's sum and of the normal equations' accumulators: a
+/// fixed split, so both round the same on any thread count ([`crate::ordered`]). A
+/// residual's cost is a field evaluation (tens of balls), its row hundreds of flops; an
+/// accumulator is tens of kilobytes to zero and merge, so its chunk is larger.
+const COST_CHUNK: usize = 256;
+const LINEARIZE_CHUNK: usize = 1024;
 
 /// Shape coefficients are kept in this range (half to twice the described part): a part
 /// cannot shrink to nothing, nor swell over its neighbours' observations.
@@ -186,15 +194,19 @@ impl ArrowProblem for BodyProblem<'_> {
         let mut cost = self.prior_cost(x);
         for f in 0..self.obs.frames {
             let field = self.field(x, f)?;
-            cost += self.by_frame[f]
-                .par_iter()
-                .with_min_len(256)
-                .filter(|r| self.kept(r))
-                .map(|r| {
-                    let v = r.evaluate(self.obs, &field, self.subset(r), self.start(r), None);
-                    0.5 * v * v
-                })
-                .sum::<f64>();
+            // Fixed chunks summed in order (crate::ordered): the step's acceptance compares
+            // this cost, so it must round the same on any thread count.
+            let residuals = &self.by_frame[f];
+            cost += sum_chunks(residuals.len(), COST_CHUNK, |range| {
+                residuals[range]
+                    .iter()
+                    .filter(|r| self.kept(r))
+                    .map(|r| {
+                        let v = r.evaluate(self.obs, &field, self.subset(r), self.start(r), None);
+                        0.5 * v * v
+                    })
+                    .sum::<f64>()
+            });
         }
         Ok(cost)
     }
@@ -209,38 +221,49 @@ impl ArrowProblem for BodyProblem<'_> {
             let field = self.field(x, f)?;
             let map = PartMap::new(&field, m + s);
             let parts = self.skeleton.n_parts();
-            let blocks = self.by_frame[f]
-                .par_iter()
-                .with_min_len(1024)
-                .filter(|r| self.kept(r))
-                .fold(
-                    || Blocks::new(m, s, width, parts, self.hessian_share),
-                    |mut acc, residual| {
-                        let mut terms = std::mem::take(&mut acc.terms);
-                        let compact = residual.evaluate_parts(
-                            self.obs,
-                            &field,
-                            self.subset(residual),
-                            self.start(residual),
-                            &map.reference,
-                            &mut terms,
-                        );
-                        acc.terms = terms;
-                        match compact {
-                            Some(r) => acc.accumulate_parts(r),
-                            None => {
-                                let mut row = std::mem::take(&mut acc.row);
-                                let r =
-                                    residual.evaluate(self.obs, &field, None, None, Some(&mut row));
-                                acc.row = row;
-                                acc.accumulate(r, m, s);
+            // Accumulators of fixed chunks of residuals, merged in order (crate::ordered): a
+            // fold / reduce would follow rayon's adaptive split, and the normal equations
+            // would round differently on another thread count.
+            let chunks: Vec<Blocks> = self.by_frame[f]
+                .par_chunks(LINEARIZE_CHUNK)
+                .map(|chunk| {
+                    chunk.iter().filter(|r| self.kept(r)).fold(
+                        Blocks::new(m, s, width, parts, self.hessian_share),
+                        |mut acc, residual| {
+                            let mut terms = std::mem::take(&mut acc.terms);
+                            let compact = residual.evaluate_parts(
+                                self.obs,
+                                &field,
+                                self.subset(residual),
+                                self.start(residual),
+                                &map.reference,
+                                &mut terms,
+                            );
+                            acc.terms = terms;
+                            match compact {
+                                Some(r) => acc.accumulate_parts(r),
+                                None => {
+                                    let mut row = std::mem::take(&mut acc.row);
+                                    let r = residual.evaluate(
+                                        self.obs,
+                                        &field,
+                                        None,
+                                        None,
+                                        Some(&mut row),
+                                    );
+                                    acc.row = row;
+                                    acc.accumulate(r, m, s);
+                                }
                             }
-                        }
-                        acc
-                    },
-                )
-                .reduce(|| Blocks::new(m, s, 0, parts, 0.0), Blocks::merge);
-            let mut blocks = blocks;
+                            acc
+                        },
+                    )
+                })
+                .collect();
+            let mut blocks = chunks
+                .into_iter()
+                .reduce(Blocks::merge)
+                .unwrap_or_else(|| Blocks::new(m, s, 0, parts, 0.0));
             blocks.finish(&map, m, s);
             normal.a[f * m * m..(f + 1) * m * m].copy_from_slice(&blocks.a);
             normal.g[f * m..(f + 1) * m].copy_from_slice(&blocks.g[..m]);

@@ -8,6 +8,7 @@ use super::{ElasticModel, Rotation};
 use crate::efg::Block;
 use crate::error::Result;
 use crate::linalg::{mat_mul, mat_sub, mat_vec, transpose};
+use crate::ordered::{sum_chunks, CHUNK};
 
 impl<const D: usize> ElasticModel<D> {
     /// $H_p$ of the mode at positions `x`.
@@ -109,21 +110,24 @@ impl<const D: usize> ElasticModel<D> {
     pub fn energy(&self, x: &[[f64; D]], rotations: &[Block<D>]) -> Result<f64> {
         self.check_positions(x)?;
         self.check_rotations(rotations)?;
-        Ok((0..self.len())
-            .into_par_iter()
-            .map(|p| {
-                let h = self.displacement_gradient(p, x, &rotations[p]);
-                let sigma = self.stress(&h);
-                let work: f64 = (0..D)
-                    .flat_map(|a| (0..D).map(move |b| (a, b)))
-                    .map(|(a, b)| sigma[a][b] * 0.5 * (h[a][b] + h[b][a]))
-                    .sum();
-                let penalty = self.consistency.as_ref().map_or(0.0, |c| {
-                    c.energy(p, self.hood(p).0, &self.deformation_gradient(p, x), x)
-                });
-                0.5 * self.volumes[p] * work + penalty
-            })
-            .sum())
+        // Summed in fixed chunks (crate::ordered): the fit's stopping test reads this energy,
+        // so its rounding must not depend on the thread count.
+        Ok(sum_chunks(self.len(), CHUNK, |range| {
+            range
+                .map(|p| {
+                    let h = self.displacement_gradient(p, x, &rotations[p]);
+                    let sigma = self.stress(&h);
+                    let work: f64 = (0..D)
+                        .flat_map(|a| (0..D).map(move |b| (a, b)))
+                        .map(|(a, b)| sigma[a][b] * 0.5 * (h[a][b] + h[b][a]))
+                        .sum();
+                    let penalty = self.consistency.as_ref().map_or(0.0, |c| {
+                        c.energy(p, self.hood(p).0, &self.deformation_gradient(p, x), x)
+                    });
+                    0.5 * self.volumes[p] * work + penalty
+                })
+                .sum()
+        }))
     }
 
     /// Elastic forces $-\partial E / \partial x$ at positions `x`, rotations held fixed.

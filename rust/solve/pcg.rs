@@ -14,6 +14,7 @@ use super::upper::Upper;
 mod jacobi;
 mod rank_one;
 use crate::error::{check_finite, Error, Result};
+use crate::ordered::sum_chunks;
 pub use jacobi::BlockJacobi;
 pub use rank_one::{PlusRankOne, RankOne, ShermanMorrison};
 
@@ -21,6 +22,11 @@ pub use rank_one::{PlusRankOne, RankOne, ShermanMorrison};
 /// at the paper's size (7,395 unknowns) one pass takes ~5 us, less than waking the pool
 /// (see benches/README.md). The matrix product is always split by block rows.
 const PARALLEL_VECTOR_LEN: usize = 1 << 16;
+
+/// Blocks per chunk of the parallel dot products. The chunks' partial sums are added in
+/// order ([`crate::ordered`]), so a long vector's dot product, and with it the iteration,
+/// is the same on any thread count.
+const DOT_CHUNK: usize = 4096;
 
 /// $z = M^{-1} r$ for a symmetric positive definite $M \approx A$.
 pub trait Preconditioner<const B: usize> {
@@ -95,7 +101,9 @@ pub struct PcgStatus {
 fn dot<const B: usize>(a: &[[f64; B]], b: &[[f64; B]]) -> f64 {
     let one = |(x, y): (&[f64; B], &[f64; B])| (0..B).map(|t| x[t] * y[t]).sum::<f64>();
     if a.len() * B >= PARALLEL_VECTOR_LEN {
-        a.par_iter().zip(b).map(one).sum()
+        sum_chunks(a.len(), DOT_CHUNK, |range| {
+            a[range.clone()].iter().zip(&b[range]).map(one).sum()
+        })
     } else {
         a.iter().zip(b).map(one).sum()
     }
@@ -132,11 +140,20 @@ fn step<const B: usize>(
         rr
     };
     if x.len() * B >= PARALLEL_VECTOR_LEN {
-        x.par_iter_mut()
-            .zip(r.par_iter_mut())
-            .zip(p.par_iter().zip(q))
-            .map(|((x, r), (p, q))| one(x, r, p, q))
-            .sum()
+        // As `dot`: fixed chunks, their sums added in order.
+        let partial: Vec<f64> = x
+            .par_chunks_mut(DOT_CHUNK)
+            .zip(r.par_chunks_mut(DOT_CHUNK))
+            .zip(p.par_chunks(DOT_CHUNK).zip(q.par_chunks(DOT_CHUNK)))
+            .map(|((x, r), (p, q))| {
+                x.iter_mut()
+                    .zip(r.iter_mut())
+                    .zip(p.iter().zip(q))
+                    .map(|((x, r), (p, q))| one(x, r, p, q))
+                    .sum::<f64>()
+            })
+            .collect();
+        partial.iter().sum()
     } else {
         x.iter_mut()
             .zip(r.iter_mut())

@@ -364,3 +364,32 @@ fn upper_triangle_product_equals_the_full_one() {
     check_upper_product::<2>(4000, 0.01);
     check_upper_product::<3>(30, 0.2);
 }
+
+#[test]
+fn pcg_gives_the_same_bits_on_any_thread_count() {
+    // Long enough for the parallel dot products (>= 2^16 scalars) and a product split into
+    // several tasks (~140,000 upper blocks); 12 iterations, not converged, so every
+    // iteration's rounding reaches the result.
+    let m = random_spd::<3>(22_000, 5e-4, 12);
+    let rhs: Vec<f64> = (0..m.size()).map(|i| (i as f64 * 0.37).cos()).collect();
+    let solve = |threads| {
+        crate::ordered::in_pool(threads, || {
+            let mut jacobi = BlockJacobi::new(&m).unwrap();
+            let mut x = vec![0.0; m.size()];
+            let status = Pcg::new()
+                .solve(&m, &mut jacobi, &rhs, &mut x, 1e-15, 12)
+                .unwrap();
+            (x, status)
+        })
+    };
+    let (one, status) = solve(1);
+    assert!(status.iterations == 12 && !status.converged, "{status:?}");
+    for threads in [2, 3, 4] {
+        let (many, many_status) = solve(threads);
+        assert_eq!(status, many_status, "{threads} threads");
+        assert!(
+            one.iter().zip(&many).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{threads} threads"
+        );
+    }
+}

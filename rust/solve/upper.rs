@@ -23,6 +23,13 @@ pub(super) fn avx2() -> bool {
 /// Blocks per task below which the product runs on one thread.
 const BLOCKS_PER_TASK: usize = 8192;
 
+/// Most tasks a product is split into. The tasks' accumulators are summed in task order,
+/// so the split must not follow the pool's size: the product, and every fit that uses it,
+/// would then round differently on another thread count ([`crate::ordered`]). The
+/// split depends on the matrix alone; more tasks than threads cost one more accumulator
+/// pass each (measured in benches/README.md, detsum1).
+const MAX_TASKS: usize = 8;
+
 /// Upper-triangle copy of a matrix, with per-task accumulators for the product.
 #[derive(Debug, Clone, Default)]
 pub(super) struct Upper<const B: usize> {
@@ -47,13 +54,11 @@ pub(super) struct Upper<const B: usize> {
 }
 
 impl<const B: usize> Upper<B> {
-    /// Splits the rows into one task per thread, balanced by blocks (one task when small),
-    /// and sizes the accumulators.
+    /// Splits the rows into tasks of at least [`BLOCKS_PER_TASK`] blocks, at most
+    /// [`MAX_TASKS`], balanced by blocks (one task when small), and sizes the accumulators.
     fn split(&mut self, n: usize) {
         let total = self.indices.len();
-        let tasks = rayon::current_num_threads()
-            .min(total / BLOCKS_PER_TASK)
-            .max(1);
+        let tasks = (total / BLOCKS_PER_TASK).clamp(1, MAX_TASKS);
         self.ranges.clear();
         let mut start = 0;
         for t in 1..=tasks {
