@@ -195,7 +195,8 @@ pub(crate) fn wide() -> bool {
 /// [`resample`] compiled for AVX2 and FMA: the eight-lane position and weight arithmetic
 /// vectorises in one register, and `floor` and the clamps become single instructions
 /// (the portable build targets SSE2). About half the time of an iteration. Bilinear
-/// resampling gathers the cells' pixels in vector registers ([`super::gather`]).
+/// resampling gathers the cells' pixels in vector registers ([`super::gather`]), bicubic
+/// loads each cell's rows of taps and transposes them into registers ([`super::cubic`]).
 ///
 /// # Safety
 /// The CPU must have AVX2 and FMA ([`wide`]).
@@ -210,12 +211,22 @@ unsafe fn resample_wide(
     out: &mut [f32],
     interpolation: Interpolation,
 ) {
-    if matches!(interpolation, Interpolation::Bilinear) && image.data.len() <= i32::MAX as usize
-    {
-        // SAFETY: this function runs on CPUs with AVX2 and FMA; the caller checked that
-        // the patch lies inside the image, and the image's pixels are indexable by i32.
-        unsafe { super::gather::bilinear_wide(image, a, b, dx, dy, out) };
-        return;
+    if image.data.len() <= i32::MAX as usize {
+        match interpolation {
+            Interpolation::Bilinear => {
+                // SAFETY: this function runs on CPUs with AVX2 and FMA; the caller checked
+                // that the patch lies inside the image, and the image's pixels are
+                // indexable by i32.
+                unsafe { super::gather::bilinear_wide(image, a, b, dx, dy, out) };
+                return;
+            }
+            Interpolation::Bicubic if image.width >= 4 && image.height >= 4 => {
+                // SAFETY: as above, the patch one pixel inside the image.
+                unsafe { super::cubic::bicubic_wide(image, a, b, dx, dy, out) };
+                return;
+            }
+            Interpolation::Bicubic => {}
+        }
     }
     resample(image, a, b, dx, dy, out, interpolation);
 }
