@@ -1,4 +1,5 @@
-//! The AVX2 bicubic resampling ([`super::cubic`]) against the portable loop, bit for bit.
+//! The AVX2 bicubic resampling ([`super::cubic`]) against the portable loop, and the
+//! template patch's bicubic grid against the per-sample path, bit for bit.
 
 use super::resample::{inside, resample, wide};
 use super::types::{ImageView, Interpolation};
@@ -94,4 +95,76 @@ fn transposed_bicubic_samples_equal_the_portable_loop_to_the_bit() {
         }
     }
     assert!(checked > 4000, "only {checked} warps fit");
+}
+
+#[test]
+fn template_grid_samples_equal_the_per_sample_bicubic_to_the_bit() {
+    // The template patch's bicubic grid computes each column's and row's cell and weights
+    // once: its values and gradients must be `bicubic`'s at every sample, whatever the
+    // sub-pixel position (on whole pixels, just below them where a column's rounding can
+    // reach the next cell, and anywhere), at the image's border too.
+    use super::resample::bicubic;
+    use super::sample::TemplatePatch;
+    let mut rng = ChaCha8Rng::seed_from_u64(30);
+    let (w, h) = (61usize, 47usize);
+    let data: Vec<f32> = (0..w * h).map(|_| rng.random_range(-50.0..250.0)).collect();
+    let image = ImageView {
+        data: &data,
+        width: w,
+        height: h,
+    };
+    let mut patch = TemplatePatch::default();
+    let mut checked = 0;
+    for size in [3usize, 7, 15] {
+        let reach = size / 2 + 1;
+        let m = size + 2;
+        for case in 0..2000 {
+            let mut centre = [rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)];
+            match case % 4 {
+                0 => centre = [centre[0].round(), centre[1].round()],
+                1 => centre = [centre[0].round() - 1e-7, centre[1].round() - 2e-7],
+                2 => centre = [centre[0].round() + 1e-7, centre[1].round() - 5e-8],
+                _ => {}
+            }
+            if !patch.sample(&image, centre, size, Interpolation::Bicubic) {
+                continue;
+            }
+            let base = [centre[0].floor(), centre[1].floor()];
+            let frac = [(centre[0] - base[0]) as f32, (centre[1] - base[1]) as f32];
+            // The per-sample path's grid, as `sample` computed it before (the pixels
+            // themselves on a pixel centre).
+            let grid: Vec<f32> = (0..m * m)
+                .map(|i| {
+                    let (c, r) = (i % m, i / m);
+                    if frac == [0.0, 0.0] {
+                        let (u, v) = (base[0] as usize + c - reach, base[1] as usize + r - reach);
+                        return data[v * w + u];
+                    }
+                    let offset = [
+                        frac[0] + (c as f32 - reach as f32),
+                        frac[1] + (r as f32 - reach as f32),
+                    ];
+                    bicubic(&image, base, offset)
+                })
+                .collect();
+            let n = size * size;
+            for i in 0..n {
+                let (r, c) = (i / size + 1, i % size + 1);
+                let at = |rr: usize, cc: usize| grid[rr * m + cc];
+                let want = [
+                    at(r, c),
+                    0.5 * (at(r, c + 1) - at(r, c - 1)),
+                    0.5 * (at(r + 1, c) - at(r - 1, c)),
+                ];
+                let got = [patch.value[i], patch.geo[i], patch.geo[n + i]];
+                assert_eq!(
+                    got.map(f32::to_bits),
+                    want.map(f32::to_bits),
+                    "size {size} case {case} centre {centre:?} pixel {i}"
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > 3000, "only {checked} patches fit");
 }

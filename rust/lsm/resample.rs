@@ -83,23 +83,42 @@ fn floor(x: f32) -> f32 {
 /// as in [`bilinear`].
 #[inline(always)]
 pub(crate) fn bicubic(image: &ImageView<'_>, base: [f64; 2], offset: [f32; 2]) -> f32 {
-    let fu = floor(offset[0]);
-    let fv = floor(offset[1]);
-    let iu = (base[0] as isize + fu as isize).clamp(1, image.width as isize - 3) as usize;
-    let iv = (base[1] as isize + fv as isize).clamp(1, image.height as isize - 3) as usize;
-    let tu = (offset[0] - fu).clamp(0.0, 1.0);
-    let tv = (offset[1] - fv).clamp(0.0, 1.0);
-    let weights = |t: f32| {
-        let t2 = t * t;
-        let t3 = t2 * t;
+    let (iu, wu) = cubic_cell(base[0], offset[0], image.width);
+    let (iv, wv) = cubic_cell(base[1], offset[1], image.height);
+    cubic_blend(image, iu, iv, wu, wv)
+}
+
+/// One axis of [`bicubic`]: the cell's index (its second tap) and the taps' weights at
+/// `base + offset` along an axis of `size` pixels. A grid of samples on whole-pixel steps
+/// (the template patch) computes them once per column and once per row.
+#[inline(always)]
+pub(crate) fn cubic_cell(base: f64, offset: f32, size: usize) -> (usize, [f32; 4]) {
+    let f = floor(offset);
+    let i = (base as isize + f as isize).clamp(1, size as isize - 3) as usize;
+    let t = (offset - f).clamp(0.0, 1.0);
+    let t2 = t * t;
+    let t3 = t2 * t;
+    (
+        i,
         [
             -0.5 * t3 + t2 - 0.5 * t,
             1.5 * t3 - 2.5 * t2 + 1.0,
             -1.5 * t3 + 2.0 * t2 + 0.5 * t,
             0.5 * t3 - 0.5 * t2,
-        ]
-    };
-    let (wu, wv) = (weights(tu), weights(tv));
+        ],
+    )
+}
+
+/// [`bicubic`]'s blend of the 4x4 taps around column `iu`, row `iv` with the weights
+/// `wu` across and `wv` down.
+#[inline(always)]
+pub(crate) fn cubic_blend(
+    image: &ImageView<'_>,
+    iu: usize,
+    iv: usize,
+    wu: [f32; 4],
+    wv: [f32; 4],
+) -> f32 {
     let d = image.data;
     let mut value = 0.0;
     for (r, w) in wv.iter().enumerate() {
