@@ -13,12 +13,16 @@
 //! 3-D, by the cross-camera intersection with blunder rejection (done in Python, vectorised:
 //! `elastocap.tracking`).
 //!
-//! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
+//! Submodules: `ncc` (box search by normalised cross-correlation), `ncc_at` (candidate
+//! scoring by it),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked).
 
 mod flags;
 mod ncc;
+mod ncc_at;
+#[cfg(test)]
+mod ncc_at_tests;
 mod step;
 #[cfg(test)]
 mod tests;
@@ -27,5 +31,6 @@ mod weighted_ncc;
 mod weighted_tests;
 
 pub use flags::Flag;
-pub use ncc::{box_search_scores, ncc_at, NccBest};
+pub use ncc::{box_search_scores, NccBest};
+pub use ncc_at::ncc_at;
 pub use step::{track_camera, CameraStep, TrackOptions};
