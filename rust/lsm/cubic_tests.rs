@@ -55,7 +55,10 @@ fn transposed_bicubic_samples_equal_the_portable_loop_to_the_bit() {
             } else {
                 warp(&mut rng)
             };
-            let mut b = [rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)];
+            let mut b = [
+                rng.random_range(0.0..w as f64),
+                rng.random_range(0.0..h as f64),
+            ];
             match case % 5 {
                 0 => b = [b[0].round(), b[1].round()],
                 1 => b = [b[0].round() - 1e-7, b[1].round() - 3e-8],
@@ -90,7 +93,10 @@ fn transposed_bicubic_samples_equal_the_portable_loop_to_the_bit() {
             resample(&image, a, b, &dx, &dy, &mut want, Interpolation::Bicubic);
             // SAFETY: as above.
             unsafe { super::cubic::bicubic_wide(&image, a, b, &dx, &dy, &mut got) };
-            assert!(got.iter().zip(&want).all(|(g, x)| g.to_bits() == x.to_bits()));
+            assert!(got
+                .iter()
+                .zip(&want)
+                .all(|(g, x)| g.to_bits() == x.to_bits()));
             checked += 1;
         }
     }
@@ -119,7 +125,10 @@ fn template_grid_samples_equal_the_per_sample_bicubic_to_the_bit() {
         let reach = size / 2 + 1;
         let m = size + 2;
         for case in 0..2000 {
-            let mut centre = [rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)];
+            let mut centre = [
+                rng.random_range(0.0..w as f64),
+                rng.random_range(0.0..h as f64),
+            ];
             match case % 4 {
                 0 => centre = [centre[0].round(), centre[1].round()],
                 1 => centre = [centre[0].round() - 1e-7, centre[1].round() - 2e-7],

@@ -94,7 +94,10 @@ impl Scratch {
         self.samples.resize(n * searches, 0.0);
         self.residuals.resize(n * searches, 0.0);
         self.work.resize(work_len(size), 0.0);
-        if !self.patch.sample(template, point, size, options.interpolation) {
+        if !self
+            .patch
+            .sample(template, point, size, options.interpolation)
+        {
             Some(Status::LeftImage)
         } else if weights.is_some_and(|w| !(self.patch.weigh(w, point) > MIN_WEIGHT)) {
             // Fewer weighted pixels than unknowns (and a margin): nothing to fit.

@@ -81,14 +81,23 @@ pub fn match_pair_patches(
     validate(images, weights, cameras, points, starts, &out, stages)?;
     // The patches in template order: by reference camera and point (bits), each group of
     // equal keys one template. A stable sort keeps a group's patches in input order.
-    let key = |i: usize| (cameras[i][0], points[i][0].to_bits(), points[i][1].to_bits());
+    let key = |i: usize| {
+        (
+            cameras[i][0],
+            points[i][0].to_bits(),
+            points[i][1].to_bits(),
+        )
+    };
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by_key(|&i| key(i));
     let mut results = vec![PatchResult::default(); order.len()];
     let mut groups: Vec<(&[usize], &mut [PatchResult])> = Vec::new();
     let (mut rest_order, mut rest) = (order.as_slice(), results.as_mut_slice());
     while let Some(&first) = rest_order.first() {
-        let len = rest_order.iter().take_while(|&&i| key(i) == key(first)).count();
+        let len = rest_order
+            .iter()
+            .take_while(|&&i| key(i) == key(first))
+            .count();
         let (group, tail) = rest_order.split_at(len);
         let (slots, others) = std::mem::take(&mut rest).split_at_mut(len);
         groups.push((group, slots));
@@ -105,8 +114,7 @@ pub fn match_pair_patches(
                 return;
             };
             let weight = weights.and_then(|w| w[r].as_ref());
-            let template_status =
-                scratch.template(template, weight, points[group[0]], options, 1);
+            let template_status = scratch.template(template, weight, points[group[0]], options, 1);
             for (&i, slot) in group.iter().zip(slots.iter_mut()) {
                 let Some(search) = &images[cameras[i][1]] else {
                     return;

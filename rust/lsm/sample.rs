@@ -193,12 +193,19 @@ impl TemplatePatch {
         // Scratch kept across points (no allocation per point): columns' cells, then rows'.
         let mut cells = std::mem::take(&mut self.cells);
         cells.clear();
-        for (frac, base, size) in [(frac[0], base[0], image.width), (frac[1], base[1], image.height)] {
+        for (frac, base, size) in [
+            (frac[0], base[0], image.width),
+            (frac[1], base[1], image.height),
+        ] {
             cells.extend((0..m).map(|k| cubic_cell(base, frac + (k as f32 - reach as f32), size)));
         }
         let (columns, rows) = cells.split_at(m);
         let first = columns[0].0;
-        if columns.iter().enumerate().any(|(c, &(iu, _))| iu != first + c) {
+        if columns
+            .iter()
+            .enumerate()
+            .any(|(c, &(iu, _))| iu != first + c)
+        {
             for (r, &(iv, wv)) in rows.iter().enumerate() {
                 for (c, &(iu, wu)) in columns.iter().enumerate() {
                     self.border[r * m + c] = cubic_blend(image, iu, iv, wu, wv);
@@ -224,8 +231,8 @@ impl TemplatePatch {
                 let at = (iv + k - 1) * width + first - 1;
                 let p = &image.data[at..at + m + 3];
                 for c in 0..m {
-                    out[c] += w
-                        * (w0[c] * p[c] + w1[c] * p[c + 1] + w2[c] * p[c + 2] + w3[c] * p[c + 3]);
+                    out[c] +=
+                        w * (w0[c] * p[c] + w1[c] * p[c + 1] + w2[c] * p[c + 2] + w3[c] * p[c + 3]);
                 }
             }
         }

@@ -35,7 +35,10 @@ pub fn ncc_at(
         None
     };
     let Some(template) = template else {
-        scores.iter_mut().zip(candidates).for_each(|(s, _)| *s = f64::NAN);
+        scores
+            .iter_mut()
+            .zip(candidates)
+            .for_each(|(s, _)| *s = f64::NAN);
         return;
     };
     // The windows of up to four candidates inside the image, and where their scores go.
@@ -48,7 +51,12 @@ pub fn ncc_at(
             scores[k] = f64::NAN;
             continue;
         }
-        fill_window(search, candidate, size, &mut windows[count * n..(count + 1) * n]);
+        fill_window(
+            search,
+            candidate,
+            size,
+            &mut windows[count * n..(count + 1) * n],
+        );
         pending[count] = k;
         count += 1;
         if count == GROUP {

@@ -68,11 +68,17 @@ fn grouped_candidate_scores_equal_one_at_a_time_to_the_bit() {
     let mut scored = 0;
     for case in 0..400 {
         let size = [3usize, 7, 11, 15][case % 4];
-        let point = [rng.random_range(-3.0..w as f64 + 3.0), rng.random_range(-3.0..h as f64 + 3.0)];
+        let point = [
+            rng.random_range(-3.0..w as f64 + 3.0),
+            rng.random_range(-3.0..h as f64 + 3.0),
+        ];
         let k = case % 11;
         let candidates: Vec<[f64; 2]> = (0..k)
             .map(|_| {
-                let c = [rng.random_range(-3.0..w as f64 + 3.0), rng.random_range(-3.0..h as f64 + 3.0)];
+                let c = [
+                    rng.random_range(-3.0..w as f64 + 3.0),
+                    rng.random_range(-3.0..h as f64 + 3.0),
+                ];
                 if rng.random_bool(0.2) {
                     [c[0].round(), c[1].round()]
                 } else if rng.random_bool(0.1) {
@@ -86,7 +92,11 @@ fn grouped_candidate_scores_equal_one_at_a_time_to_the_bit() {
         let mut got = vec![0.0; k];
         ncc_at(&ta, point, &tb, &candidates, size, &mut got);
         for (g, x) in got.iter().zip(&want) {
-            assert_eq!(g.to_bits(), x.to_bits(), "case {case} size {size}: {g} vs {x}");
+            assert_eq!(
+                g.to_bits(),
+                x.to_bits(),
+                "case {case} size {size}: {g} vs {x}"
+            );
             if x.is_nan() {
                 nan += 1;
             } else {
