@@ -19,6 +19,10 @@
 //! across many camera pairs in one parallel call), `dense` (Cholesky and inverses of small
 //! systems), `types` (options, status, outputs).
 
+#[cfg(target_arch = "x86_64")]
+mod cubic;
+#[cfg(all(test, target_arch = "x86_64"))]
+mod cubic_tests;
 mod dense;
 #[cfg(target_arch = "x86_64")]
 mod gather;

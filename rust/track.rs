@@ -13,8 +13,8 @@
 //! 3-D, by the cross-camera intersection with blunder rejection (done in Python, vectorised:
 //! `elastocap.tracking`).
 //!
-//! Submodules: `ncc` (box search and candidate scoring by normalised cross-correlation),
-//! `ncc_batch` (the correlation at candidates across many images in one pass),
+//! Submodules: `ncc` (box search by normalised cross-correlation), `ncc_at` (candidate
+//! scoring by it), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_ncc` (`ncc_at`'s scores along a
 //! seed's line, several candidates at a time), `seed_hull` (the seeding's visual-hull test
@@ -22,6 +22,9 @@
 
 mod flags;
 mod ncc;
+mod ncc_at;
+#[cfg(test)]
+mod ncc_at_tests;
 mod ncc_batch;
 #[cfg(test)]
 mod ncc_batch_tests;
@@ -35,7 +38,8 @@ mod weighted_ncc;
 mod weighted_tests;
 
 pub use flags::Flag;
-pub use ncc::{box_search_scores, ncc_at, NccBest};
+pub use ncc::{box_search_scores, NccBest};
+pub use ncc_at::ncc_at;
 pub use ncc_batch::ncc_at_cameras;
 pub use seed_hull::HullCamera;
 pub use seed_ncc::line_ncc;

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from elastocap import InvalidInputError
@@ -67,6 +67,26 @@ def patches(seed: int, n: int, maps: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.column_stack([r, k]), points, starts
 
 
+def shared_patches(seed: int, n: int, maps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` points, each matched from its reference camera into every other camera (as
+    re-acquisition and confirmation ask), its rows spread through the batch: the batch
+    samples each point's template once for its targets."""
+    rng = np.random.default_rng(seed + 2)
+    r0 = rng.integers(0, C, n)
+    p0 = np.column_stack([rng.uniform(-2, W + 2, n), rng.uniform(-2, H + 2, n)])
+    r = np.repeat(r0, C - 1)
+    k = (r + np.tile(np.arange(1, C), n)) % C
+    points = np.repeat(p0, C - 1, axis=0)
+    inv = np.linalg.inv(maps[r, :, :2])
+    x = np.einsum("nij,nj->ni", inv, points - maps[r, :, 2])
+    true = np.einsum("nij,nj->ni", maps[k, :, :2], x) + maps[k, :, 2]
+    starts = np.zeros((len(r), 2, 3))
+    starts[:, :, :2] = np.eye(2) + rng.uniform(-0.1, 0.1, (len(r), 2, 2))
+    starts[:, :, 2] = true + rng.uniform(-1.5, 1.5, (len(r), 2))
+    order = rng.permutation(len(r))
+    return np.column_stack([r, k])[order], points[order], starts[order]
+
+
 def same(a: np.ndarray, b: np.ndarray) -> bool:
     """Equal to the bit (NaN where NaN)."""
     return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a.view(np.uint8), b.view(np.uint8))
@@ -74,10 +94,15 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
 
 @settings(max_examples=6, deadline=None)
 @given(seed=st.integers(0, 2**31), size=st.sampled_from([7, 11]), weighted=st.booleans(),
-       n=st.integers(1, 120))
-def test_the_batch_equals_the_per_pair_calls_to_the_bit(seed: int, size: int, weighted: bool, n: int) -> None:
+       n=st.integers(1, 120), shared=st.booleans())
+@example(seed=5, size=11, weighted=True, n=90, shared=True)
+@example(seed=6, size=7, weighted=False, n=90, shared=True)
+def test_the_batch_equals_the_per_pair_calls_to_the_bit(seed: int, size: int, weighted: bool, n: int,
+                                                          shared: bool) -> None:
     images, weights, maps = scene(seed)
-    pairs, points, starts = patches(seed, n, maps)
+    # Shared: each point into every other camera (one template for its targets).
+    pairs, points, starts = shared_patches(seed, (n + 2) // 3, maps) if shared else patches(seed, n, maps)
+    n = len(points)
     checked = [checked_image(image) for image in images]
     checked_w = [None if w is None else checked_weights(w, image.shape) for w, image in zip(weights, images)]
     batch = match_checked_pairs(checked, pairs, points, starts, size=size, min_texture=0.5, max_iterations=20,

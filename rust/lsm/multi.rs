@@ -57,52 +57,12 @@ pub(crate) fn match_point(
     out: PointOutput<'_>,
 ) {
     let s_count = searches.len();
-    let size = options.size;
-    let n = size * size;
-    scratch.samples.resize(n * s_count, 0.0);
-    scratch.residuals.resize(n * s_count, 0.0);
-    scratch.work.resize(work_len(size), 0.0);
+    let n = options.size * options.size;
+    let template_status = scratch.template(template, weights, point, options, s_count);
     scratch.outcomes.clear();
-    let template_status = if !scratch
-        .patch
-        .sample(template, point, size, options.interpolation)
-    {
-        Some(Status::LeftImage)
-    } else if weights.is_some_and(|w| !(scratch.patch.weigh(w, point) > MIN_WEIGHT)) {
-        // Fewer weighted pixels than unknowns (and a margin): nothing to fit.
-        Some(Status::LowTexture)
-    } else if !(scratch.patch.weakest_gradient() >= options.min_texture) {
-        Some(Status::LowTexture)
-    } else {
-        None
-    };
     for (s, image) in searches.iter().enumerate() {
-        let outcome = match template_status {
-            Some(status) => Outcome {
-                status,
-                state: State::from_affine(starts[s]),
-                iterations: 0,
-                sigma0: f64::NAN,
-                correlation: f64::NAN,
-                cofactor: [[f64::NAN; U]; U],
-                map: [[f64::NAN; U]; U],
-                sums: Default::default(),
-                stage: Stage::NONE,
-            },
-            None => {
-                let line = lines.and_then(|l| Line::new(l[s]));
-                match_image(
-                    &scratch.patch,
-                    image,
-                    starts[s],
-                    line,
-                    options,
-                    &mut scratch.samples[s * n..(s + 1) * n],
-                    &mut scratch.residuals[s * n..(s + 1) * n],
-                    &mut scratch.work,
-                )
-            }
-        };
+        let line = lines.and_then(|l| Line::new(l[s]));
+        let outcome = scratch.search(template_status, image, starts[s], line, options, s);
         out.status[s] = outcome.status as u8;
         out.affine[s] = outcome.state.affine();
         out.radiometry[s] = [outcome.state.gain, outcome.state.offset];
@@ -113,6 +73,89 @@ pub(crate) fn match_point(
         scratch.outcomes.push(outcome);
     }
     joint_covariance(scratch, n, out.covariance);
+}
+
+impl Scratch {
+    /// Samples (and weighs) the template patch around `point` and sizes the buffers for
+    /// `searches` search images; the status every search image reports without a match
+    /// when the patch cannot be matched, `None` when it can. The patch depends on nothing
+    /// else, so the patches of one point matched into several search images share it
+    /// (`super::pairs` samples it once for all of a point's target cameras).
+    pub(crate) fn template(
+        &mut self,
+        template: &ImageView<'_>,
+        weights: Option<&ImageView<'_>>,
+        point: [f64; 2],
+        options: &MatchOptions,
+        searches: usize,
+    ) -> Option<Status> {
+        let size = options.size;
+        let n = size * size;
+        self.samples.resize(n * searches, 0.0);
+        self.residuals.resize(n * searches, 0.0);
+        self.work.resize(work_len(size), 0.0);
+        if !self
+            .patch
+            .sample(template, point, size, options.interpolation)
+        {
+            Some(Status::LeftImage)
+        } else if weights.is_some_and(|w| !(self.patch.weigh(w, point) > MIN_WEIGHT)) {
+            // Fewer weighted pixels than unknowns (and a margin): nothing to fit.
+            Some(Status::LowTexture)
+        } else if !(self.patch.weakest_gradient() >= options.min_texture) {
+            Some(Status::LowTexture)
+        } else {
+            None
+        }
+    }
+
+    /// Matches the sampled template patch (`template` gave `template_status`) into
+    /// `image` from `start`, with search image `s`'s slices of the samples and residuals.
+    pub(crate) fn search(
+        &mut self,
+        template_status: Option<Status>,
+        image: &ImageView<'_>,
+        start: [f64; 6],
+        line: Option<Line>,
+        options: &MatchOptions,
+        s: usize,
+    ) -> Outcome {
+        let n = options.size * options.size;
+        match template_status {
+            Some(status) => Outcome {
+                status,
+                state: State::from_affine(start),
+                iterations: 0,
+                sigma0: f64::NAN,
+                correlation: f64::NAN,
+                cofactor: [[f64::NAN; U]; U],
+                map: [[f64::NAN; U]; U],
+                sums: Default::default(),
+                stage: Stage::NONE,
+            },
+            None => match_image(
+                &self.patch,
+                image,
+                start,
+                line,
+                options,
+                &mut self.samples[s * n..(s + 1) * n],
+                &mut self.residuals[s * n..(s + 1) * n],
+                &mut self.work,
+            ),
+        }
+    }
+}
+
+/// The `8 x 8` covariance block of one search image's own parameters:
+/// `sigma_0^2 L C L^T` with `C` the cofactor in step coordinates and `L` the step ->
+/// parameter map ([`to_parameters`]); meaningful where the outcome has an estimate.
+pub(crate) fn own_block(outcome: &Outcome) -> [[f64; U]; U] {
+    let ls = to_parameters(outcome.state.a);
+    let v = outcome.sigma0 * outcome.sigma0;
+    let mut c = product_transposed(&product(&ls, &outcome.cofactor), &ls);
+    c.iter_mut().flatten().for_each(|x| *x *= v);
+    c
 }
 
 /// The step -> parameter map of one search image: `[d, D, gain, offset]` to
@@ -176,14 +219,10 @@ fn joint_covariance(scratch: &mut Scratch, n: usize, covariance: &mut [f64]) {
         template_variance = (template_variance / pairs as f64).clamp(0.0, cap);
     }
     for &s in estimated.iter() {
-        let ls = to_parameters(outcomes[s].state.a);
         let ms = maps[s];
         for &t in estimated.iter() {
             let block = if s == t {
-                let v = outcomes[s].sigma0 * outcomes[s].sigma0;
-                let mut c = product_transposed(&product(&ls, &outcomes[s].cofactor), &ls);
-                c.iter_mut().flatten().for_each(|x| *x *= v);
-                c
+                own_block(&outcomes[s])
             } else {
                 let mt = maps[t];
                 let cross = cross_normal(scratch, s, t, n);

@@ -6,21 +6,55 @@
 //! pair by pair, the call's fixed cost dominates and rayon has too few patches to split
 //! (speed1's profile: 0.36 CPU s a frame over ~99 calls, the frame on one core). Here the
 //! frame's images are passed once and every patch names its own reference and target
-//! image; the patches run in parallel. Each patch is matched by exactly the code the
-//! per-pair call runs for a point with one search image ([`super::multi::match_point`]),
-//! and no patch reads another's state, so a patch's result is bit-identical to the one
+//! image; the patches run in parallel.
+//!
+//! Patches with the same reference camera and the same point (to the bit) share their
+//! template: it is sampled (and weighed) once and matched into each of their targets
+//! (re-acquisition and confirmation match a point into ~1.5-1.8 targets on average). Each
+//! patch is matched by exactly the code the per-pair call runs for a point with one search
+//! image ([`super::multi::match_point`]: the template patch, then the search image), and
+//! no patch reads another's state, so a patch's result is bit-identical to the one
 //! [`super::match_staged_patches`] gives it in its own pair's call.
 
 use rayon::prelude::*;
 
-use super::multi::{match_point, PointOutput, Scratch};
+use super::multi::{own_block, Scratch};
 use super::types::{ImageView, MatchOptions, MatchOutput, Stage, PARAMETERS};
 use super::validate_options;
 use crate::error::{check_finite, Error, Result};
 
+/// One patch's results, gathered per template group and scattered to the outputs.
+#[derive(Debug, Clone, Copy)]
+struct PatchResult {
+    status: u8,
+    affine: [f64; 6],
+    radiometry: [f64; 2],
+    sigma0: f64,
+    correlation: f64,
+    iterations: u32,
+    covariance: [f64; PARAMETERS * PARAMETERS],
+    stage: Stage,
+}
+
+impl Default for PatchResult {
+    fn default() -> Self {
+        Self {
+            status: 0,
+            affine: [0.0; 6],
+            radiometry: [0.0; 2],
+            sigma0: 0.0,
+            correlation: 0.0,
+            iterations: 0,
+            covariance: [f64::NAN; PARAMETERS * PARAMETERS],
+            stage: Stage::NONE,
+        }
+    }
+}
+
 /// Matches patch `i`, around `points[i]` in image `cameras[i][0]`, into image
 /// `cameras[i][1]` started at `starts[i]` (row-major 2x3, see [`MatchOutput`]), in parallel
-/// over patches, weighing the template by `weights[cameras[i][0]]` where given.
+/// over the patches' templates, weighing the template by `weights[cameras[i][0]]` where
+/// given.
 ///
 /// `images[c]` is `None` for a camera no patch uses. Results go to `out` as for
 /// [`super::match_patches`] with one search image (so `out.covariance` holds `64` entries per
@@ -45,60 +79,81 @@ pub fn match_pair_patches(
 ) -> Result<()> {
     validate_options(options)?;
     validate(images, weights, cameras, points, starts, &out, stages)?;
-    let block = PARAMETERS * PARAMETERS;
-    // Rayon splits the patches adaptively; each worker keeps one scratch across the
-    // patches it runs, as the per-pair call does across its points.
-    out.status
-        .par_iter_mut()
-        .zip(out.affine.par_iter_mut())
-        .zip(out.radiometry.par_iter_mut())
-        .zip(out.sigma0.par_iter_mut())
-        .zip(out.correlation.par_iter_mut())
-        .zip(out.iterations.par_iter_mut())
-        .zip(out.covariance.par_chunks_mut(block))
-        .zip(stages.par_iter_mut())
-        .enumerate()
-        .for_each_init(
-            Scratch::default,
-            |scratch,
-             (
-                i,
-                (
-                    (
-                        (((((status, affine), radiometry), sigma0), correlation), iterations),
-                        covariance,
-                    ),
-                    stage,
-                ),
-            )| {
-                let [r, k] = cameras[i];
-                // Checked by `validate`: both images exist.
-                let (Some(template), Some(search)) = (&images[r], &images[k]) else {
+    // The patches in template order: by reference camera and point (bits), each group of
+    // equal keys one template. A stable sort keeps a group's patches in input order.
+    let key = |i: usize| {
+        (
+            cameras[i][0],
+            points[i][0].to_bits(),
+            points[i][1].to_bits(),
+        )
+    };
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_by_key(|&i| key(i));
+    let mut results = vec![PatchResult::default(); order.len()];
+    let mut groups: Vec<(&[usize], &mut [PatchResult])> = Vec::new();
+    let (mut rest_order, mut rest) = (order.as_slice(), results.as_mut_slice());
+    while let Some(&first) = rest_order.first() {
+        let len = rest_order
+            .iter()
+            .take_while(|&&i| key(i) == key(first))
+            .count();
+        let (group, tail) = rest_order.split_at(len);
+        let (slots, others) = std::mem::take(&mut rest).split_at_mut(len);
+        groups.push((group, slots));
+        (rest_order, rest) = (tail, others);
+    }
+    // Rayon splits the groups adaptively; each worker keeps one scratch across the
+    // templates it runs, as the per-pair call does across its points.
+    groups
+        .into_par_iter()
+        .for_each_init(Scratch::default, |scratch, (group, slots)| {
+            let [r, _] = cameras[group[0]];
+            // Checked by `validate`: every image named exists.
+            let Some(template) = &images[r] else {
+                return;
+            };
+            let weight = weights.and_then(|w| w[r].as_ref());
+            let template_status = scratch.template(template, weight, points[group[0]], options, 1);
+            for (&i, slot) in group.iter().zip(slots.iter_mut()) {
+                let Some(search) = &images[cameras[i][1]] else {
                     return;
                 };
-                let weight = weights.and_then(|w| w[r].as_ref());
-                match_point(
-                    template,
-                    weight,
-                    points[i],
-                    std::slice::from_ref(search),
-                    std::slice::from_ref(&starts[i]),
-                    None,
-                    options,
-                    scratch,
-                    PointOutput {
-                        status: std::slice::from_mut(status),
-                        affine: std::slice::from_mut(affine),
-                        radiometry: std::slice::from_mut(radiometry),
-                        sigma0: std::slice::from_mut(sigma0),
-                        correlation: std::slice::from_mut(correlation),
-                        iterations: std::slice::from_mut(iterations),
-                        covariance,
-                        stage: std::slice::from_mut(stage),
-                    },
-                );
-            },
-        );
+                let outcome = scratch.search(template_status, search, starts[i], None, options, 0);
+                // One search image: the joint covariance is the image's own block, NaN
+                // without an estimate.
+                let mut covariance = [f64::NAN; PARAMETERS * PARAMETERS];
+                if outcome.status.has_estimate() {
+                    for (row, values) in covariance
+                        .chunks_exact_mut(PARAMETERS)
+                        .zip(own_block(&outcome))
+                    {
+                        row.copy_from_slice(&values);
+                    }
+                }
+                *slot = PatchResult {
+                    status: outcome.status as u8,
+                    affine: outcome.state.affine(),
+                    radiometry: [outcome.state.gain, outcome.state.offset],
+                    sigma0: outcome.sigma0,
+                    correlation: outcome.correlation,
+                    iterations: outcome.iterations,
+                    covariance,
+                    stage: outcome.stage,
+                };
+            }
+        });
+    let block = PARAMETERS * PARAMETERS;
+    for (&i, result) in order.iter().zip(&results) {
+        out.status[i] = result.status;
+        out.affine[i] = result.affine;
+        out.radiometry[i] = result.radiometry;
+        out.sigma0[i] = result.sigma0;
+        out.correlation[i] = result.correlation;
+        out.iterations[i] = result.iterations;
+        out.covariance[i * block..(i + 1) * block].copy_from_slice(&result.covariance);
+        stages[i] = result.stage;
+    }
     Ok(())
 }
 

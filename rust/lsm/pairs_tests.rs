@@ -1,5 +1,6 @@
 //! The batched camera-pair match against the per-pair calls it replaces: the same patches
-//! give the same bits, whatever the order, the grouping or the threads.
+//! give the same bits, whatever the order, the grouping, the shared templates or the
+//! threads.
 
 use super::*;
 use rand::{Rng, SeedableRng};
@@ -154,17 +155,24 @@ fn batched_pairs_equal_the_per_pair_calls_to_the_bit() {
         .map(|w| w.as_ref().map(|d| view(d, width, height)))
         .collect();
     let n = 300;
-    let mut pairs = Vec::with_capacity(n);
-    let mut points = Vec::with_capacity(n);
+    let mut pairs: Vec<[usize; 2]> = Vec::with_capacity(n);
+    let mut points: Vec<[f64; 2]> = Vec::with_capacity(n);
     let mut starts = Vec::with_capacity(n);
-    for _ in 0..n {
-        let r = rng.random_range(0..cameras);
-        let k = (r + rng.random_range(1..cameras)) % cameras;
+    for i in 0..n {
+        let mut r = rng.random_range(0..cameras);
         // Some points near or beyond the border (LeftImage), most inside.
-        let p = [
+        let mut p = [
             rng.random_range(-2.0..width as f64 + 2.0),
             rng.random_range(-2.0..height as f64 + 2.0),
         ];
+        // Two in five patches match an earlier patch's point from the same reference
+        // camera (into any target, its own too): the batch shares their template. The
+        // shared points fall anywhere in the input, as the tracker's do.
+        if i > 0 && rng.random_bool(0.4) {
+            let j = rng.random_range(0..i);
+            (r, p) = (pairs[j][0], points[j]);
+        }
+        let k = (r + rng.random_range(1..cameras)) % cameras;
         let spread = if rng.random_bool(0.2) { 6.0 } else { 2.0 };
         let a = [
             rng.random_range(0.85..1.15),
@@ -218,6 +226,10 @@ fn batched_pairs_equal_the_per_pair_calls_to_the_bit() {
                     }
                 }
             }
+            let shared = (0..n)
+                .filter(|&i| (0..i).any(|j| pairs[j][0] == pairs[i][0] && points[j] == points[i]))
+                .count();
+            assert!(shared > n / 4, "only {shared} patches share a template");
             let statuses: std::collections::BTreeSet<u8> = expected
                 .iter()
                 .map(|b| b.as_ref().unwrap().status)

@@ -83,23 +83,42 @@ fn floor(x: f32) -> f32 {
 /// as in [`bilinear`].
 #[inline(always)]
 pub(crate) fn bicubic(image: &ImageView<'_>, base: [f64; 2], offset: [f32; 2]) -> f32 {
-    let fu = floor(offset[0]);
-    let fv = floor(offset[1]);
-    let iu = (base[0] as isize + fu as isize).clamp(1, image.width as isize - 3) as usize;
-    let iv = (base[1] as isize + fv as isize).clamp(1, image.height as isize - 3) as usize;
-    let tu = (offset[0] - fu).clamp(0.0, 1.0);
-    let tv = (offset[1] - fv).clamp(0.0, 1.0);
-    let weights = |t: f32| {
-        let t2 = t * t;
-        let t3 = t2 * t;
+    let (iu, wu) = cubic_cell(base[0], offset[0], image.width);
+    let (iv, wv) = cubic_cell(base[1], offset[1], image.height);
+    cubic_blend(image, iu, iv, wu, wv)
+}
+
+/// One axis of [`bicubic`]: the cell's index (its second tap) and the taps' weights at
+/// `base + offset` along an axis of `size` pixels. A grid of samples on whole-pixel steps
+/// (the template patch) computes them once per column and once per row.
+#[inline(always)]
+pub(crate) fn cubic_cell(base: f64, offset: f32, size: usize) -> (usize, [f32; 4]) {
+    let f = floor(offset);
+    let i = (base as isize + f as isize).clamp(1, size as isize - 3) as usize;
+    let t = (offset - f).clamp(0.0, 1.0);
+    let t2 = t * t;
+    let t3 = t2 * t;
+    (
+        i,
         [
             -0.5 * t3 + t2 - 0.5 * t,
             1.5 * t3 - 2.5 * t2 + 1.0,
             -1.5 * t3 + 2.0 * t2 + 0.5 * t,
             0.5 * t3 - 0.5 * t2,
-        ]
-    };
-    let (wu, wv) = (weights(tu), weights(tv));
+        ],
+    )
+}
+
+/// [`bicubic`]'s blend of the 4x4 taps around column `iu`, row `iv` with the weights
+/// `wu` across and `wv` down.
+#[inline(always)]
+pub(crate) fn cubic_blend(
+    image: &ImageView<'_>,
+    iu: usize,
+    iv: usize,
+    wu: [f32; 4],
+    wv: [f32; 4],
+) -> f32 {
     let d = image.data;
     let mut value = 0.0;
     for (r, w) in wv.iter().enumerate() {
@@ -195,7 +214,8 @@ pub(crate) fn wide() -> bool {
 /// [`resample`] compiled for AVX2 and FMA: the eight-lane position and weight arithmetic
 /// vectorises in one register, and `floor` and the clamps become single instructions
 /// (the portable build targets SSE2). About half the time of an iteration. Bilinear
-/// resampling gathers the cells' pixels in vector registers ([`super::gather`]).
+/// resampling gathers the cells' pixels in vector registers ([`super::gather`]), bicubic
+/// loads each cell's rows of taps and transposes them into registers ([`super::cubic`]).
 ///
 /// # Safety
 /// The CPU must have AVX2 and FMA ([`wide`]).
@@ -210,12 +230,22 @@ unsafe fn resample_wide(
     out: &mut [f32],
     interpolation: Interpolation,
 ) {
-    if matches!(interpolation, Interpolation::Bilinear) && image.data.len() <= i32::MAX as usize
-    {
-        // SAFETY: this function runs on CPUs with AVX2 and FMA; the caller checked that
-        // the patch lies inside the image, and the image's pixels are indexable by i32.
-        unsafe { super::gather::bilinear_wide(image, a, b, dx, dy, out) };
-        return;
+    if image.data.len() <= i32::MAX as usize {
+        match interpolation {
+            Interpolation::Bilinear => {
+                // SAFETY: this function runs on CPUs with AVX2 and FMA; the caller checked
+                // that the patch lies inside the image, and the image's pixels are
+                // indexable by i32.
+                unsafe { super::gather::bilinear_wide(image, a, b, dx, dy, out) };
+                return;
+            }
+            Interpolation::Bicubic if image.width >= 4 && image.height >= 4 => {
+                // SAFETY: as above, the patch one pixel inside the image.
+                unsafe { super::cubic::bicubic_wide(image, a, b, dx, dy, out) };
+                return;
+            }
+            Interpolation::Bicubic => {}
+        }
     }
     resample(image, a, b, dx, dy, out, interpolation);
 }

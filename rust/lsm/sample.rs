@@ -3,7 +3,7 @@
 //!
 //! Pixel `(u, v)` = (column, row), pixel centres at integers.
 
-use super::resample::{bicubic, bilinear, inside};
+use super::resample::{bilinear, cubic_blend, cubic_cell, inside};
 use super::types::{ImageView, Interpolation};
 
 /// The template patch of one point: grey values and central-difference gradients on the
@@ -47,6 +47,10 @@ pub(crate) struct TemplatePatch {
     pub weight_total: f64,
     /// Grid of `(size + 2)^2` samples for the gradients (scratch).
     border: Vec<f32>,
+    /// Bicubic cells and weights of the grid's columns, then rows (scratch).
+    cells: Vec<(usize, [f32; 4])>,
+    /// The columns' weights tap by tap (scratch).
+    taps: Vec<f32>,
 }
 
 impl Default for TemplatePatch {
@@ -67,6 +71,8 @@ impl Default for TemplatePatch {
             root_weight: Vec::new(),
             weight_total: 0.0,
             border: Vec::new(),
+            cells: Vec::new(),
+            taps: Vec::new(),
         }
     }
 }
@@ -129,6 +135,8 @@ impl TemplatePatch {
                     self.border[r * m + c] = t + tv * (b - t);
                 }
             }
+        } else if matches!(interpolation, Interpolation::Bicubic) {
+            self.bicubic_grid(image, base, frac, reach);
         } else {
             for r in 0..m {
                 for c in 0..m {
@@ -136,10 +144,7 @@ impl TemplatePatch {
                         frac[0] + (c as f32 - reach as f32),
                         frac[1] + (r as f32 - reach as f32),
                     ];
-                    self.border[r * m + c] = match interpolation {
-                        Interpolation::Bilinear => bilinear(image, base, offset),
-                        Interpolation::Bicubic => bicubic(image, base, offset),
-                    };
+                    self.border[r * m + c] = bilinear(image, base, offset);
                 }
             }
         }
@@ -167,6 +172,72 @@ impl TemplatePatch {
         self.weight_total = n as f64;
         self.geo_sums();
         true
+    }
+
+    /// The widened grid's bicubic samples (`size + 2` squared, into `border`) around
+    /// `base + frac`, each as `super::resample::bicubic` computes it at the offset
+    /// `frac + (c - reach, r - reach)`. That offset's cell and weights depend on the column
+    /// alone across and on the row alone down, so they are computed once per column and
+    /// per row (the per-sample path recomputed them for each of the samples: a sixth of
+    /// the spatial matches' time, perf on a tracked frame); where the columns' cells are
+    /// consecutive (always, but for rounding at a cell's edge) a row of samples blends
+    /// contiguous pixels, which vectorises. Same arithmetic per sample, same bits.
+    fn bicubic_grid(
+        &mut self,
+        image: &ImageView<'_>,
+        base: [f64; 2],
+        frac: [f32; 2],
+        reach: usize,
+    ) {
+        let m = self.size + 2;
+        // Scratch kept across points (no allocation per point): columns' cells, then rows'.
+        let mut cells = std::mem::take(&mut self.cells);
+        cells.clear();
+        for (frac, base, size) in [
+            (frac[0], base[0], image.width),
+            (frac[1], base[1], image.height),
+        ] {
+            cells.extend((0..m).map(|k| cubic_cell(base, frac + (k as f32 - reach as f32), size)));
+        }
+        let (columns, rows) = cells.split_at(m);
+        let first = columns[0].0;
+        if columns
+            .iter()
+            .enumerate()
+            .any(|(c, &(iu, _))| iu != first + c)
+        {
+            for (r, &(iv, wv)) in rows.iter().enumerate() {
+                for (c, &(iu, wu)) in columns.iter().enumerate() {
+                    self.border[r * m + c] = cubic_blend(image, iu, iv, wu, wv);
+                }
+            }
+            self.cells = cells;
+            return;
+        }
+        // The weights tap by tap, so that the blend of a row reads them as vectors.
+        let mut taps = std::mem::take(&mut self.taps);
+        taps.clear();
+        for j in 0..4 {
+            taps.extend(columns.iter().map(|(_, w)| w[j]));
+        }
+        let (w0, rest) = taps.split_at(m);
+        let (w1, rest) = rest.split_at(m);
+        let (w2, w3) = rest.split_at(m);
+        let width = image.width;
+        for (r, &(iv, wv)) in rows.iter().enumerate() {
+            let out = &mut self.border[r * m..(r + 1) * m];
+            out.fill(0.0);
+            for (k, &w) in wv.iter().enumerate() {
+                let at = (iv + k - 1) * width + first - 1;
+                let p = &image.data[at..at + m + 3];
+                for c in 0..m {
+                    out[c] +=
+                        w * (w0[c] * p[c] + w1[c] * p[c + 1] + w2[c] * p[c + 2] + w3[c] * p[c + 3]);
+                }
+            }
+        }
+        self.cells = cells;
+        self.taps = taps;
     }
 
     /// The sums over `geo` (and, when weighted, the value sums again).

@@ -1,6 +1,6 @@
-//! Normalised cross-correlation of a template patch: over an integer box around a
-//! prediction (the tracker's search), and at arbitrary candidate centres (seeding along an
-//! epipolar line).
+//! Normalised cross-correlation of a template patch over an integer box around a
+//! prediction (the tracker's search); at arbitrary candidate centres (seeding along an
+//! epipolar line) in `ncc_at`.
 //!
 //! The box search resamples one window of side `size + 2 radius` around the prediction
 //! (bilinear, at the prediction's sub-pixel offset) and slides the template over it by
@@ -18,19 +18,34 @@ pub(crate) fn sample_window(
     side: usize,
     out: &mut Vec<f32>,
 ) -> bool {
+    if !window_inside(image, centre, side) {
+        return false;
+    }
+    out.clear();
+    out.resize(side * side, 0.0);
+    fill_window(image, centre, side, out);
+    true
+}
+
+/// Whether the window of side `side` centred on `centre` lies inside the image (with the
+/// last sample's right and lower neighbour).
+pub(crate) fn window_inside(image: &ImageView<'_>, centre: [f64; 2], side: usize) -> bool {
     let half = (side / 2) as f64;
     let (u0, v0) = (centre[0] - half, centre[1] - half);
     let (w, h) = (image.width as f64, image.height as f64);
     // Written so that NaN fails; the last sample needs its right/lower neighbour.
-    if !(u0 >= 0.0 && v0 >= 0.0 && u0 + side as f64 <= w - 1.0 && v0 + side as f64 <= h - 1.0) {
-        return false;
-    }
+    u0 >= 0.0 && v0 >= 0.0 && u0 + side as f64 <= w - 1.0 && v0 + side as f64 <= h - 1.0
+}
+
+/// The bilinear samples of the window (checked by [`window_inside`]) into `out`
+/// (`side * side`, row-major).
+pub(crate) fn fill_window(image: &ImageView<'_>, centre: [f64; 2], side: usize, out: &mut [f32]) {
+    let half = (side / 2) as f64;
+    let (u0, v0) = (centre[0] - half, centre[1] - half);
     let (iu, iv) = (u0.floor(), v0.floor());
     let (tu, tv) = ((u0 - iu) as f32, (v0 - iv) as f32);
     let (iu, iv) = (iu as usize, iv as usize);
     let width = image.width;
-    out.clear();
-    out.resize(side * side, 0.0);
     // Rows written through slices (not pushed one sample at a time: the capacity check
     // of every push kept the loop scalar).
     for (r, dest) in out.chunks_exact_mut(side).enumerate() {
@@ -42,7 +57,6 @@ pub(crate) fn sample_window(
             *value = top + tv * (bottom - top);
         }
     }
-    true
 }
 
 /// Mean-free template with unit norm; `None` for a flat patch.
@@ -368,34 +382,4 @@ unsafe fn row_of_shifts_wide(rows: &[f32], template: &[f32], size: usize) -> [f3
         _mm256_storeu_ps(acc.as_mut_ptr().add(8), high);
     }
     acc
-}
-
-/// Correlation of the template patch around `point` with the patch of `search` around
-/// each of `candidates` (bilinear at sub-pixel centres); NaN where a patch leaves its image
-/// or is flat. Writes `scores[k]` for `candidates[k]`.
-pub fn ncc_at(
-    template_image: &ImageView<'_>,
-    point: [f64; 2],
-    search: &ImageView<'_>,
-    candidates: &[[f64; 2]],
-    size: usize,
-    scores: &mut [f64],
-) {
-    let mut values = Vec::with_capacity(size * size);
-    let template = if sample_window(template_image, point, size, &mut values) {
-        normalised(&values)
-    } else {
-        None
-    };
-    for (score, &candidate) in scores.iter_mut().zip(candidates) {
-        *score = match &template {
-            Some(t) if sample_window(search, candidate, size, &mut values) => {
-                match normalised(&values) {
-                    Some(s) => t.iter().zip(&s).map(|(a, b)| (a * b) as f64).sum(),
-                    None => f64::NAN,
-                }
-            }
-            _ => f64::NAN,
-        };
-    }
 }

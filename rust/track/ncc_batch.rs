@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::ncc::ncc_at;
+use super::ncc_at::ncc_at;
 use crate::error::{Error, Result};
 use crate::lsm::ImageView;
 
