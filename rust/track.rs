@@ -16,9 +16,8 @@
 //! Submodules: `ncc` (box search by normalised cross-correlation), `ncc_at` (candidate
 //! scoring by it), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
-//! one camera), `flags` (why a point is not tracked), `seed_ncc` (`ncc_at`'s scores along a
-//! seed's line, several candidates at a time), `seed_hull` (the seeding's visual-hull test
-//! of ray samples).
+//! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
+//! test of ray samples).
 
 mod flags;
 mod ncc;
@@ -29,7 +28,6 @@ mod ncc_batch;
 #[cfg(test)]
 mod ncc_batch_tests;
 mod seed_hull;
-mod seed_ncc;
 mod step;
 #[cfg(test)]
 mod tests;
@@ -42,5 +40,4 @@ pub use ncc::{box_search_scores, NccBest};
 pub use ncc_at::ncc_at;
 pub use ncc_batch::ncc_at_cameras;
 pub use seed_hull::HullCamera;
-pub use seed_ncc::line_ncc;
 pub use step::{track_camera, CameraStep, TrackOptions};

@@ -1,7 +1,8 @@
-"""The seeding's Rust kernels (benches/README.md, "seednear1"): the correlation along a
-seed's line (``seed_line_ncc``) and the hull test's pixel and mask read (``seed_hull_held``)
-must give the numbers of the code they replace, bit for bit: every seed (and so every
-track) follows from them."""
+"""The seeding's Rust kernels (benches/README.md, "seednear1"): the hull test's pixel and mask
+read (``seed_hull_held``) must give the numbers of the code it replaces, bit for bit: every
+seed (and so every track) follows from it. The correlation along a seed's line is
+``track_ncc_at``'s (its grouped scoring is checked against one candidate at a time in
+``rust/track/ncc_at_tests.rs``); here, that it finds the shift on a seed's line."""
 
 from __future__ import annotations
 
@@ -26,35 +27,13 @@ def _image(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return grey
 
 
-@settings(max_examples=30, deadline=None)
-@given(seed=SEEDS, size=st.sampled_from([3, 7, 11, 15]), samples=st.integers(min_value=0, max_value=40))
-def test_line_ncc_is_track_ncc_at_bit_for_bit(seed, size, samples):
-    rng = np.random.default_rng(seed)
-    h, w = 90, 120
-    a, b = _image(rng, h, w), _image(rng, h, w)
-    n = 12
-    points = np.column_stack([rng.uniform(-5, w + 5, n), rng.uniform(-5, h + 5, n)])
-    points[0] = (12.0, 12.0)  # the flat corner: a flat template
-    # Candidates along short lines (the seeding's ~0.1 px steps), anywhere, off the image, NaN.
-    start = np.column_stack([rng.uniform(0, w, n), rng.uniform(0, h, n)])
-    step = rng.normal(scale=rng.choice([0.1, 1.0, 5.0]), size=(n, 1, 2))
-    candidates = start[:, None, :] + np.arange(samples)[None, :, None] * step
-    candidates[rng.uniform(size=candidates.shape[:2]) < 0.1] = -1e6
-    candidates[rng.uniform(size=candidates.shape[:2]) < 0.05] = np.nan
-    got = _core.seed_line_ncc(a, points, b, candidates, size=size)
-    want = _core.track_ncc_at(a, points, b, candidates, size=size)
-    assert got.shape == want.shape == (n, samples)
-    assert np.array_equal(np.isnan(got), np.isnan(want))
-    assert np.array_equal(got.view(np.int64)[~np.isnan(got)], want.view(np.int64)[~np.isnan(want)])
-
-
-def test_line_ncc_finds_the_shift():
+def test_line_scores_find_the_shift():
     # A window matched against its own image along a line through it peaks at the point.
     rng = np.random.default_rng(3)
     a = _image(rng, 80, 80)
     point = np.array([[40.0, 41.0]])
     candidates = np.column_stack([np.linspace(35, 45, 41), np.full(41, 41.0)])[None]
-    scores = _core.seed_line_ncc(a, point, a, candidates, size=11)
+    scores = _core.track_ncc_at(a, point, a, candidates, size=11)
     assert int(np.argmax(scores[0])) == 20
     assert abs(scores[0, 20] - 1.0) < 1e-5
 

@@ -36,7 +36,6 @@ __all__ = [
     "track_step",
     "track_box_search",
     "track_ncc_at",
-    "seed_line_ncc",
     "seed_hull_held",
     "track_ncc_at_cameras",
 ]
@@ -470,14 +469,6 @@ def track_box_search(
     weights: NDArray[np.float32] | None = None,
 ) -> tuple[tuple[float, float], float, NDArray[np.float64]] | None: ...
 def track_ncc_at(
-    template: NDArray[np.float32],
-    points: NDArray[np.float64],
-    search: NDArray[np.float32],
-    candidates: NDArray[np.float64],
-    *,
-    size: int = 11,
-) -> NDArray[np.float64]: ...
-def seed_line_ncc(
     template: NDArray[np.float32],
     points: NDArray[np.float64],
     search: NDArray[np.float32],

@@ -1,72 +1,12 @@
-//! Binding of the seeding's kernels: the correlation along a seed's line, and the visual
-//! hull's test of ray samples in one camera.
+//! Binding of the seeding's kernel: the visual hull's test of ray samples in one camera.
+//! (The correlation along a seed's line is `track_ncc_at`'s.)
 
-use numpy::{
-    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
-    PyUntypedArrayMethods,
-};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
-use crate::lsm::ImageView;
-use crate::track::{line_ncc, HullCamera};
-
-fn view<'a>(image: &'a PyReadonlyArray2<'_, f32>, argument: &str) -> PyResult<ImageView<'a>> {
-    let shape = image.shape();
-    Ok(ImageView {
-        data: c_slice(image, argument)?,
-        width: shape[1],
-        height: shape[0],
-    })
-}
-
-/// `(N, K)` correlation of the template patch (side `size`) around each of `points` (N, 2)
-/// in `template` with the patch of `search` around each of that point's `candidates`
-/// (N, K, 2; bilinear); NaN where a patch leaves its image or is flat. The same numbers,
-/// bit for bit, as `track_ncc_at` (several candidates' sums interleaved: faster).
-#[pyfunction]
-#[pyo3(signature = (template, points, search, candidates, *, size=11))]
-fn seed_line_ncc<'py>(
-    py: Python<'py>,
-    template: PyReadonlyArray2<'py, f32>,
-    points: PyReadonlyArray2<'py, f64>,
-    search: PyReadonlyArray2<'py, f32>,
-    candidates: PyReadonlyArray3<'py, f64>,
-    size: usize,
-) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    use rayon::prelude::*;
-    let t = view(&template, "template")?;
-    let s = view(&search, "search")?;
-    let p = rows::<2>(&points, "points")?;
-    let n = p.len();
-    let shape = candidates.shape();
-    if shape[0] != n || shape[2] != 2 {
-        return Err(invalid_input(format!(
-            "candidates must have shape ({n}, K, 2), got {shape:?}"
-        )));
-    }
-    if size < 3 || size % 2 == 0 || size > 255 {
-        return Err(invalid_input(format!(
-            "size must be an odd integer from 3 to 255, got {size}"
-        )));
-    }
-    let k = shape[1];
-    let cand = c_slice(&candidates, "candidates")?.as_chunks::<2>().0;
-    let scores = PyArray2::<f64>::zeros(py, [n, k], false);
-    {
-        let mut w = scores.readwrite();
-        let out = w.as_slice_mut()?;
-        super::detach(py, || {
-            if k > 0 {
-                out.par_chunks_mut(k).enumerate().for_each(|(i, row)| {
-                    line_ncc(&t, p[i], &s, &cand[i * k..(i + 1) * k], size, row)
-                });
-            }
-        });
-    }
-    Ok(scores)
-}
+use crate::track::HullCamera;
 
 /// `(held (N,), seen (N,))` bool for camera coordinates `x` (N, 3) of one camera with
 /// intrinsics `k` (3, 3) and distortion `dist` (12,) and its mask (H, W) bool: seen = in
@@ -118,6 +58,5 @@ fn seed_hull_held<'py>(
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(seed_line_ncc, m)?)?;
     m.add_function(wrap_pyfunction!(seed_hull_held, m)?)
 }

@@ -258,8 +258,9 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             uv, _ = _seen_pixels(other, np.nan_to_num(points[todo].reshape(-1, 3)))
             uv = uv.reshape(len(todo), _DEPTHS, 2)
             uv[~hull[todo]] = -1e6  # outside any image: no score
-            # track_ncc_at's numbers, several candidates' sums interleaved (benches/README.md, "seednear1").
-            scores = _core.seed_line_ncc(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
+            # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
+            # seednear1's own eight-at-a-time copy of the same sums).
+            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
             scores = np.where(np.isfinite(scores), scores, -np.inf)
             best = np.argmax(scores, axis=1)
             peak = scores[np.arange(len(todo)), best]
