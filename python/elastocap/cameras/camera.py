@@ -347,6 +347,7 @@ class Camera:
 
     def _distorted_to_pixels(self, ab: NDArray[np.float64]) -> NDArray[np.float64]:
         K = self.K
-        u = K[0, 0] * ab[:, 0] + K[0, 1] * ab[:, 1] + K[0, 2]
-        v = K[1, 1] * ab[:, 1] + K[1, 2]
-        return np.stack([u, v], axis=1)
+        out = np.empty(ab.shape, np.result_type(ab.dtype, K.dtype))
+        out[:, 0] = K[0, 0] * ab[:, 0] + K[0, 1] * ab[:, 1] + K[0, 2]
+        out[:, 1] = K[1, 1] * ab[:, 1] + K[1, 2]
+        return out

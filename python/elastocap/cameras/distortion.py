@@ -85,8 +85,20 @@ def padded(dist: NDArray[np.float64], length: int = FULL_LENGTH) -> NDArray[np.f
     return out
 
 
+# The coefficients as Python floats, by the bytes of the array they came from: a tracked
+# frame projects ~200 times through a handful of cameras, and the conversion cost more
+# than the small projections' arithmetic (the same floats either way).
+_SPLIT: dict[tuple[str, tuple[int, ...], bytes], tuple[float, ...]] = {}
+
+
 def _split(dist: NDArray[np.float64]) -> tuple[float, ...]:
-    return tuple(float(x) for x in padded(dist))
+    key = (dist.dtype.str, dist.shape, dist.tobytes())
+    found = _SPLIT.get(key)
+    if found is None:
+        if len(_SPLIT) >= 256:
+            _SPLIT.clear()
+        found = _SPLIT[key] = tuple(float(x) for x in padded(dist))
+    return found
 
 
 def distort(ab: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -99,7 +111,10 @@ def distort(ab: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.fl
         radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
         a2 = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a) + r2 * (s1 + r2 * s2)
         b2 = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b + r2 * (s3 + r2 * s4)
-    return np.stack([a2, b2], axis=1)
+    # np.stack's copy, without its dispatch (a few microseconds a call).
+    out = np.empty((len(a2), 2), np.result_type(a2, b2))
+    out[:, 0], out[:, 1] = a2, b2
+    return out
 
 
 def fold_radius(dist: NDArray[np.float64]) -> float:

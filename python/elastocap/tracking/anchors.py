@@ -21,6 +21,7 @@ from elastocap import _core
 from elastocap.stereo import match_patches
 from elastocap.stereo.matching import Matches, MatchStatus, Refined, checked_image, checked_weights, match_checked_pairs
 from elastocap.tracking import settings
+from elastocap.tracking.frame_images import checked as checked_images
 
 __all__ = ["Anchors"]
 
@@ -228,7 +229,7 @@ class Anchors:
             if rows.size == 0:
                 continue
             mosaic, weigh, centres = self._mosaic(rows, k)
-            mosaics[k], mosaics[c + k] = checked_image(mosaic), checked_image(images[k])
+            mosaics[k], mosaics[c + k] = checked_image(mosaic), checked_images(images, k)
             weighs[k] = checked_weights(weigh, mosaic.shape)
             rows_of.append(rows)
             centres_of.append(centres)

@@ -25,6 +25,7 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size
+from elastocap.tracking.frame_images import CheckedImages
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.new_points import add_new_points
 from elastocap.tracking.pyramid_search import Pyramids
@@ -83,7 +84,8 @@ class FrameTracker:
         self.pyramids = Pyramids()
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
-        grey = [_grey(self.capture.image(name, frame)) for name in self.names]
+        # Checked once here for every match of the frame (frame_images.py).
+        grey = CheckedImages(_grey(self.capture.image(name, frame)) for name in self.names)
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
             self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]

@@ -15,7 +15,8 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.cameras import Camera
 from elastocap.stereo import intersect
-from elastocap.stereo.matching import MatchStatus, checked_image, checked_weights, match_checked_pairs
+from elastocap.stereo.matching import MatchStatus, checked_weights, match_checked_pairs
+from elastocap.tracking.frame_images import checked as checked_images
 
 __all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_affine_from", "plane_offset_points",
            "plane_warped_tiles", "project_all", "spatial_match", "spatial_search"]
@@ -52,14 +53,29 @@ def plane_offset_points(camera: Camera, uv: NDArray[np.float64], points: NDArray
     -v one pixel meet the planes through ``points`` with ``normals``: what
     :func:`plane_affine` differences, the same for every target camera (computed once per
     reference camera, not once per camera pair: the rays' undistortion is most of it)."""
-    out = np.empty((len(uv), 4, 3))
-    for j, (e, sign) in enumerate(((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))):
+    m = len(uv)
+    shifts = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))
+    shifted = []
+    for e, sign in shifts:
         shift = np.zeros(2)
         shift[e] = sign
-        o, d = camera.rays(uv + shift)
-        t = np.einsum("ij,ij->i", points - o, normals) / np.einsum("ij,ij->i", d, normals)
-        out[:, j] = o + t[:, None] * d
-    return out
+        shifted.append(uv + shift)
+    if m < 2:
+        # One ray a call: numpy multiplies a single row by the camera's matrices through
+        # BLAS's matrix-vector product, whose rounding differs from the matrix-matrix
+        # product of the batch below (tests/test_track_plane_starts.py); kept per shift.
+        out = np.empty((m, 4, 3))
+        for j, pixels in enumerate(shifted):
+            o, d = camera.rays(pixels)
+            t = np.einsum("ij,ij->i", points - o, normals) / np.einsum("ij,ij->i", d, normals)
+            out[:, j] = o + t[:, None] * d
+        return out
+    # The four shifts' rays in one call (row by row the same numbers as four calls: the
+    # undistortion is elementwise and the matrix products round each row alike from two rows on).
+    o, d = camera.rays(np.concatenate(shifted))
+    points4, normals4 = np.concatenate([points] * 4), np.concatenate([normals] * 4)
+    t = np.einsum("ij,ij->i", points4 - o, normals4) / np.einsum("ij,ij->i", d, normals4)
+    return np.ascontiguousarray((o + t[:, None] * d).reshape(4, m, 3).transpose(1, 0, 2))
 
 
 def plane_affine_from(camera: Camera, ends: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -138,51 +154,54 @@ def spatial_match(
     tol = np.broadcast_to(np.asarray(tolerance, float).reshape(-1), (n,))
     # Each image (and mask) checked once here, not once per camera pair.
     references = np.unique(reference[wanted.any(axis=1)])
-    checked = {int(k): checked_image(images[k]) for k in np.union1d(np.flatnonzero(wanted.any(axis=0)), references)}
+    checked = {int(k): checked_images(images, int(k)) for k in np.union1d(np.flatnonzero(wanted.any(axis=0)), references)}
     checked_w = {} if weights is None else {int(r): checked_weights(weights[r], checked[int(r)].shape) for r in references}
     plane = cameras is not None and points is not None and normals is not None
-    # Every camera pair's patches gathered (their start maps built per pair, as numpy), then
-    # matched in one parallel core call: ~80-100 pairs of a few dozen patches a frame.
-    identity = np.array([[1.0, 0, 0], [0, 1.0, 0]])
-    gathered_rows, gathered_pairs, gathered_starts = [], [], []
+    # Every camera pair's patches gathered, then matched in one parallel core call: ~80-100
+    # pairs of a few dozen patches a frame.
+    gathered_rows, gathered_pairs = [], []
+    # The plane's points under the template's one-pixel offsets, once per reference camera
+    # for every target camera (a point has one reference camera: one array serves them all).
+    ends = np.full((n, 4, 3), np.nan) if plane else None
     for r in range(c):
         mine = (reference == r) & wanted.any(axis=1)
         if not mine.any():
             continue
-        ends = None
-        if plane:
+        if ends is not None:
             assert cameras is not None and points is not None and normals is not None
-            # The plane's points under the template's one-pixel offsets, once per reference
-            # camera for every target camera.
-            ends = np.full((n, 4, 3), np.nan)
             ends[mine] = plane_offset_points(cameras[r], template_uv[mine], points[mine], normals[mine])
         for k in range(c):
             rows = np.flatnonzero(mine & wanted[:, k])
             if k == r or rows.size == 0:
                 continue
-            if ends is not None:
-                assert cameras is not None and points is not None
-                affine = plane_affine_from(cameras[k], ends[rows], points[rows])
-                affine[:, :, 2] = targets[rows, k]
-                det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
-                if not (np.isfinite(affine).all() and (det > 0).all()):
-                    affine[~(np.isfinite(affine).all(axis=(1, 2)) & (det > 0))] = identity
-                    affine[:, :, 2] = targets[rows, k]
-            else:
-                affine = np.broadcast_to(identity, (rows.size, 2, 3)).copy()
-                affine[:, :, 2] = targets[rows, k]
             gathered_rows.append(rows)
             gathered_pairs.append(np.broadcast_to(np.array([r, k]), (rows.size, 2)))
-            gathered_starts.append(affine)
     if not gathered_rows:
         return uv, cov
     rows = np.concatenate(gathered_rows)
     pairs = np.concatenate(gathered_pairs)
-    m = match_checked_pairs([checked.get(k) for k in range(c)], pairs, template_uv[rows], np.concatenate(gathered_starts),
+    target = pairs[:, 1]
+    starts = np.zeros((rows.size, 2, 3))
+    starts[:, 0, 0] = starts[:, 1, 1] = 1.0
+    if ends is not None:
+        assert cameras is not None
+        # The start maps of every pair into a target camera from one projection of their
+        # plane points (plane_affine_from's linear part; its centre, the points' projection,
+        # is replaced by the target): 8 projections, not two per camera pair.
+        for k in np.unique(target):
+            into = np.flatnonzero(target == k)
+            projected = cameras[k].project(ends[rows[into]].reshape(-1, 3))[0].reshape(-1, 4, 2)
+            starts[into, :, 0] = 0.5 * (projected[:, 0] - projected[:, 1])
+            starts[into, :, 1] = 0.5 * (projected[:, 2] - projected[:, 3])
+        starts[:, :, 2] = targets[rows, target]
+        det = starts[:, 0, 0] * starts[:, 1, 1] - starts[:, 0, 1] * starts[:, 1, 0]
+        bad = ~(np.isfinite(starts).all(axis=(1, 2)) & (det > 0))
+        starts[bad, :, :2] = np.eye(2)
+    starts[:, :, 2] = targets[rows, target]
+    m = match_checked_pairs([checked.get(k) for k in range(c)], pairs, template_uv[rows], starts,
                             size=size, min_texture=min_texture, max_iterations=20,
                             weights=None if weights is None else [checked_w.get(k) for k in range(c)])
     pos = m.positions[:, 0]
-    target = pairs[:, 1]
     good = ((m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
             & (np.linalg.norm(pos - targets[rows, target], axis=1) <= tol[rows]))
     uv[rows[good], target[good]] = pos[good]
