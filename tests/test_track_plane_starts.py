@@ -184,3 +184,81 @@ def test_the_frame_images_are_checked_once_and_used_as_they_are() -> None:
         checked([grey[0], bad], 1)
     # Other dtypes are converted as checked_image converts them.
     assert checked(CheckedImages([np.zeros((4, 4), np.uint8)]), 0).dtype == np.float32
+
+
+def test_the_frame_weights_are_checked_once_and_their_shape_still_is() -> None:
+    from elastocap.tracking.frame_images import checked_weights_of
+
+    masks = [np.ones((6, 8), np.float32), np.zeros((6, 8), np.float32)]
+    listed = CheckedImages(masks)
+    assert all(checked_weights_of(listed, k, (6, 8)) is masks[k] for k in range(2))
+    assert all(checked_weights_of(masks, k, (6, 8)) is masks[k] for k in range(2))
+    # The template's shape is still held to: a listed array of another shape is refused.
+    with pytest.raises(InvalidInputError):
+        checked_weights_of(listed, 0, (8, 6))
+    # Bool masks as checked_weights takes them (converted), listed or not.
+    assert checked_weights_of([np.ones((3, 3), bool)], 0, (3, 3)).dtype == np.float32
+    nan = masks[0].copy()
+    nan[1, 1] = np.nan
+    with pytest.raises(InvalidInputError):
+        checked_weights_of([nan], 0, (6, 8))
+
+
+def visible_apart(cameras, masks, points, normals, cloud, where, *, facing=0.0, radius=6.0, gap=12.0):
+    """predicted_visible as it was: the asked points and the occluders projected apart."""
+    from scipy.spatial import cKDTree
+
+    n, c = where.shape
+    out = np.zeros((n, c), bool)
+    where = where & np.all(np.isfinite(points), axis=1)[:, None] & np.all(np.isfinite(normals), axis=1)[:, None]
+    occluders = cloud[np.isfinite(cloud).all(axis=1)]
+    for k, (cam, mask) in enumerate(zip(cameras, masks)):
+        rows = np.flatnonzero(where[:, k])
+        if rows.size == 0:
+            continue
+        x = points[rows]
+        uv, depth = cam.project(x)
+        iu, iv = np.round(uv[:, 0]), np.round(uv[:, 1])
+        ok = (depth > 0) & (iu >= 0) & (iv >= 0) & (iu <= mask.shape[1] - 1) & (iv <= mask.shape[0] - 1)
+        ok[ok] = mask[iv[ok].astype(np.intp), iu[ok].astype(np.intp)]
+        view = cam.center - x
+        view /= np.linalg.norm(view, axis=1, keepdims=True)
+        ok &= np.einsum("ij,ij->i", view, normals[rows]) > facing
+        if len(occluders) and ok.any():
+            ouv, odepth = cam.project(occluders)
+            front = odepth > 0
+            ouv, odepth = ouv[front], odepth[front]
+            if len(odepth):
+                k_near = min(12, len(odepth))
+                dist, near = cKDTree(ouv).query(uv[ok], k=k_near, distance_upper_bound=radius)
+                dist, near = dist.reshape(-1, k_near), near.reshape(-1, k_near)
+                hit = np.isfinite(dist)
+                pixel = depth[ok] / float(cam.K[0, 0])
+                nearer = np.where(hit, odepth[np.minimum(near, len(odepth) - 1)], np.inf) < (depth[ok] - gap * pixel)[:, None]
+                ok[np.flatnonzero(ok)[nearer.any(axis=1)]] = False
+        out[rows[ok], k] = True
+    return out
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_visibility_with_the_projections_joined_equals_them_apart(seed: int) -> None:
+    # predicted_visible projects a camera's asked points and the occluders together where
+    # each part has two rows or more: its answers equal the former separate projections'
+    # (every branch: one asked point, one occluder, none).
+    from elastocap.tracking.visibility import predicted_visible
+
+    cams = list(ring_rig(8, width=160, height=120, seed=0).cameras)
+    rng = np.random.default_rng(seed)
+    cloud = rng.normal(0, 0.25, (400, 3)) + np.array([0.0, 0.9, 0.0])
+    cloud[::17] = np.nan
+    normals = cloud - np.array([0.0, 0.9, 0.0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    masks = [rng.random((cam.height, cam.width)) < 0.9 for cam in cams]
+    for asked, occluders in ((400, cloud), (1, cloud), (400, cloud[1:2]), (400, cloud[:0]), (2, cloud[1:3])):
+        where = np.zeros((len(cloud), len(cams)), bool)
+        where[:asked] = rng.random((asked, len(cams))) < 0.6
+        for radius, gap in ((3.0, 2.0), (6.0, 12.0)):
+            got = predicted_visible(cams, masks, cloud, normals, occluders, where, radius=radius, gap=gap)
+            assert np.array_equal(got, visible_apart(cams, masks, cloud, normals, occluders, where, radius=radius, gap=gap))
+            if asked == 400 and len(occluders) > 2:
+                assert 0 < got.sum() < where.sum()  # some hidden, some seen

@@ -95,7 +95,7 @@ class FrameTracker:
     def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
         if not self.o["mask_weights"]:
             return None
-        return [np.ascontiguousarray(m, dtype=np.float32) for m in masks]
+        return CheckedImages(np.ascontiguousarray(m, dtype=np.float32) for m in masks)
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;

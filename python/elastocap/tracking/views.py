@@ -15,8 +15,9 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.cameras import Camera
 from elastocap.stereo import intersect
-from elastocap.stereo.matching import MatchStatus, checked_weights, match_checked_pairs
+from elastocap.stereo.matching import MatchStatus, match_checked_pairs
 from elastocap.tracking.frame_images import checked as checked_images
+from elastocap.tracking.frame_images import checked_weights_of
 
 __all__ = ["confirm_views", "facing_normals", "intersect_views", "plane_affine", "plane_affine_from", "plane_offset_points",
            "plane_warped_tiles", "project_all", "spatial_match", "spatial_search"]
@@ -155,7 +156,7 @@ def spatial_match(
     # Each image (and mask) checked once here, not once per camera pair.
     references = np.unique(reference[wanted.any(axis=1)])
     checked = {int(k): checked_images(images, int(k)) for k in np.union1d(np.flatnonzero(wanted.any(axis=0)), references)}
-    checked_w = {} if weights is None else {int(r): checked_weights(weights[r], checked[int(r)].shape) for r in references}
+    checked_w = {} if weights is None else {int(r): checked_weights_of(weights, int(r), checked[int(r)].shape) for r in references}
     plane = cameras is not None and points is not None and normals is not None
     # Every camera pair's patches gathered, then matched in one parallel core call: ~80-100
     # pairs of a few dozen patches a frame.

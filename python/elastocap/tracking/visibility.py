@@ -65,8 +65,15 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
         if rows.size == 0:
             continue
         x = points[rows]
-        # The projection's depth is the camera frame's z (one transform, not two).
-        uv, depth = cam.project(x)
+        # The projection's depth is the camera frame's z (one transform, not two). The
+        # points and the occluders in one projection where each part has two rows or more
+        # (a single row's matrix product rounds otherwise: views.plane_offset_points).
+        together = rows.size >= 2 and len(occluders) >= 2
+        if together:
+            both_uv, both_depth = cam.project(np.concatenate([x, occluders]))
+            uv, depth = both_uv[: rows.size], both_depth[: rows.size]
+        else:
+            uv, depth = cam.project(x)
         iu, iv = np.round(uv[:, 0]), np.round(uv[:, 1])
         ok = (depth > 0) & (iu >= 0) & (iv >= 0) & (iu <= mask.shape[1] - 1) & (iv <= mask.shape[0] - 1)
         ok[ok] = mask[iv[ok].astype(np.intp), iu[ok].astype(np.intp)]
@@ -74,7 +81,7 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
         view /= np.linalg.norm(view, axis=1, keepdims=True)
         ok &= np.einsum("ij,ij->i", view, normals[rows]) > facing
         if len(occluders) and ok.any():
-            ouv, odepth = cam.project(occluders)
+            ouv, odepth = (both_uv[rows.size :], both_depth[rows.size :]) if together else cam.project(occluders)
             front = odepth > 0
             ouv, odepth = ouv[front], odepth[front]
             if len(odepth):
