@@ -116,7 +116,8 @@ def surface_normals(points: NDArray[np.float64], cloud: NDArray[np.float64], tow
     if len(good) < neighbours or not ok.any():
         return out
     _, near = cKDTree(good).query(points[ok], k=neighbours)
-    local = good[near] - good[near].mean(axis=1, keepdims=True)
+    gathered = good[near]  # (N, neighbours, 3), gathered once
+    local = gathered - gathered.mean(axis=1, keepdims=True)
     values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
     normal = vectors[:, :, 0]
     # A plane: two directions of spread, the third well below them.
@@ -171,12 +172,13 @@ def spatial_match(
         if ends is not None:
             assert cameras is not None and points is not None and normals is not None
             ends[mine] = plane_offset_points(cameras[r], template_uv[mine], points[mine], normals[mine])
-        for k in range(c):
-            rows = np.flatnonzero(mine & wanted[:, k])
-            if k == r or rows.size == 0:
-                continue
+        # The pairs (r, k), k != r, in the order of k, each pair's rows in order.
+        asked = mine[:, None] & wanted
+        asked[:, r] = False
+        into, rows = np.nonzero(asked.T)
+        if rows.size:
             gathered_rows.append(rows)
-            gathered_pairs.append(np.broadcast_to(np.array([r, k]), (rows.size, 2)))
+            gathered_pairs.append(np.column_stack([np.full(rows.size, r), into]))
     if not gathered_rows:
         return uv, cov
     rows = np.concatenate(gathered_rows)
