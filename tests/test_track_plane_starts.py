@@ -262,3 +262,35 @@ def test_visibility_with_the_projections_joined_equals_them_apart(seed: int) -> 
             assert np.array_equal(got, visible_apart(cams, masks, cloud, normals, occluders, where, radius=radius, gap=gap))
             if asked == 400 and len(occluders) > 2:
                 assert 0 < got.sum() < where.sum()  # some hidden, some seen
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 60), size=st.sampled_from([7, 15]))
+@example(seed=0, n=1, size=15)
+@example(seed=1, n=12, size=7)
+def test_anchor_mosaics_written_in_place_equal_the_padded_stack(seed: int, n: int, size: int) -> None:
+    # The anchors' mosaic of a camera's rows (tiles in row-major order, zeros past the last)
+    # equals the former padded stack reshaped and copied, patches and weights alike, and the
+    # two are separate arrays (one tile once aliased them).
+    from elastocap.tracking.anchors import Anchors
+
+    rng = np.random.default_rng(seed)
+    anchors = Anchors(3, size)
+    anchors.grow(n + 5)
+    anchors.patches[:] = rng.uniform(0, 255, anchors.patches.shape).astype(np.float32)
+    anchors.weights[:] = (rng.random(anchors.weights.shape) < 0.8).astype(np.float32)
+    rows = np.sort(rng.choice(n + 5, n, replace=False))
+    k = int(rng.integers(3))
+    mosaic, weighs, centres = anchors._mosaic(rows, k)
+    side = anchors.side
+    per_row = int(np.ceil(np.sqrt(n)))
+    for stored, got in ((anchors.patches, mosaic), (anchors.weights, weighs)):
+        tiles = np.zeros((per_row * per_row, side, side), np.float32)
+        tiles[:n] = stored[rows, k]
+        want = np.array(tiles.reshape(per_row, per_row, side, side).transpose(0, 2, 1, 3)
+                        .reshape(per_row * side, per_row * side), copy=True)
+        assert same(got, want) and got.flags.c_contiguous
+    assert not np.shares_memory(mosaic, weighs)
+    index = np.arange(n)
+    assert same(centres, np.column_stack([(index % per_row) * side + side // 2,
+                                          (index // per_row) * side + side // 2]).astype(float))

@@ -160,19 +160,24 @@ class Anchors:
         """Camera ``k``'s anchor patches of ``rows`` as tiles of one image, their weights
         likewise, and the tiles' centres (M, 2)."""
         half = self.side // 2
+        side = self.side
         per_row = int(np.ceil(np.sqrt(rows.size)))
-        tiles = np.zeros((per_row * per_row, self.side, self.side), np.float32)
+        full, rest = divmod(rows.size, per_row)
 
-        def tiled() -> NDArray[np.float32]:
-            # A copy: with one tile the reshapes are views of ``tiles``, which the weights
-            # overwrite next (the patch then read as all ones: LOW_TEXTURE).
-            return np.array(tiles.reshape(per_row, per_row, self.side, self.side).transpose(0, 2, 1, 3)
-                            .reshape(per_row * self.side, per_row * self.side), copy=True)
+        def tiled(stored: NDArray[np.float32]) -> NDArray[np.float32]:
+            # Tile i at (i // per_row, i % per_row), zeros past the last: the tiles written
+            # straight into the mosaic through its (tile row, tile column, y, x) view (one
+            # copy of the patches, not a padded stack and a second copy; a new array each
+            # call, so the weights never overwrite the patches).
+            out = np.zeros((per_row * side, per_row * side), np.float32)
+            grid = out.reshape(per_row, side, per_row, side).transpose(0, 2, 1, 3)
+            grid[:full] = stored[rows[: full * per_row], k].reshape(full, per_row, side, side)
+            if rest:
+                grid[full, :rest] = stored[rows[full * per_row :], k]
+            return out
 
-        tiles[: rows.size] = self.patches[rows, k]
-        mosaic = tiled()
-        tiles[: rows.size] = self.weights[rows, k]
-        weighs = tiled()
+        mosaic = tiled(self.patches)
+        weighs = tiled(self.weights)
         index = np.arange(rows.size)
         centres = np.column_stack([(index % per_row) * self.side + half, (index // per_row) * self.side + half]).astype(float)
         return mosaic, weighs, centres
