@@ -291,6 +291,8 @@ def test_anchor_mosaics_written_in_place_equal_the_padded_stack(seed: int, n: in
                         .reshape(per_row * side, per_row * side), copy=True)
         assert same(got, want) and got.flags.c_contiguous
     assert not np.shares_memory(mosaic, weighs)
+    empty = anchors._mosaic(np.zeros(0, np.int64), k)
+    assert [a.shape for a in empty] == [(0, 0), (0, 0), (0, 2)]
     index = np.arange(n)
     assert same(centres, np.column_stack([(index % per_row) * side + side // 2,
                                           (index // per_row) * side + side // 2]).astype(float))

@@ -162,7 +162,7 @@ class Anchors:
         half = self.side // 2
         side = self.side
         per_row = int(np.ceil(np.sqrt(rows.size)))
-        full, rest = divmod(rows.size, per_row)
+        full, rest = divmod(rows.size, per_row) if per_row else (0, 0)
 
         def tiled(stored: NDArray[np.float32]) -> NDArray[np.float32]:
             # Tile i at (i // per_row, i % per_row), zeros past the last: the tiles written
