@@ -8,9 +8,23 @@ use crate::Error;
 /// A random SPD block matrix: a random symmetric pattern with random blocks, made
 /// diagonally dominant per scalar row.
 pub(super) fn random_spd<const B: usize>(n: usize, density: f64, seed: u64) -> BlockCsr<B> {
+    random_banded_spd(n, n, density, seed)
+}
+
+/// As [`random_spd`], each row's off-diagonal blocks within `band` rows of the diagonal.
+fn random_banded_spd<const B: usize>(
+    n: usize,
+    band: usize,
+    density: f64,
+    seed: u64,
+) -> BlockCsr<B> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let adjacency: Vec<Vec<u32>> = (0..n)
-        .map(|i| (0..i as u32).filter(|_| rng.random_bool(density)).collect())
+        .map(|i| {
+            (i.saturating_sub(band) as u32..i as u32)
+                .filter(|_| rng.random_bool(density))
+                .collect()
+        })
         .collect();
     let mut m = BlockCsr::<B>::from_pattern(&adjacency).unwrap();
     let (indptr, indices) = (m.indptr().to_vec(), m.indices().to_vec());
@@ -366,6 +380,45 @@ fn upper_triangle_product_equals_the_full_one() {
 }
 
 #[test]
+fn upper_product_of_a_band_adds_only_the_band() {
+    // ~100,000 upper blocks: eight tasks, each touching its rows and the band after them.
+    const BAND: usize = 40;
+    let m = random_banded_spd::<3>(20_000, BAND, 0.1, 5);
+    let x: Vec<f64> = (0..m.size()).map(|i| (i as f64 * 0.53).cos()).collect();
+    let mut full = vec![0.0; m.size()];
+    m.mul_into(&x, &mut full).unwrap();
+    let product = |threads| {
+        crate::ordered::in_pool(threads, || {
+            let mut upper = super::upper::Upper::<3>::default();
+            upper.load(&m);
+            let (ranges, spans) = upper.tasks();
+            assert_eq!(ranges.len(), 8);
+            for (&(start, end), &(from, to)) in ranges.iter().zip(spans) {
+                assert!(from == start && to >= end && to <= (end + BAND).min(m.len()));
+            }
+            let mut y = vec![[0.0; 3]; m.len()];
+            if upper.has_exact() {
+                upper.mul(x.as_chunks::<3>().0, &mut y);
+                assert!(relative_error(y.as_flattened(), &full) < 1e-14);
+            }
+            upper.mul_inner(x.as_chunks::<3>().0, &mut y);
+            let bound = if upper.inexact_inner() { 1e-6 } else { 1e-14 };
+            assert!(relative_error(y.as_flattened(), &full) < bound);
+            y
+        })
+    };
+    let one = product(1);
+    for threads in [2, 3] {
+        let many = product(threads);
+        assert!(one
+            .as_flattened()
+            .iter()
+            .zip(many.as_flattened())
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+}
+
+#[test]
 fn pcg_gives_the_same_bits_on_any_thread_count() {
     // Long enough for the parallel dot products (>= 2^16 scalars) and a product split into
     // several tasks (~140,000 upper blocks); 12 iterations, not converged, so every
@@ -388,7 +441,9 @@ fn pcg_gives_the_same_bits_on_any_thread_count() {
         let (many, many_status) = solve(threads);
         assert_eq!(status, many_status, "{threads} threads");
         assert!(
-            one.iter().zip(&many).all(|(a, b)| a.to_bits() == b.to_bits()),
+            one.iter()
+                .zip(&many)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
             "{threads} threads"
         );
     }

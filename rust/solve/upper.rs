@@ -50,6 +50,10 @@ pub(super) struct Upper<const B: usize> {
     partial_wide: Vec<Vec<Lane>>,
     /// Row ranges of the tasks, balanced by blocks.
     ranges: Vec<(usize, usize)>,
+    /// Per task, the rows its accumulator touches: its first row up to one past its largest
+    /// column (the upper triangle writes no row before its own). Only this span is zeroed
+    /// and added, so on a banded ordering the extra tasks cost little ([`Self::sum_tasks`]).
+    spans: Vec<(usize, usize)>,
     partial: Vec<Vec<[f64; B]>>,
 }
 
@@ -72,6 +76,19 @@ impl<const B: usize> Upper<B> {
             self.ranges.push((start, end.max(start)));
             start = end.max(start);
         }
+        let indptr = &self.indptr;
+        let indices = &self.indices;
+        self.spans = self
+            .ranges
+            .iter()
+            .map(|&(start, end)| {
+                let reach = (start..end)
+                    .filter(|&i| indptr[i + 1] > indptr[i])
+                    .map(|i| indices[indptr[i + 1] - 1] as usize + 1)
+                    .fold(end, usize::max);
+                (start, reach)
+            })
+            .collect();
         if B == 3 && wide::available() {
             self.partial = Vec::new();
             self.x_wide = vec![[0.0; 4]; n];
@@ -97,6 +114,12 @@ impl<const B: usize> Upper<B> {
     pub(super) fn parts(&self) -> (&[usize], &[u32], &[Block<B>], &[f32]) {
         let n = self.indices.len().min(self.blocks.len());
         (&self.indptr, &self.indices, &self.blocks[..n], &self.narrow)
+    }
+
+    /// Row ranges of the tasks and the rows each one's accumulator touches: for the tests.
+    #[cfg(test)]
+    pub(super) fn tasks(&self) -> (&[(usize, usize)], &[(usize, usize)]) {
+        (&self.ranges, &self.spans)
     }
 
     /// Marks the AVX2 kernel and makes its float32 copy, once `blocks` holds the upper
@@ -216,7 +239,7 @@ impl<const B: usize> Upper<B> {
             Self::mul_wide(
                 &mut self.x_wide,
                 &mut self.partial_wide,
-                &self.ranges,
+                (&self.ranges, &self.spans),
                 kernel,
                 x,
                 y,
@@ -257,20 +280,13 @@ impl<const B: usize> Upper<B> {
         }
         self.partial
             .par_iter_mut()
-            .zip(self.ranges.par_iter())
-            .for_each(|(part, &range)| {
-                part.iter_mut().for_each(|v| *v = [0.0; B]);
+            .zip(self.ranges.par_iter().zip(self.spans.par_iter()))
+            .for_each(|(part, (&range, &(from, to)))| {
+                part[from..to].iter_mut().for_each(|v| *v = [0.0; B]);
                 rows(range, part);
             });
-        let partial = &self.partial;
-        y.iter_mut().enumerate().for_each(|(i, yi)| {
-            *yi = [0.0; B];
-            for part in partial {
-                for a in 0..B {
-                    yi[a] += part[i][a];
-                }
-            }
-        });
+        y.iter_mut().for_each(|v| *v = [0.0; B]);
+        sum_tasks(&self.partial, &self.spans, y);
     }
 
     /// $y \approx A x$ from the float32 copy when there is one (relative error ~1e-7 of
@@ -288,7 +304,7 @@ impl<const B: usize> Upper<B> {
         Self::mul_wide(
             &mut self.x_wide,
             &mut self.partial_wide,
-            &self.ranges,
+            (&self.ranges, &self.spans),
             kernel,
             x,
             y,
@@ -300,7 +316,7 @@ impl<const B: usize> Upper<B> {
     fn mul_wide<K>(
         x_wide: &mut [Lane],
         partial: &mut [Vec<Lane>],
-        ranges: &[(usize, usize)],
+        (ranges, spans): (&[(usize, usize)], &[(usize, usize)]),
         kernel: K,
         x: &[[f64; B]],
         y: &mut [[f64; B]],
@@ -314,20 +330,45 @@ impl<const B: usize> Upper<B> {
         if ranges.len() == 1 {
             partial[0].iter_mut().for_each(|v| *v = [0.0; 4]);
             kernel(ranges[0], x_wide, &mut partial[0]);
-        } else {
-            partial
-                .par_iter_mut()
-                .zip(ranges.par_iter())
-                .for_each(|(part, &range)| {
-                    part.iter_mut().for_each(|v| *v = [0.0; 4]);
-                    kernel(range, x_wide, part);
-                });
-        }
-        let partial = &*partial;
-        y.iter_mut().enumerate().for_each(|(i, yi)| {
-            for a in 0..B {
-                yi[a] = partial.iter().map(|part| part[i][a]).sum();
+            for (yi, p) in y.iter_mut().zip(&partial[0]) {
+                // `-0.0 + v`, as a sum of one term starting from -0.0 gives.
+                yi.iter_mut().zip(p).for_each(|(y, &v)| *y = -0.0 + v);
             }
-        });
+            return;
+        }
+        partial
+            .par_iter_mut()
+            .zip(ranges.par_iter().zip(spans.par_iter()))
+            .for_each(|(part, (&range, &(from, to)))| {
+                part[from..to].iter_mut().for_each(|v| *v = [0.0; 4]);
+                kernel(range, x_wide, part);
+            });
+        // The tasks' sum as `Iterator::sum` over all of them gave it (it starts from -0.0):
+        // the skipped accumulators hold +0.0, which changes a sum only by turning a -0.0
+        // into +0.0, so that is added where some task does not reach the row.
+        y.iter_mut().for_each(|v| *v = [-0.0; B]);
+        sum_tasks(partial, spans, y);
+        let full = spans.last().map_or(0, |s| s.0)..spans.iter().map(|s| s.1).min().unwrap_or(0);
+        for (i, yi) in y.iter_mut().enumerate() {
+            if !full.contains(&i) {
+                yi.iter_mut().for_each(|v| *v += 0.0);
+            }
+        }
+    }
+}
+
+/// Adds each task's accumulator over its span to `y`, task by task (the order fixes the
+/// rounding): the sum over all tasks, less the zeros of the rows a task does not touch.
+fn sum_tasks<const B: usize, const L: usize>(
+    partial: &[Vec<[f64; L]>],
+    spans: &[(usize, usize)],
+    y: &mut [[f64; B]],
+) {
+    for (part, &(from, to)) in partial.iter().zip(spans) {
+        for (yi, p) in y[from..to].iter_mut().zip(&part[from..to]) {
+            for a in 0..B {
+                yi[a] += p[a];
+            }
+        }
     }
 }
