@@ -247,8 +247,7 @@ COVARIANCE_SCALE = 1.0
 # Positions whose standard deviation along the weakest direction of that covariance
 # exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
 # tracker follows them on, but a run resumed from its files restarts their trajectory
-# filters (the files hold no position for them), and the hidden views' frame counts
-# restart at zero on resume.
+# filters (the files hold no position for them).
 UNCERTAIN_SD = float("inf")
 # Reported positions withheld as SLID (:mod:`elastocap.tracking.rigidity`,
 # ``rigid_residuals``): the intersection farther across its rays from where its neighbours'
