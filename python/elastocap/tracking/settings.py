@@ -170,7 +170,15 @@ RETIE_REFERENCE = "anchor"
 # intersection. Seed 0 (benches/README.md, branch track8): through 33.3 -> 32.8%, kept
 # 3-D beyond 5 px-eq 3.84 -> 3.31%; ended at once (1 frame, no evidence) 31.7% / 2.83%.
 HIDDEN_FRAMES = 2
-HIDDEN_FACING = -2.0
+# HIDDEN_FACING 0.1 (session 30, branch kept1; -2.0 before): a view whose surface turns to
+# grazing (cosine to its camera below 0.1 by the tracker's fitted normal) is ended like an
+# occluded one (2 frames, the evidence above). A pair's views of a surface turning away
+# slide to its rim and hold there: on tuning m15 the head turning away from cameras 4 and 5
+# over its last twelve frames gave 101 of the 213 kept 3-D positions beyond 5 px-eq, 99 of
+# them held only by cameras that no longer saw the point. Against -2.0 (benches/README.md,
+# kept1): kept 3-D beyond 5 px-eq m15 2.168 -> 1.519%, m41 0.823 -> 0.665%; through -0.61 /
+# -0.38 point; 0.2: 1.353 / 0.663%, through -1.11 / -0.87; 0.05: m15 1.914%, through 0.
+HIDDEN_FACING = 0.1
 HIDDEN_EVIDENCE = True
 HIDDEN_CORRELATION = 0.9
 HIDDEN_SHIFT = 0.3
@@ -239,8 +247,7 @@ COVARIANCE_SCALE = 1.0
 # Positions whose standard deviation along the weakest direction of that covariance
 # exceeds this many pixel equivalents are withheld (flag UNCERTAIN); infinite: kept. The
 # tracker follows them on, but a run resumed from its files restarts their trajectory
-# filters (the files hold no position for them), and the hidden views' frame counts
-# restart at zero on resume.
+# filters (the files hold no position for them).
 UNCERTAIN_SD = float("inf")
 # Reported positions withheld as SLID (:mod:`elastocap.tracking.rigidity`,
 # ``rigid_residuals``): the intersection farther across its rays from where its neighbours'

@@ -197,6 +197,9 @@ class FrameTracker:
             "flags": flags_out,
             "uv": uv,
             "flags2d": flags2d,
+            # Consecutive frames each held view was predicted hidden: a resumed run ends
+            # the same views (settings.HIDDEN_FRAMES) as one run.
+            "hidden_run": self.hidden.astype(np.int32),
             **({} if self.lost is None else self.lost.state(total)),
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),

@@ -1,6 +1,6 @@
 """The tracker's state on disk and in memory (issue 15, SPEC 7): a run resumed from the
 frames it wrote (the 2-D views, the intersections, the seeding frames, the revival's
-history, the anchors cut again), and the reported positions of seeding frames dropped
+history, the anchors cut again, the hidden views' frame counts), and the reported positions of seeding frames dropped
 once no live point needs them."""
 
 from __future__ import annotations
@@ -43,6 +43,9 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
         tracker.uv_last[:m] = before["uv"]
         tracker.x_before[:m] = intersections(before)
     tracker.point_flags = last["flags"].astype(np.uint8)
+    if "hidden_run" in last:
+        # Files written before it was recorded restart the counts at zero.
+        tracker.hidden = np.asarray(last["hidden_run"], np.int64)
     tracker.seeded_at = np.full(n, -1, np.int64)
     for frame in chosen[:done]:
         written = read_frame(frame_file(out, frame))
