@@ -1,14 +1,20 @@
-//! The seeding's visual-hull test of ray samples in one camera: from camera coordinates to
-//! the pixel, whether it is seen, and the mask there, in one pass.
+//! The seeding's visual-hull test of ray samples: each sample into every other camera, the
+//! pixel, whether it is seen and the mask there, one sample at a time.
 //!
-//! A seeding frame tests ~10^7 ray samples against the other cameras' masks
-//! (benches/README.md "seedframe1"); in numpy each of the ~25 element-wise operations of
-//! the pinhole and lens model is a pass over all of them, and the mask read a gather. Here
-//! each sample's operations are the same IEEE operations in the same order as
-//! `elastocap.tracking.seeding._seen_pixels` (itself `Camera.project`'s, without the lens
-//! terms whose coefficient is zero: the same skips here), so the pixel, the footprint test
-//! and the mask read agree bit for bit. The rotation into the camera (a BLAS product in
-//! numpy, whose summation order is the library's) stays with the caller.
+//! A seeding frame tests ~2 M ray samples against the other cameras' masks
+//! (benches/README.md "seedframe1", "seedfast1"); in numpy each of the ~25 element-wise
+//! operations of the pinhole and lens model was a pass over all of them, with a gather of
+//! the samples still inside before each camera. Here each sample's operations are the same
+//! IEEE operations in the same order as `elastocap.tracking.seeding._seen_pixels` (itself
+//! `Camera.project`'s, without the lens terms whose coefficient is zero: the same skips
+//! here), so the pixel, the footprint test and the mask read agree bit for bit.
+//!
+//! The rotation into the camera is numpy's `points @ R.T + t`, a BLAS product whose
+//! summation order is the library's: OpenBLAS's kernels (Haswell and later) accumulate
+//! `fma(x2, r2, fma(x1, r1, fma(x0, r0, 0)))`, then numpy adds `t`. [`HullView`] computes
+//! exactly that, with fused multiply-adds, so the hull is numpy's to the bit on such a
+//! machine (checked on every sample of a seeding frame, "seedfast1"); elsewhere it differs
+//! from numpy's at rounding level only.
 
 use crate::camera::DIST_LEN;
 
@@ -83,6 +89,205 @@ impl HullCamera {
     }
 }
 
+/// One camera that bounds the visual hull: its pose, intrinsics and mask.
+#[derive(Debug, Clone, Copy)]
+pub struct HullView<'a> {
+    /// World-to-camera rotation (rows: the camera's axes).
+    pub r: [[f64; 3]; 3],
+    /// World-to-camera translation.
+    pub t: [f64; 3],
+    /// Intrinsics, lens and image size.
+    pub camera: HullCamera,
+    /// The silhouette, row-major `height x width`.
+    pub mask: &'a [bool],
+}
+
+impl HullView<'_> {
+    /// Camera coordinates `R p + t` of world point `p`, rounded as OpenBLAS's product
+    /// (module docs): the dot product a chain of fused multiply-adds from zero.
+    #[inline(always)]
+    fn camera_frame(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|j| {
+            let r = self.r[j];
+            p[2].mul_add(r[2], p[1].mul_add(r[1], p[0].mul_add(r[0], 0.0))) + self.t[j]
+        })
+    }
+}
+
+/// Whether world point `p` lies in the visual hull of `views`: finite, inside every
+/// view's mask where that view sees it, and seen by at least `min_seen` of them (space few
+/// cameras see is not bounded by the hull). The views are tried in order and the first
+/// mask that does not hold the point ends the test (most ray samples leave the hull in the
+/// first view tried).
+#[inline(always)]
+fn in_hull(p: [f64; 3], views: &[HullView<'_>], min_seen: usize) -> bool {
+    if !p.iter().all(|c| c.is_finite()) {
+        return false;
+    }
+    let mut seen_by = 0;
+    for view in views {
+        let (held, seen) = view.camera.held(view.camera_frame(p), view.mask);
+        if !held {
+            return false;
+        }
+        seen_by += usize::from(seen);
+    }
+    seen_by >= min_seen
+}
+
+/// Samples tested together: one AVX register of f64 (two SSE2 registers without AVX).
+const LANES: usize = 4;
+type Lanes = [f64; LANES];
+
+/// `f` of each lane: every lane the same IEEE operations as the scalar code, which the
+/// compiler turns into one vector instruction per operation (divisions and fused
+/// multiply-adds are correctly rounded lane by lane, so the lanes equal the scalar path).
+#[inline(always)]
+fn lanes(f: impl Fn(usize) -> f64) -> Lanes {
+    std::array::from_fn(f)
+}
+
+impl HullCamera {
+    /// [`HullCamera::pixel`] of four camera-coordinate points (`x[axis][lane]`), lane by
+    /// lane the same operations in the same order.
+    #[inline(always)]
+    fn pixels(&self, x: &[Lanes; 3]) -> [Lanes; 2] {
+        let [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4] = self.dist;
+        let a = lanes(|i| x[0][i] / x[2][i]);
+        let b = lanes(|i| x[1][i] / x[2][i]);
+        let (mut a2, mut b2) = (a, b);
+        if self.dist.iter().any(|&c| c != 0.0) {
+            let r2 = lanes(|i| a[i] * a[i] + b[i] * b[i]);
+            let mut radial = lanes(|i| 1.0 + r2[i] * (k1 + r2[i] * (k2 + r2[i] * k3)));
+            if k4 != 0.0 || k5 != 0.0 || k6 != 0.0 {
+                radial = lanes(|i| radial[i] / (1.0 + r2[i] * (k4 + r2[i] * (k5 + r2[i] * k6))));
+            }
+            a2 = lanes(|i| a[i] * radial[i]);
+            b2 = lanes(|i| b[i] * radial[i]);
+            if p1 != 0.0 {
+                a2 = lanes(|i| a2[i] + 2.0 * p1 * a[i] * b[i]);
+                b2 = lanes(|i| b2[i] + p1 * (r2[i] + 2.0 * b[i] * b[i]));
+            }
+            if p2 != 0.0 {
+                a2 = lanes(|i| a2[i] + p2 * (r2[i] + 2.0 * a[i] * a[i]));
+                b2 = lanes(|i| b2[i] + 2.0 * p2 * a[i] * b[i]);
+            }
+            if s1 != 0.0 || s2 != 0.0 {
+                a2 = lanes(|i| a2[i] + r2[i] * (s1 + r2[i] * s2));
+            }
+            if s3 != 0.0 || s4 != 0.0 {
+                b2 = lanes(|i| b2[i] + r2[i] * (s3 + r2[i] * s4));
+            }
+        }
+        let k = &self.k;
+        [
+            lanes(|i| k[0][0] * a2[i] + k[0][1] * b2[i] + k[0][2]),
+            lanes(|i| k[1][1] * b2[i] + k[1][2]),
+        ]
+    }
+}
+
+impl HullView<'_> {
+    /// [`HullView::camera_frame`] of four world points (`p[axis][lane]`).
+    #[inline(always)]
+    fn camera_frames(&self, p: &[Lanes; 3]) -> [Lanes; 3] {
+        std::array::from_fn(|j| {
+            let r = self.r[j];
+            lanes(|i| p[2][i].mul_add(r[2], p[1][i].mul_add(r[1], p[0][i].mul_add(r[0], 0.0))) + self.t[j])
+        })
+    }
+}
+
+/// [`in_hull`] of four points at once: the arithmetic of each view for all four (as long as
+/// one is still in), the footprint test and mask read lane by lane. The views are tried
+/// starting with the one that last put a whole group out (consecutive samples lie along
+/// one ray: the view that refuses one mostly refuses the next); the answer is an AND over
+/// the views and a count, whatever the order.
+#[inline(always)]
+fn in_hull4(p: &[[f64; 3]; LANES], views: &[HullView<'_>], min_seen: usize, first: &mut usize, out: &mut [bool]) {
+    let mut alive: [bool; LANES] = std::array::from_fn(|i| p[i].iter().all(|c| c.is_finite()));
+    // Non-finite lanes are out; they still ride along in the arithmetic as zeros.
+    let q: [Lanes; 3] = std::array::from_fn(|a| lanes(|i| if alive[i] { p[i][a] } else { 0.0 }));
+    let mut seen_by = [0usize; LANES];
+    let start = *first;
+    let order = std::iter::once(start).chain((0..views.len()).filter(|&v| v != start));
+    for v in order {
+        if !alive.iter().any(|&a| a) {
+            break;
+        }
+        let view = &views[v];
+        let x = view.camera_frames(&q);
+        let [u, w] = view.camera.pixels(&x);
+        let cam = &view.camera;
+        let (width, height) = (cam.width as f64 - 0.5, cam.height as f64 - 0.5);
+        for i in 0..LANES {
+            if !alive[i] {
+                continue;
+            }
+            let seen = x[2][i] > 0.0 && u[i] >= -0.5 && u[i] < width && w[i] >= -0.5 && w[i] < height;
+            if seen {
+                let (iu, iv) = (u[i].round_ties_even() as usize, w[i].round_ties_even() as usize);
+                if !view.mask[iv * cam.width + iu] {
+                    alive[i] = false;
+                }
+                seen_by[i] += 1;
+            }
+        }
+        if !alive.iter().any(|&a| a) {
+            *first = v;
+        }
+    }
+    for i in 0..LANES {
+        out[i] = alive[i] && seen_by[i] >= min_seen;
+    }
+}
+
+/// [`in_hull`] of each of `points` into `out` (the same length), four at a time.
+#[inline(always)]
+fn fill(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
+    if views.is_empty() {
+        for (o, &p) in out.iter_mut().zip(points) {
+            *o = in_hull(p, views, min_seen);
+        }
+        return;
+    }
+    let mut first = 0;
+    let (groups, tail) = points.as_chunks::<LANES>();
+    let (out_groups, out_tail) = out.split_at_mut(groups.len() * LANES);
+    for (p, o) in groups.iter().zip(out_groups.chunks_exact_mut(LANES)) {
+        in_hull4(p, views, min_seen, &mut first, o);
+    }
+    for (o, &p) in out_tail.iter_mut().zip(tail) {
+        *o = in_hull(p, views, min_seen);
+    }
+}
+
+/// [`in_hull`] of each of `points` into `out` (the same length).
+pub fn hull_inside(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
+    assert_eq!(points.len(), out.len(), "one answer per point");
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has AVX2 and FMA.
+        unsafe { hull_inside_wide(points, views, min_seen, out) };
+        return;
+    }
+    // Without FMA `mul_add` is the C library's `fma`: the same numbers, slower.
+    fill(points, views, min_seen, out);
+}
+
+/// [`hull_inside`] compiled for AVX2 and FMA: four lanes of f64 a register and `mul_add`
+/// one instruction (the portable build's is a call into the C library, several times the
+/// rest of a view's arithmetic). Only the explicit `mul_add`s fuse: Rust never contracts
+/// `a * b + c`, so the pixel's operations stay those of `_seen_pixels`.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn hull_inside_wide(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
+    fill(points, views, min_seen, out);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -142,5 +347,101 @@ mod tests {
                 790.0 * (b * radial) + 240.0
             ]
         );
+    }
+
+    /// Views looking at the origin from a ring, with random lenses and masks (a disc
+    /// about the origin's pixel, holes punched at random).
+    fn ring(rng: &mut impl rand::Rng, n: usize, masks: &mut Vec<Vec<bool>>) -> Vec<(HullCamera, [[f64; 3]; 3], [f64; 3])> {
+        let (w, h) = (64usize, 48usize);
+        (0..n)
+            .map(|c| {
+                let angle = c as f64 * 2.0 * std::f64::consts::PI / n as f64 + rng.random_range(-0.2..0.2);
+                let (s, co) = angle.sin_cos();
+                // Rows: the camera's x, y, z axes; z towards the origin from radius 4.
+                let r = [[co, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, co]];
+                let t = [0.0, 0.0, 4.0];
+                let mut dist = [0.0; DIST_LEN];
+                for (d, scale) in dist.iter_mut().zip([0.2, 0.05, 0.01, 0.01, 0.01, 0.05, 0.01, 0.005, 0.002, 0.001, 0.002, 0.001]) {
+                    if rng.random_bool(0.5) {
+                        *d = rng.random_range(-1.0..1.0) * scale;
+                    }
+                }
+                let camera = HullCamera {
+                    k: [[60.0, rng.random_range(-1.0..1.0), 32.0], [0.0, 61.0, 24.0], [0.0, 0.0, 1.0]],
+                    dist,
+                    width: w,
+                    height: h,
+                };
+                let radius = rng.random_range(8.0..20.0);
+                masks.push(
+                    (0..w * h)
+                        .map(|i| {
+                            let (u, v) = ((i % w) as f64 - 32.0, (i / w) as f64 - 24.0);
+                            u.hypot(v) < radius && rng.random_bool(0.95)
+                        })
+                        .collect(),
+                );
+                (camera, r, t)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn four_at_a_time_in_any_order_is_one_at_a_time() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for n in 1..8 {
+            let mut masks = Vec::new();
+            let parts = ring(&mut rng, n, &mut masks);
+            let views: Vec<HullView<'_>> = parts
+                .iter()
+                .zip(&masks)
+                .map(|(&(camera, r, t), mask)| HullView { r, t, camera, mask })
+                .collect();
+            // Rays' samples through the hull and far off, some non-finite, an odd count.
+            let mut points: Vec<[f64; 3]> = (0..4001)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0) * if rng.random_bool(0.1) { 8.0 } else { 0.8 }))
+                .collect();
+            for p in points.iter_mut().step_by(97) {
+                p[rng.random_range(0..3)] = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][rng.random_range(0..3)];
+            }
+            for min_seen in 0..=n.min(4) {
+                let want: Vec<bool> = points.iter().map(|&p| in_hull(p, &views, min_seen)).collect();
+                let mut got = vec![false; points.len()];
+                hull_inside(&points, &views, min_seen, &mut got);
+                assert_eq!(got, want, "{n} views, {min_seen} seen");
+                let mut portable = vec![false; points.len()];
+                fill(&points, &views, min_seen, &mut portable);
+                assert_eq!(portable, want, "{n} views, {min_seen} seen (portable)");
+                assert!(want.iter().any(|&i| i) && want.iter().any(|&i| !i), "{n} views: both answers");
+            }
+        }
+    }
+
+    #[test]
+    fn the_rotation_is_a_fused_chain_from_zero() {
+        // fma(x2, r2, fma(x1, r1, fma(x0, r0, 0))) + t, as OpenBLAS's product: with
+        // x0 r0 = -(1 + 2 eps) and x1 r1 = (1 + eps)^2 the fused chain keeps eps^2, the
+        // rounded products cancel to 0.
+        let x = 1.0 + f64::EPSILON;
+        let view = HullView {
+            r: [[-(1.0 + 2.0 * f64::EPSILON), x, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            t: [0.0, 0.0, 0.5],
+            camera: camera([0.0; DIST_LEN]),
+            mask: &[],
+        };
+        let p = [1.0, x, 0.0];
+        assert_eq!(view.camera_frame(p)[0], f64::EPSILON * f64::EPSILON);
+        assert_eq!(-(1.0 + 2.0 * f64::EPSILON) + x * x, 0.0, "unfused, it cancels");
+        assert_eq!(view.camera_frame(p)[2], 0.5);
+        // The four-lane product equals the one-point product, lane by lane.
+        let q = [[1.0, x, 3.0, -2.0], [x, x, 0.25, 0.5], [0.0, 7.0, 0.0, 1.5]];
+        let four = view.camera_frames(&q);
+        for i in 0..LANES {
+            let one = view.camera_frame([q[0][i], q[1][i], q[2][i]]);
+            for a in 0..3 {
+                assert_eq!(four[a][i].to_bits(), one[a].to_bits());
+            }
+        }
     }
 }

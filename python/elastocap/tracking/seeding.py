@@ -109,33 +109,29 @@ def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
 
 def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
-    """Whether points lie inside every other camera's mask where they project into its
-    image, and are seen by at least half of them (the visual hull; space that few cameras
-    see is not bounded by it: right in front of a camera of a ring, the cameras across see
-    the space behind the subject and count it inside)."""
-    inside: NDArray[np.bool_] = np.asarray(np.isfinite(flat).all(axis=1))
-    x = np.nan_to_num(flat)
-    seen_by = np.zeros(len(x), int)
-    for other, mask in zip(cameras, masks):
-        if other is cam:
-            continue
-        # Only the points no camera has yet put outside (most ray samples leave the hull
-        # in the first camera checked; the answer for the others is already False).
-        rows = np.flatnonzero(inside)
-        if rows.size == 0:
-            break
-        # The mask is read only where the point is seen (in the image, in front); the
-        # pixel is the rounded position, as the whole-pixel footprint test implies. The
-        # pixel and the read in the core, one pass per sample, with _seen_pixels'
-        # operations (benches/README.md, "seednear1").
+    """(N,) bool: whether the world points ``flat`` (N, 3) are finite, lie inside every
+    other camera's mask (H, W) where they project into its image, and are seen by at least
+    half of them (the visual hull; space that few cameras see is not bounded by it: right in
+    front of a camera of a ring, the cameras across see the space behind the subject and
+    count it inside).
+
+    In the core, one sample at a time through the cameras in order, stopping at the first
+    mask that does not hold it: the rotation, the pixel (``_seen_pixels``' operations), the
+    footprint test and the mask read at the rounded pixel, all of numpy's numbers to the bit
+    (benches/README.md, "seednear1", "seedfast1")."""
+    others = [(other, mask) for other, mask in zip(cameras, masks) if other is not cam]
+    for other, mask in others:
         if mask.shape != (other.height, other.width):
             raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
-        held, seen = _core.seed_hull_held(_camera_frame(other, x[rows]), np.ascontiguousarray(other.K, dtype=float),
-                                          np.ascontiguousarray(padded(other.dist), dtype=float),
-                                          np.ascontiguousarray(mask, dtype=bool))
-        inside[rows] = held
-        seen_by[rows] += seen
-    return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+    inside: NDArray[np.bool_] = _core.seed_hull_inside(
+        np.ascontiguousarray(flat, dtype=float),
+        np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
+        np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
+        np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
+        np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12),
+        [np.ascontiguousarray(mask, dtype=bool) for _, mask in others],
+        min_seen=max(2, (len(cameras) - 1) // 2))
+    return inside
 
 
 def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
