@@ -100,6 +100,7 @@ def test_hull_is_every_cameras_numpy_read_and_count(seed, count, min_seen):
     # least min_seen see it (the early exit at the first refusal changes no answer);
     # non-finite points are outside.
     rng = np.random.default_rng(seed)
+    min_seen = min(min_seen, count)
     cameras = [_camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, bool(i % 2)) for i in range(count)]
     masks = [rng.uniform(size=(c.height, c.width)) < 0.9 for c in cameras]
     x = np.concatenate([rng.normal(scale=0.6, size=(1500, 3)), rng.normal(scale=8.0, size=(300, 3))])

@@ -30,7 +30,11 @@ fn seed_hull_inside<'py>(
     use rayon::prelude::*;
     let points = rows::<3>(&points, "points")?;
     let c = masks.len();
-    if r.shape() != [c, 3, 3] || t.shape() != [c, 3] || k.shape() != [c, 3, 3] || dist.shape() != [c, DIST_LEN] {
+    if r.shape() != [c, 3, 3]
+        || t.shape() != [c, 3]
+        || k.shape() != [c, 3, 3]
+        || dist.shape() != [c, DIST_LEN]
+    {
         return Err(invalid_input(format!(
             "for {c} masks r and k must have shape ({c}, 3, 3), t ({c}, 3) and dist ({c}, {DIST_LEN}), \
              got {:?}, {:?}, {:?} and {:?}",

@@ -193,7 +193,9 @@ impl HullView<'_> {
     fn camera_frames(&self, p: &[Lanes; 3]) -> [Lanes; 3] {
         std::array::from_fn(|j| {
             let r = self.r[j];
-            lanes(|i| p[2][i].mul_add(r[2], p[1][i].mul_add(r[1], p[0][i].mul_add(r[0], 0.0))) + self.t[j])
+            lanes(|i| {
+                p[2][i].mul_add(r[2], p[1][i].mul_add(r[1], p[0][i].mul_add(r[0], 0.0))) + self.t[j]
+            })
         })
     }
 }
@@ -204,7 +206,13 @@ impl HullView<'_> {
 /// one ray: the view that refuses one mostly refuses the next); the answer is an AND over
 /// the views and a count, whatever the order.
 #[inline(always)]
-fn in_hull4(p: &[[f64; 3]; LANES], views: &[HullView<'_>], min_seen: usize, first: &mut usize, out: &mut [bool]) {
+fn in_hull4(
+    p: &[[f64; 3]; LANES],
+    views: &[HullView<'_>],
+    min_seen: usize,
+    first: &mut usize,
+    out: &mut [bool],
+) {
     let mut alive: [bool; LANES] = std::array::from_fn(|i| p[i].iter().all(|c| c.is_finite()));
     // Non-finite lanes are out; they still ride along in the arithmetic as zeros.
     let q: [Lanes; 3] = std::array::from_fn(|a| lanes(|i| if alive[i] { p[i][a] } else { 0.0 }));
@@ -219,14 +227,19 @@ fn in_hull4(p: &[[f64; 3]; LANES], views: &[HullView<'_>], min_seen: usize, firs
         let x = view.camera_frames(&q);
         let [u, w] = view.camera.pixels(&x);
         let cam = &view.camera;
-        let (width, height) = (cam.width as f64 - 0.5, cam.height as f64 - 0.5);
+        // The footprint's far edges, as `held`'s test.
+        let (u_end, v_end) = (cam.width as f64 - 0.5, cam.height as f64 - 0.5);
         for i in 0..LANES {
             if !alive[i] {
                 continue;
             }
-            let seen = x[2][i] > 0.0 && u[i] >= -0.5 && u[i] < width && w[i] >= -0.5 && w[i] < height;
+            let seen =
+                x[2][i] > 0.0 && u[i] >= -0.5 && u[i] < u_end && w[i] >= -0.5 && w[i] < v_end;
             if seen {
-                let (iu, iv) = (u[i].round_ties_even() as usize, w[i].round_ties_even() as usize);
+                let (iu, iv) = (
+                    u[i].round_ties_even() as usize,
+                    w[i].round_ties_even() as usize,
+                );
                 if !view.mask[iv * cam.width + iu] {
                     alive[i] = false;
                 }
@@ -284,7 +297,12 @@ pub fn hull_inside(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize,
 /// The CPU must have AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn hull_inside_wide(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
+unsafe fn hull_inside_wide(
+    points: &[[f64; 3]],
+    views: &[HullView<'_>],
+    min_seen: usize,
+    out: &mut [bool],
+) {
     fill(points, views, min_seen, out);
 }
 
@@ -351,23 +369,34 @@ mod tests {
 
     /// Views looking at the origin from a ring, with random lenses and masks (a disc
     /// about the origin's pixel, holes punched at random).
-    fn ring(rng: &mut impl rand::Rng, n: usize, masks: &mut Vec<Vec<bool>>) -> Vec<(HullCamera, [[f64; 3]; 3], [f64; 3])> {
+    fn ring(
+        rng: &mut impl rand::Rng,
+        n: usize,
+        masks: &mut Vec<Vec<bool>>,
+    ) -> Vec<(HullCamera, [[f64; 3]; 3], [f64; 3])> {
         let (w, h) = (64usize, 48usize);
         (0..n)
             .map(|c| {
-                let angle = c as f64 * 2.0 * std::f64::consts::PI / n as f64 + rng.random_range(-0.2..0.2);
+                let angle =
+                    c as f64 * 2.0 * std::f64::consts::PI / n as f64 + rng.random_range(-0.2..0.2);
                 let (s, co) = angle.sin_cos();
                 // Rows: the camera's x, y, z axes; z towards the origin from radius 4.
                 let r = [[co, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, co]];
                 let t = [0.0, 0.0, 4.0];
                 let mut dist = [0.0; DIST_LEN];
-                for (d, scale) in dist.iter_mut().zip([0.2, 0.05, 0.01, 0.01, 0.01, 0.05, 0.01, 0.005, 0.002, 0.001, 0.002, 0.001]) {
+                for (d, scale) in dist.iter_mut().zip([
+                    0.2, 0.05, 0.01, 0.01, 0.01, 0.05, 0.01, 0.005, 0.002, 0.001, 0.002, 0.001,
+                ]) {
                     if rng.random_bool(0.5) {
                         *d = rng.random_range(-1.0..1.0) * scale;
                     }
                 }
                 let camera = HullCamera {
-                    k: [[60.0, rng.random_range(-1.0..1.0), 32.0], [0.0, 61.0, 24.0], [0.0, 0.0, 1.0]],
+                    k: [
+                        [60.0, rng.random_range(-1.0..1.0), 32.0],
+                        [0.0, 61.0, 24.0],
+                        [0.0, 0.0, 1.0],
+                    ],
                     dist,
                     width: w,
                     height: h,
@@ -400,20 +429,31 @@ mod tests {
                 .collect();
             // Rays' samples through the hull and far off, some non-finite, an odd count.
             let mut points: Vec<[f64; 3]> = (0..4001)
-                .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0) * if rng.random_bool(0.1) { 8.0 } else { 0.8 }))
+                .map(|_| {
+                    std::array::from_fn(|_| {
+                        rng.random_range(-1.0..1.0) * if rng.random_bool(0.1) { 8.0 } else { 0.8 }
+                    })
+                })
                 .collect();
             for p in points.iter_mut().step_by(97) {
-                p[rng.random_range(0..3)] = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][rng.random_range(0..3)];
+                p[rng.random_range(0..3)] =
+                    [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][rng.random_range(0..3)];
             }
             for min_seen in 0..=n.min(4) {
-                let want: Vec<bool> = points.iter().map(|&p| in_hull(p, &views, min_seen)).collect();
+                let want: Vec<bool> = points
+                    .iter()
+                    .map(|&p| in_hull(p, &views, min_seen))
+                    .collect();
                 let mut got = vec![false; points.len()];
                 hull_inside(&points, &views, min_seen, &mut got);
                 assert_eq!(got, want, "{n} views, {min_seen} seen");
                 let mut portable = vec![false; points.len()];
                 fill(&points, &views, min_seen, &mut portable);
                 assert_eq!(portable, want, "{n} views, {min_seen} seen (portable)");
-                assert!(want.iter().any(|&i| i) && want.iter().any(|&i| !i), "{n} views: both answers");
+                assert!(
+                    want.iter().any(|&i| i) && want.iter().any(|&i| !i),
+                    "{n} views: both answers"
+                );
             }
         }
     }
@@ -425,14 +465,22 @@ mod tests {
         // rounded products cancel to 0.
         let x = 1.0 + f64::EPSILON;
         let view = HullView {
-            r: [[-(1.0 + 2.0 * f64::EPSILON), x, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            r: [
+                [-(1.0 + 2.0 * f64::EPSILON), x, 0.0],
+                [0.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
             t: [0.0, 0.0, 0.5],
             camera: camera([0.0; DIST_LEN]),
             mask: &[],
         };
         let p = [1.0, x, 0.0];
         assert_eq!(view.camera_frame(p)[0], f64::EPSILON * f64::EPSILON);
-        assert_eq!(-(1.0 + 2.0 * f64::EPSILON) + x * x, 0.0, "unfused, it cancels");
+        assert_eq!(
+            -(1.0 + 2.0 * f64::EPSILON) + x * x,
+            0.0,
+            "unfused, it cancels"
+        );
         assert_eq!(view.camera_frame(p)[2], 0.5);
         // The four-lane product equals the one-point product, lane by lane.
         let q = [[1.0, x, 3.0, -2.0], [x, x, 0.25, 0.5], [0.0, 7.0, 0.0, 1.5]];
