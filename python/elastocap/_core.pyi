@@ -37,6 +37,7 @@ __all__ = [
     "track_box_search",
     "track_ncc_at",
     "seed_hull_inside",
+    "seed_hull_depths",
     "track_ncc_at_cameras",
 ]
 
@@ -486,6 +487,20 @@ def seed_hull_inside(
     *,
     min_seen: int,
 ) -> NDArray[np.bool_]: ...
+def seed_hull_depths(
+    origins: NDArray[np.float64],
+    dirs: NDArray[np.float64],
+    coarse: NDArray[np.float64],
+    fractions: NDArray[np.float64],
+    step: float,
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    masks: list[NDArray[np.bool_]],
+    *,
+    min_seen: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
 def track_ncc_at_cameras(
     templates: list[NDArray[np.float32]],
     points: NDArray[np.float64],

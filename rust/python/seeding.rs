@@ -1,12 +1,60 @@
-//! Binding of the seeding's kernel: the visual hull's test of ray samples.
-//! (The correlation along a seed's line is `track_ncc_at`'s.)
+//! Binding of the seeding's kernels: the visual hull's test of ray samples and the depth
+//! search along a seed's ray. (The correlation along a seed's line is `track_ncc_at`'s.)
 
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
-use crate::track::{hull_inside, HullCamera, HullView};
+use crate::track::{hull_depths, hull_inside, DepthGrid, HullCamera, HullView};
+
+/// The hull's cameras from the arrays (checked: one pose, intrinsics and lens per mask).
+fn hull_views<'a>(
+    r: &'a PyReadonlyArray3<'_, f64>,
+    t: &'a PyReadonlyArray2<'_, f64>,
+    k: &'a PyReadonlyArray3<'_, f64>,
+    dist: &'a PyReadonlyArray2<'_, f64>,
+    masks: &'a [PyReadonlyArray2<'_, bool>],
+) -> PyResult<Vec<HullView<'a>>> {
+    let c = masks.len();
+    if r.shape() != [c, 3, 3]
+        || t.shape() != [c, 3]
+        || k.shape() != [c, 3, 3]
+        || dist.shape() != [c, DIST_LEN]
+    {
+        return Err(invalid_input(format!(
+            "for {c} masks r and k must have shape ({c}, 3, 3), t ({c}, 3) and dist ({c}, {DIST_LEN}), \
+             got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
+            k.shape(),
+            t.shape(),
+            dist.shape()
+        )));
+    }
+    let (rv, tv) = (c_slice(r, "r")?, c_slice(t, "t")?);
+    let (kv, dv) = (c_slice(k, "k")?, c_slice(dist, "dist")?);
+    masks
+        .iter()
+        .enumerate()
+        .map(|(i, mask)| {
+            let shape = mask.shape();
+            Ok(HullView {
+                r: std::array::from_fn(|a| std::array::from_fn(|b| rv[9 * i + 3 * a + b])),
+                t: std::array::from_fn(|a| tv[3 * i + a]),
+                camera: HullCamera {
+                    k: std::array::from_fn(|a| std::array::from_fn(|b| kv[9 * i + 3 * a + b])),
+                    dist: std::array::from_fn(|a| dv[DIST_LEN * i + a]),
+                    width: shape[1],
+                    height: shape[0],
+                },
+                mask: c_slice(mask, "masks")?,
+            })
+        })
+        .collect()
+}
 
 /// `(N,)` bool: whether each world point of `points` (N, 3) lies in the visual hull of the
 /// cameras `r` (C, 3, 3), `t` (C, 3), `k` (C, 3, 3), `dist` (C, 12) with silhouettes `masks`
@@ -29,41 +77,7 @@ fn seed_hull_inside<'py>(
 ) -> PyResult<Bound<'py, PyArray1<bool>>> {
     use rayon::prelude::*;
     let points = rows::<3>(&points, "points")?;
-    let c = masks.len();
-    if r.shape() != [c, 3, 3]
-        || t.shape() != [c, 3]
-        || k.shape() != [c, 3, 3]
-        || dist.shape() != [c, DIST_LEN]
-    {
-        return Err(invalid_input(format!(
-            "for {c} masks r and k must have shape ({c}, 3, 3), t ({c}, 3) and dist ({c}, {DIST_LEN}), \
-             got {:?}, {:?}, {:?} and {:?}",
-            r.shape(),
-            k.shape(),
-            t.shape(),
-            dist.shape()
-        )));
-    }
-    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
-    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
-    let views = masks
-        .iter()
-        .enumerate()
-        .map(|(i, mask)| {
-            let shape = mask.shape();
-            Ok(HullView {
-                r: std::array::from_fn(|a| std::array::from_fn(|b| rv[9 * i + 3 * a + b])),
-                t: std::array::from_fn(|a| tv[3 * i + a]),
-                camera: HullCamera {
-                    k: std::array::from_fn(|a| std::array::from_fn(|b| kv[9 * i + 3 * a + b])),
-                    dist: std::array::from_fn(|a| dv[DIST_LEN * i + a]),
-                    width: shape[1],
-                    height: shape[0],
-                },
-                mask: c_slice(mask, "masks")?,
-            })
-        })
-        .collect::<PyResult<Vec<_>>>()?;
+    let views = hull_views(&r, &t, &k, &dist, &masks)?;
     let inside = PyArray1::<bool>::zeros(py, points.len(), false);
     {
         let mut w = inside.readwrite();
@@ -78,6 +92,77 @@ fn seed_hull_inside<'py>(
     Ok(inside)
 }
 
+/// The depth search of the rays `origins`, `dirs` (M, 3; finite) through the visual hull
+/// of the cameras (as `seed_hull_inside`): the ray's first run through the hull on the
+/// depths `coarse` (K,), widened by `step` on both ends, sampled at `fractions` (D,) of
+/// it: `(fine (M, D, 3) world points, inside (M, D) bool)`, inside all false for a ray
+/// that never enters the hull. numpy's `_hull_depths` before "seedfast1", bit for bit.
+#[pyfunction]
+#[pyo3(signature = (origins, dirs, coarse, fractions, step, r, t, k, dist, masks, *, min_seen))]
+#[allow(clippy::too_many_arguments)]
+fn seed_hull_depths<'py>(
+    py: Python<'py>,
+    origins: PyReadonlyArray2<'py, f64>,
+    dirs: PyReadonlyArray2<'py, f64>,
+    coarse: PyReadonlyArray1<'py, f64>,
+    fractions: PyReadonlyArray1<'py, f64>,
+    step: f64,
+    r: PyReadonlyArray3<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    k: PyReadonlyArray3<'py, f64>,
+    dist: PyReadonlyArray2<'py, f64>,
+    masks: Vec<PyReadonlyArray2<'py, bool>>,
+    min_seen: usize,
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<bool>>)> {
+    use rayon::prelude::*;
+    let origins = rows::<3>(&origins, "origins")?;
+    let dirs = rows::<3>(&dirs, "dirs")?;
+    if dirs.len() != origins.len() {
+        return Err(invalid_input(format!(
+            "origins and dirs must hold as many rays, got {} and {}",
+            origins.len(),
+            dirs.len()
+        )));
+    }
+    let coarse = c_slice(&coarse, "coarse")?;
+    let fractions = c_slice(&fractions, "fractions")?;
+    if coarse.len() < 2 || fractions.is_empty() {
+        return Err(invalid_input(format!(
+            "coarse needs 2 depths at least and fractions 1, got {} and {}",
+            coarse.len(),
+            fractions.len()
+        )));
+    }
+    let views = hull_views(&r, &t, &k, &dist, &masks)?;
+    let grid = DepthGrid {
+        coarse,
+        fractions,
+        step,
+        views: &views,
+        min_seen,
+    };
+    let (m, d) = (origins.len(), fractions.len());
+    let fine = PyArray3::<f64>::zeros(py, [m, d, 3], false);
+    let inside = PyArray2::<bool>::zeros(py, [m, d], false);
+    {
+        let mut fw = fine.readwrite();
+        let mut iw = inside.readwrite();
+        let fine_out = fw.as_slice_mut()?.as_chunks_mut::<3>().0;
+        let inside_out = iw.as_slice_mut()?;
+        super::detach(py, || {
+            // Rays in groups: a ray's search is ~100-200 hull tests.
+            const RAYS: usize = 16;
+            fine_out
+                .par_chunks_mut(RAYS * d)
+                .zip(inside_out.par_chunks_mut(RAYS * d))
+                .zip(origins.par_chunks(RAYS).zip(dirs.par_chunks(RAYS)))
+                .for_each(|((f, i), (o, dr))| hull_depths(o, dr, &grid, f, i));
+        });
+    }
+    Ok((fine, inside))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)
+    m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)
 }

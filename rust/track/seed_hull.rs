@@ -255,20 +255,26 @@ fn in_hull4(
     }
 }
 
-/// [`in_hull`] of each of `points` into `out` (the same length), four at a time.
+/// [`in_hull`] of each of `points` into `out` (the same length), four at a time; `first`
+/// the view to try first (updated to the last one that put a whole group out).
 #[inline(always)]
-fn fill(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
+pub(crate) fn hull_fill(
+    points: &[[f64; 3]],
+    views: &[HullView<'_>],
+    min_seen: usize,
+    first: &mut usize,
+    out: &mut [bool],
+) {
     if views.is_empty() {
         for (o, &p) in out.iter_mut().zip(points) {
             *o = in_hull(p, views, min_seen);
         }
         return;
     }
-    let mut first = 0;
     let (groups, tail) = points.as_chunks::<LANES>();
     let (out_groups, out_tail) = out.split_at_mut(groups.len() * LANES);
     for (p, o) in groups.iter().zip(out_groups.chunks_exact_mut(LANES)) {
-        in_hull4(p, views, min_seen, &mut first, o);
+        in_hull4(p, views, min_seen, first, o);
     }
     for (o, &p) in out_tail.iter_mut().zip(tail) {
         *o = in_hull(p, views, min_seen);
@@ -285,7 +291,7 @@ pub fn hull_inside(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize,
         return;
     }
     // Without FMA `mul_add` is the C library's `fma`: the same numbers, slower.
-    fill(points, views, min_seen, out);
+    hull_fill(points, views, min_seen, &mut 0, out);
 }
 
 /// [`hull_inside`] compiled for AVX2 and FMA: four lanes of f64 a register and `mul_add`
@@ -303,7 +309,7 @@ unsafe fn hull_inside_wide(
     min_seen: usize,
     out: &mut [bool],
 ) {
-    fill(points, views, min_seen, out);
+    hull_fill(points, views, min_seen, &mut 0, out);
 }
 
 #[cfg(test)]
@@ -448,7 +454,7 @@ mod tests {
                 hull_inside(&points, &views, min_seen, &mut got);
                 assert_eq!(got, want, "{n} views, {min_seen} seen");
                 let mut portable = vec![false; points.len()];
-                fill(&points, &views, min_seen, &mut portable);
+                hull_fill(&points, &views, min_seen, &mut 0, &mut portable);
                 assert_eq!(portable, want, "{n} views, {min_seen} seen (portable)");
                 assert!(
                     want.iter().any(|&i| i) && want.iter().any(|&i| !i),

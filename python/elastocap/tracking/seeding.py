@@ -107,6 +107,22 @@ def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
     return np.argsort(-cosine, axis=1)[:, :-1]
 
 
+def _hull_cameras(cam: Camera, cameras: Sequence[Camera],
+                  masks: Sequence[NDArray[np.bool_]]) -> tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]], int]:
+    """The other cameras' poses and lenses as the core's hull kernels take them (``r`` (C, 3,
+    3), ``t`` (C, 3), ``k`` (C, 3, 3), ``dist`` (C, 12)), their masks (H, W) (checked
+    against their images), and how many must see a point: half of them."""
+    others = [(other, mask) for other, mask in zip(cameras, masks) if other is not cam]
+    for other, mask in others:
+        if mask.shape != (other.height, other.width):
+            raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
+    arrays = [np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
+              np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
+              np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
+              np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12)]
+    return arrays, [np.ascontiguousarray(mask, dtype=bool) for _, mask in others], max(2, (len(cameras) - 1) // 2)
+
+
 def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
     """(N,) bool: whether the world points ``flat`` (N, 3) are finite, lie inside every
@@ -115,22 +131,13 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
     front of a camera of a ring, the cameras across see the space behind the subject and
     count it inside).
 
-    In the core, one sample at a time through the cameras in order, stopping at the first
-    mask that does not hold it: the rotation, the pixel (``_seen_pixels``' operations), the
-    footprint test and the mask read at the rounded pixel, all of numpy's numbers to the bit
-    (benches/README.md, "seednear1", "seedfast1")."""
-    others = [(other, mask) for other, mask in zip(cameras, masks) if other is not cam]
-    for other, mask in others:
-        if mask.shape != (other.height, other.width):
-            raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
-    inside: NDArray[np.bool_] = _core.seed_hull_inside(
-        np.ascontiguousarray(flat, dtype=float),
-        np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
-        np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
-        np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
-        np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12),
-        [np.ascontiguousarray(mask, dtype=bool) for _, mask in others],
-        min_seen=max(2, (len(cameras) - 1) // 2))
+    In the core, one sample at a time through the cameras, stopping at the first mask that
+    does not hold it: the rotation, the pixel (``_seen_pixels``' operations), the footprint
+    test and the mask read at the rounded pixel, all of numpy's numbers to the bit
+    (benches/README.md, "seednear1", "seedfast1"). The test :func:`_hull_depths` makes."""
+    arrays, held, min_seen = _hull_cameras(cam, cameras, masks)
+    inside: NDArray[np.bool_] = _core.seed_hull_inside(np.ascontiguousarray(flat, dtype=float), *arrays, held,
+                                                       min_seen=min_seen)
     return inside
 
 
@@ -200,27 +207,24 @@ _CHUNK = 16384
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Ray samples (M, K, 3) from ``cam`` through ``seeds`` over the ray's first run inside
-    the visual hull (where the front surface lies): found on a coarse grid across the rig's
-    depth range, then sampled finely; and which of them lie inside the hull."""
+    """Ray samples (M, K, 3) from ``cam`` through ``seeds`` (M, 2) over the ray's first run
+    inside the visual hull (where the front surface lies): found on a coarse grid across the
+    rig's depth range, then sampled finely; and which of them lie inside the hull (M, K;
+    none where the ray never enters it).
+
+    In the core (``seed_hull_depths``, the test of :func:`_inside_hull`), ray by ray: it
+    tests the coarse grid only until the first run ends and a ray that misses the hull gets
+    no fine test; the samples and answers are those of the numpy search it replaced
+    (benches/README.md, "seedfast1")."""
     origins, dirs = cam.rays(seeds)
     dirs = np.nan_to_num(dirs)
     centres = np.array([c.center for c in cameras])
     reach = np.linalg.norm(centres - cam.center, axis=1).max()
     coarse = np.linspace(0.05 * reach, 1.2 * reach, _COARSE)
-    step = coarse[1] - coarse[0]
-    points = origins[:, None, :] + coarse[None, :, None] * dirs[:, None, :]
-    hull = _inside_hull(points.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _COARSE)
-    first = np.argmax(hull, axis=1)
-    after = np.arange(_COARSE)[None, :] >= first[:, None]
-    run = hull & after & (np.cumsum(after & ~hull, axis=1) == 0)
-    last = _COARSE - 1 - np.argmax(run[:, ::-1], axis=1)
-    near = coarse[first] - step
-    far = coarse[last] + step
-    t = near[:, None] + (far - near)[:, None] * np.linspace(0, 1, _DEPTHS)[None, :]
-    fine = origins[:, None, :] + t[..., None] * dirs[:, None, :]
-    inside = _inside_hull(fine.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _DEPTHS)
-    inside &= np.any(hull, axis=1)[:, None]
+    arrays, held, min_seen = _hull_cameras(cam, cameras, masks)
+    fine, inside = _core.seed_hull_depths(np.ascontiguousarray(origins, dtype=float), np.ascontiguousarray(dirs, dtype=float),
+                                          coarse, np.linspace(0, 1, _DEPTHS), float(coarse[1] - coarse[0]), *arrays, held,
+                                          min_seen=min_seen)
     return fine, inside
 
 
