@@ -1,6 +1,6 @@
-"""The seeding's visual-hull test and texture map, cut for speed (benches/README.md,
-"seedframe1"): they must give what the plain formulation gives, bit for bit, since the
-seeds (and so every track) follow from them."""
+"""The seeding's visual-hull test, depth search and texture map, cut for speed
+(benches/README.md, "seedframe1", "seednear1", "seedfast1"): they must give what the plain
+formulation gives, bit for bit, since the seeds (and so every track) follow from them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from elastocap.cameras import Camera
-from elastocap.tracking.seeding import _inside_hull, _seen_pixels, _texture
+from elastocap.tracking.seeding import _COARSE, _DEPTHS, _hull_depths, _inside_hull, _seen_pixels, _texture
 
 SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
 
@@ -110,3 +110,54 @@ def test_texture_on_the_masks_box_is_the_whole_images(seed, size):
     assert got.dtype == whole.dtype
     assert np.array_equal(got[inner], whole[inner])
     assert np.array_equal(_texture(grey, np.zeros((h, w), bool), size), np.zeros((h, w), np.float32))
+
+
+def _depths_reference(cam: Camera, seeds: np.ndarray, cameras: list[Camera],
+                      masks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The depth search as numpy did it (before "seedfast1"): every coarse sample tested,
+    the first run by a cumulative sum, every fine sample tested, then cleared without a run."""
+    origins, dirs = cam.rays(seeds)
+    dirs = np.nan_to_num(dirs)
+    centres = np.array([c.center for c in cameras])
+    reach = np.linalg.norm(centres - cam.center, axis=1).max()
+    coarse = np.linspace(0.05 * reach, 1.2 * reach, _COARSE)
+    step = coarse[1] - coarse[0]
+    points = origins[:, None, :] + coarse[None, :, None] * dirs[:, None, :]
+    hull = _hull_reference(points.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _COARSE)
+    first = np.argmax(hull, axis=1)
+    after = np.arange(_COARSE)[None, :] >= first[:, None]
+    run = hull & after & (np.cumsum(after & ~hull, axis=1) == 0)
+    last = _COARSE - 1 - np.argmax(run[:, ::-1], axis=1)
+    near = coarse[first] - step
+    far = coarse[last] + step
+    t = near[:, None] + (far - near)[:, None] * np.linspace(0, 1, _DEPTHS)[None, :]
+    fine = origins[:, None, :] + t[..., None] * dirs[:, None, :]
+    inside = _hull_reference(fine.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _DEPTHS)
+    inside &= np.any(hull, axis=1)[:, None]
+    return fine, inside
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=SEEDS, count=st.integers(min_value=3, max_value=6))
+def test_the_depth_search_is_the_plain_one(seed, count):
+    # Two balls' silhouettes (a ray can leave the hull and enter it again: only the first
+    # run counts); the search must give numpy's samples and answers, rays that miss included.
+    rng = np.random.default_rng(seed)
+    cameras = [_camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, False) for i in range(count)]
+    balls = [np.zeros(3), rng.normal(scale=0.8, size=3)]
+    masks = []
+    for camera in cameras:
+        vs, us = np.mgrid[:camera.height, :camera.width]
+        mask = np.zeros((camera.height, camera.width), bool)
+        for ball, radius in zip(balls, (rng.uniform(40, 120), rng.uniform(20, 60))):
+            centre, _ = camera.project(ball[None])
+            mask |= np.hypot(us - centre[0, 0], vs - centre[0, 1]) < radius
+        masks.append(mask)
+    cam = cameras[0]
+    seeds = np.column_stack([rng.uniform(-20, cam.width + 20, 300), rng.uniform(-20, cam.height + 20, 300)])
+    fine, inside = _hull_depths(cam, seeds, cameras, masks)
+    want_fine, want_inside = _depths_reference(cam, seeds, cameras, masks)
+    assert fine.shape == (len(seeds), _DEPTHS, 3) and inside.shape == (len(seeds), _DEPTHS)
+    assert np.array_equal(fine, want_fine)
+    assert np.array_equal(inside, want_inside)
+    assert want_inside.any(axis=1).any() and (~want_inside.any(axis=1)).any()

@@ -107,8 +107,11 @@ def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
     return np.argsort(-cosine, axis=1)[:, :-1]
 
 
+_Poses = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+
+
 def _hull_cameras(cam: Camera, cameras: Sequence[Camera],
-                  masks: Sequence[NDArray[np.bool_]]) -> tuple[list[NDArray[np.float64]], list[NDArray[np.bool_]], int]:
+                  masks: Sequence[NDArray[np.bool_]]) -> tuple[_Poses, list[NDArray[np.bool_]], int]:
     """The other cameras' poses and lenses as the core's hull kernels take them (``r`` (C, 3,
     3), ``t`` (C, 3), ``k`` (C, 3, 3), ``dist`` (C, 12)), their masks (H, W) (checked
     against their images), and how many must see a point: half of them."""
@@ -116,11 +119,11 @@ def _hull_cameras(cam: Camera, cameras: Sequence[Camera],
     for other, mask in others:
         if mask.shape != (other.height, other.width):
             raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
-    arrays = [np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
-              np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
-              np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
-              np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12)]
-    return arrays, [np.ascontiguousarray(mask, dtype=bool) for _, mask in others], max(2, (len(cameras) - 1) // 2)
+    poses = (np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
+             np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
+             np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
+             np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12))
+    return poses, [np.ascontiguousarray(mask, dtype=bool) for _, mask in others], max(2, (len(cameras) - 1) // 2)
 
 
 def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
@@ -135,8 +138,8 @@ def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camer
     does not hold it: the rotation, the pixel (``_seen_pixels``' operations), the footprint
     test and the mask read at the rounded pixel, all of numpy's numbers to the bit
     (benches/README.md, "seednear1", "seedfast1"). The test :func:`_hull_depths` makes."""
-    arrays, held, min_seen = _hull_cameras(cam, cameras, masks)
-    inside: NDArray[np.bool_] = _core.seed_hull_inside(np.ascontiguousarray(flat, dtype=float), *arrays, held,
+    (r, t, k, dist), held, min_seen = _hull_cameras(cam, cameras, masks)
+    inside: NDArray[np.bool_] = _core.seed_hull_inside(np.ascontiguousarray(flat, dtype=float), r, t, k, dist, held,
                                                        min_seen=min_seen)
     return inside
 
@@ -221,10 +224,10 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
     centres = np.array([c.center for c in cameras])
     reach = np.linalg.norm(centres - cam.center, axis=1).max()
     coarse = np.linspace(0.05 * reach, 1.2 * reach, _COARSE)
-    arrays, held, min_seen = _hull_cameras(cam, cameras, masks)
+    (r, t, k, dist), held, min_seen = _hull_cameras(cam, cameras, masks)
     fine, inside = _core.seed_hull_depths(np.ascontiguousarray(origins, dtype=float), np.ascontiguousarray(dirs, dtype=float),
-                                          coarse, np.linspace(0, 1, _DEPTHS), float(coarse[1] - coarse[0]), *arrays, held,
-                                          min_seen=min_seen)
+                                          coarse, np.linspace(0, 1, _DEPTHS), float(coarse[1] - coarse[0]), r, t, k, dist,
+                                          held, min_seen=min_seen)
     return fine, inside
 
 
