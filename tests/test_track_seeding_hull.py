@@ -143,7 +143,12 @@ def test_the_depth_search_is_the_plain_one(seed, count):
     # Two balls' silhouettes (a ray can leave the hull and enter it again: only the first
     # run counts); the search must give numpy's samples and answers, rays that miss included.
     rng = np.random.default_rng(seed)
-    cameras = [_camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, False) for i in range(count)]
+    cameras = []
+    for i in range(count):
+        # A ring about the origin (the search's depth range is the rig's span).
+        near = _camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, False)
+        turn, _ = cv2.Rodrigues(np.array([0.0, 2 * np.pi * (i + rng.uniform(-0.1, 0.1)) / count, 0.0]))
+        cameras.append(Camera(near.name, near.K, near.dist, near.R @ turn, near.t, near.width, near.height))
     balls = [np.zeros(3), rng.normal(scale=0.8, size=3)]
     masks = []
     for camera in cameras:
@@ -154,7 +159,9 @@ def test_the_depth_search_is_the_plain_one(seed, count):
             mask |= np.hypot(us - centre[0, 0], vs - centre[0, 1]) < radius
         masks.append(mask)
     cam = cameras[0]
-    seeds = np.column_stack([rng.uniform(-20, cam.width + 20, 300), rng.uniform(-20, cam.height + 20, 300)])
+    aim, _ = cam.project(np.zeros((1, 3)))
+    seeds = np.concatenate([np.column_stack([rng.uniform(-20, cam.width + 20, 150), rng.uniform(-20, cam.height + 20, 150)]),
+                            aim + rng.normal(scale=40, size=(150, 2))])
     fine, inside = _hull_depths(cam, seeds, cameras, masks)
     want_fine, want_inside = _depths_reference(cam, seeds, cameras, masks)
     assert fine.shape == (len(seeds), _DEPTHS, 3) and inside.shape == (len(seeds), _DEPTHS)
