@@ -13,12 +13,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_track_seeding_hull import _camera
+from test_track_seeding_hull import _camera, _numpy_seen_pixels
 
 from elastocap import InvalidInputError, _core
 from elastocap.cameras import Camera
 from elastocap.cameras.distortion import padded
-from elastocap.tracking.seeding import _seen_pixels
 
 SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
 
@@ -64,7 +63,7 @@ def test_hull_held_is_the_numpy_projection_and_read(seed, coefficients, zero, sk
     x = np.concatenate([rng.normal(scale=0.6, size=(2000, 3)), rng.normal(scale=8.0, size=(500, 3))])
     mask = rng.uniform(size=(camera.height, camera.width)) < 0.5
     held, seen = _held(camera, x, mask)
-    uv, want_seen = _seen_pixels(camera, x)
+    uv, want_seen = _numpy_seen_pixels(camera, x)
     want_held = np.ones(len(x), bool)
     at = np.flatnonzero(want_seen)
     want_held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]
@@ -110,7 +109,7 @@ def test_hull_is_every_cameras_numpy_read_and_count(seed, count, min_seen):
     want = finite.copy()
     seen_by = np.zeros(len(x), int)
     for camera, mask in zip(cameras, masks):
-        uv, seen = _seen_pixels(camera, np.nan_to_num(x))
+        uv, seen = _numpy_seen_pixels(camera, np.nan_to_num(x))
         at = np.flatnonzero(seen)
         held = np.ones(len(x), bool)
         held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]

@@ -38,6 +38,7 @@ __all__ = [
     "track_ncc_at",
     "seed_hull_inside",
     "seed_hull_depths",
+    "seed_pixels",
     "track_ncc_at_cameras",
 ]
 
@@ -500,6 +501,16 @@ def seed_hull_depths(
     masks: list[NDArray[np.bool_]],
     *,
     min_seen: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
+def seed_pixels(
+    points: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    *,
+    width: int,
+    height: int,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
 def track_ncc_at_cameras(
     templates: list[NDArray[np.float32]],

@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
-use crate::track::{hull_depths, hull_inside, DepthGrid, HullCamera, HullView};
+use crate::track::{hull_depths, hull_inside, hull_pixels, DepthGrid, HullCamera, HullView};
 
 /// The hull's cameras from the arrays (checked: one pose, intrinsics and lens per mask).
 fn hull_views<'a>(
@@ -162,7 +162,68 @@ fn seed_hull_depths<'py>(
     Ok((fine, inside))
 }
 
+/// `(uv (N, 2), seen (N,))`: the pixels of world points `points` (N, 3) in the camera
+/// `r` (3, 3), `t` (3,), `k` (3, 3), `dist` (12,) with a `width x height` image, and whether
+/// each is seen (in front, inside the pixel footprints). `Camera.project`'s pixels wherever
+/// they are finite, bit for bit (the hull test's arithmetic, `seed_hull_inside`).
+#[pyfunction]
+#[pyo3(signature = (points, r, t, k, dist, *, width, height))]
+#[allow(clippy::too_many_arguments)]
+fn seed_pixels<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray1<'py, f64>,
+    k: PyReadonlyArray2<'py, f64>,
+    dist: PyReadonlyArray1<'py, f64>,
+    width: usize,
+    height: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>)> {
+    use rayon::prelude::*;
+    let points = rows::<3>(&points, "points")?;
+    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
+        return Err(invalid_input(format!(
+            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
+            k.shape(),
+            t.shape(),
+            dist.shape()
+        )));
+    }
+    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
+    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
+    let view = HullView {
+        r: std::array::from_fn(|a| std::array::from_fn(|b| rv[3 * a + b])),
+        t: std::array::from_fn(|a| tv[a]),
+        camera: HullCamera {
+            k: std::array::from_fn(|a| std::array::from_fn(|b| kv[3 * a + b])),
+            dist: std::array::from_fn(|a| dv[a]),
+            width,
+            height,
+        },
+        mask: &[],
+    };
+    let n = points.len();
+    let uv = PyArray2::<f64>::zeros(py, [n, 2], false);
+    let seen = PyArray1::<bool>::zeros(py, n, false);
+    {
+        let mut uw = uv.readwrite();
+        let mut sw = seen.readwrite();
+        let uv_out = uw.as_slice_mut()?.as_chunks_mut::<2>().0;
+        let seen_out = sw.as_slice_mut()?;
+        super::detach(py, || {
+            uv_out
+                .par_chunks_mut(4096)
+                .zip(seen_out.par_chunks_mut(4096))
+                .zip(points.par_chunks(4096))
+                .for_each(|((u, s), p)| hull_pixels(p, &view, u, s));
+        });
+    }
+    Ok((uv, seen))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)?;
-    m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)
+    m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_pixels, m)?)
 }

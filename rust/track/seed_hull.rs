@@ -281,6 +281,71 @@ pub(crate) fn hull_fill(
     }
 }
 
+/// Pixels of `points` in `view`'s camera (its mask unused) into `uv`, and whether each is
+/// seen (in front, inside the image's pixel footprints) into `seen`: four at a time.
+#[inline(always)]
+fn fill_pixels(points: &[[f64; 3]], view: &HullView<'_>, uv: &mut [[f64; 2]], seen: &mut [bool]) {
+    let cam = &view.camera;
+    let (u_end, v_end) = (cam.width as f64 - 0.5, cam.height as f64 - 0.5);
+    let (groups, tail) = points.as_chunks::<LANES>();
+    let n = groups.len() * LANES;
+    for ((p, o), s) in groups
+        .iter()
+        .zip(uv[..n].chunks_exact_mut(LANES))
+        .zip(seen[..n].chunks_exact_mut(LANES))
+    {
+        let q: [Lanes; 3] = std::array::from_fn(|a| lanes(|i| p[i][a]));
+        let x = view.camera_frames(&q);
+        let [u, w] = cam.pixels(&x);
+        for i in 0..LANES {
+            o[i] = [u[i], w[i]];
+            s[i] = x[2][i] > 0.0 && u[i] >= -0.5 && u[i] < u_end && w[i] >= -0.5 && w[i] < v_end;
+        }
+    }
+    for ((&p, o), s) in tail.iter().zip(&mut uv[n..]).zip(&mut seen[n..]) {
+        let x = view.camera_frame(p);
+        let [u, w] = cam.pixel(x);
+        *o = [u, w];
+        *s = x[2] > 0.0 && u >= -0.5 && u < u_end && w >= -0.5 && w < v_end;
+    }
+}
+
+/// The pixels of world points `points` in `view`'s camera (`Camera.project`'s numbers where
+/// finite, [`HullCamera::pixel`]) into `uv`, and whether each is seen into `seen`.
+pub fn hull_pixels(
+    points: &[[f64; 3]],
+    view: &HullView<'_>,
+    uv: &mut [[f64; 2]],
+    seen: &mut [bool],
+) {
+    assert!(
+        uv.len() == points.len() && seen.len() == points.len(),
+        "one pixel per point"
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has AVX2 and FMA.
+        unsafe { hull_pixels_wide(points, view, uv, seen) };
+        return;
+    }
+    fill_pixels(points, view, uv, seen);
+}
+
+/// [`hull_pixels`] compiled for AVX2 and FMA (as [`hull_inside_wide`]).
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn hull_pixels_wide(
+    points: &[[f64; 3]],
+    view: &HullView<'_>,
+    uv: &mut [[f64; 2]],
+    seen: &mut [bool],
+) {
+    fill_pixels(points, view, uv, seen);
+}
+
 /// [`in_hull`] of each of `points` into `out` (the same length).
 pub fn hull_inside(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
     assert_eq!(points.len(), out.len(), "one answer per point");
@@ -496,6 +561,33 @@ mod tests {
             for a in 0..3 {
                 assert_eq!(four[a][i].to_bits(), one[a].to_bits());
             }
+        }
+    }
+
+    #[test]
+    fn pixels_four_at_a_time_are_one_at_a_time() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut masks = Vec::new();
+        let parts = ring(&mut rng, 3, &mut masks);
+        for (&(camera, r, t), mask) in parts.iter().zip(&masks) {
+            let view = HullView { r, t, camera, mask };
+            let points: Vec<[f64; 3]> = (0..1003)
+                .map(|_| std::array::from_fn(|_| rng.random_range(-6.0..6.0)))
+                .collect();
+            let (mut uv, mut seen) = (vec![[0.0; 2]; points.len()], vec![false; points.len()]);
+            hull_pixels(&points, &view, &mut uv, &mut seen);
+            for (i, &p) in points.iter().enumerate() {
+                let x = view.camera_frame(p);
+                let want = camera.pixel(x);
+                assert_eq!(
+                    [uv[i][0].to_bits(), uv[i][1].to_bits()],
+                    [want[0].to_bits(), want[1].to_bits()]
+                );
+                let all_held = vec![true; mask.len()];
+                assert_eq!(seen[i], camera.held(x, &all_held).1);
+            }
+            assert!(seen.iter().any(|&s| s) && seen.iter().any(|&s| !s));
         }
     }
 }

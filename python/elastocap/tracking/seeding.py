@@ -148,64 +148,16 @@ def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[n
     """``camera.project(points)`` (N, 3) finite world points -> pixels (N, 2), and whether
     each is seen (N,): in front (depth > 0) and inside the image's pixel footprints.
 
-    The same floating-point operations as :meth:`Camera.project` (its pixels equal, bit for
-    bit, wherever they are finite and inside the image: the only rows the hull reads)
-    without the terms of the lens model whose coefficient is zero (each adds an exact
-    zero to a finite value: three cameras of the test rig have none) and without its input
-    checks: the hull search projects a seeding frame's ~10^7 ray samples (benches/README.md,
-    "seedframe1")."""
-    n = len(points)
-    x = _camera_frame(camera, points)
-    depth = x[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ab = x[:, :2] / depth[:, None]
-        a, b = ab[:, 0], ab[:, 1]
-        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = (float(v) for v in padded(camera.dist))
-        if k1 or k2 or k3 or k4 or k5 or k6 or p1 or p2 or s1 or s2 or s3 or s4:
-            # distortion.distort's expression, term for term, in its order.
-            r2 = a * a + b * b
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            if k4 or k5 or k6:
-                radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-            a2 = a * radial
-            b2 = b * radial
-            if p1:
-                a2 = a2 + 2 * p1 * a * b
-                b2 = b2 + p1 * (r2 + 2 * b * b)
-            if p2:
-                a2 = a2 + p2 * (r2 + 2 * a * a)
-                b2 = b2 + 2 * p2 * a * b
-            if s1 or s2:
-                a2 = a2 + r2 * (s1 + r2 * s2)
-            if s3 or s4:
-                b2 = b2 + r2 * (s3 + r2 * s4)
-        else:
-            a2, b2 = a, b
-        K = camera.K
-        uv = np.empty((n, 2))
-        uv[:, 0] = K[0, 0] * a2 + K[0, 1] * b2 + K[0, 2]
-        uv[:, 1] = K[1, 1] * b2 + K[1, 2]
-    seen = ((depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < camera.width - 0.5)
-            & (uv[:, 1] >= -0.5) & (uv[:, 1] < camera.height - 0.5))
+    In the core, with the hull test's arithmetic (``seed_pixels``; benches/README.md,
+    "seedfast1"): the same floating-point operations as :meth:`Camera.project` (its pixels
+    equal, bit for bit, wherever they are finite) without the lens terms whose coefficient is
+    zero (each adds an exact zero to a finite value) and without its input checks; the seed
+    loop projects every candidate's 96 depth samples into its partners."""
+    uv, seen = _core.seed_pixels(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(camera.R, dtype=float),
+                                 np.ascontiguousarray(camera.t, dtype=float), np.ascontiguousarray(camera.K, dtype=float),
+                                 np.ascontiguousarray(padded(camera.dist), dtype=float), width=camera.width,
+                                 height=camera.height)
     return uv, seen
-
-
-def _camera_frame(camera: Camera, points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(N, 3) world points -> (N, 3) camera coordinates ``R X + t``, as
-    :meth:`Camera.project` computes them (a BLAS product, then the translation)."""
-    x = np.empty((len(points), 3))
-    for i in range(0, len(points), _CHUNK):
-        # Chunks: OpenBLAS threads larger products and spins on shared cores ("speed1").
-        x[i:i + _CHUNK] = points[i:i + _CHUNK] @ camera.R.T + camera.t
-    return x
-
-
-# Rows per projection of ray samples. OpenBLAS splits a matrix product over threads once
-# m * n * k reaches 4 * 65536 (29,000 rows of a 3x3 rotation): on two shared cores its threads
-# spin against the tracker's own and the product of a seeding frame's ~300,000 samples took
-# 10x the CPU seconds of single-threaded chunks, with the same numbers (benches/README.md,
-# "speed1").
-_CHUNK = 16384
 
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
