@@ -11,6 +11,32 @@ use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
 use crate::track::{hull_depths, hull_inside, hull_pixels, DepthGrid, HullCamera, HullView};
 
+/// Camera `i` of the flat arrays `r` (C x 9), `t` (C x 3), `k` (C x 9), `dist` (C x 12)
+/// with a `width x height` image and its mask (empty where only pixels are wanted).
+#[allow(clippy::too_many_arguments)]
+fn view_of<'a>(
+    r: &[f64],
+    t: &[f64],
+    k: &[f64],
+    dist: &[f64],
+    i: usize,
+    width: usize,
+    height: usize,
+    mask: &'a [bool],
+) -> HullView<'a> {
+    HullView {
+        r: std::array::from_fn(|a| std::array::from_fn(|b| r[9 * i + 3 * a + b])),
+        t: std::array::from_fn(|a| t[3 * i + a]),
+        camera: HullCamera {
+            k: std::array::from_fn(|a| std::array::from_fn(|b| k[9 * i + 3 * a + b])),
+            dist: std::array::from_fn(|a| dist[DIST_LEN * i + a]),
+            width,
+            height,
+        },
+        mask,
+    }
+}
+
 /// The hull's cameras from the arrays (checked: one pose, intrinsics and lens per mask).
 fn hull_views<'a>(
     r: &'a PyReadonlyArray3<'_, f64>,
@@ -41,17 +67,16 @@ fn hull_views<'a>(
         .enumerate()
         .map(|(i, mask)| {
             let shape = mask.shape();
-            Ok(HullView {
-                r: std::array::from_fn(|a| std::array::from_fn(|b| rv[9 * i + 3 * a + b])),
-                t: std::array::from_fn(|a| tv[3 * i + a]),
-                camera: HullCamera {
-                    k: std::array::from_fn(|a| std::array::from_fn(|b| kv[9 * i + 3 * a + b])),
-                    dist: std::array::from_fn(|a| dv[DIST_LEN * i + a]),
-                    width: shape[1],
-                    height: shape[0],
-                },
-                mask: c_slice(mask, "masks")?,
-            })
+            Ok(view_of(
+                rv,
+                tv,
+                kv,
+                dv,
+                i,
+                shape[1],
+                shape[0],
+                c_slice(mask, "masks")?,
+            ))
         })
         .collect()
 }
@@ -192,17 +217,7 @@ fn seed_pixels<'py>(
     }
     let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
     let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
-    let view = HullView {
-        r: std::array::from_fn(|a| std::array::from_fn(|b| rv[3 * a + b])),
-        t: std::array::from_fn(|a| tv[a]),
-        camera: HullCamera {
-            k: std::array::from_fn(|a| std::array::from_fn(|b| kv[3 * a + b])),
-            dist: std::array::from_fn(|a| dv[a]),
-            width,
-            height,
-        },
-        mask: &[],
-    };
+    let view = view_of(rv, tv, kv, dv, 0, width, height, &[]);
     let n = points.len();
     let uv = PyArray2::<f64>::zeros(py, [n, 2], false);
     let seen = PyArray1::<bool>::zeros(py, n, false);
