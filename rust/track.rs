@@ -17,7 +17,7 @@
 //! scoring by it), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
-//! test of ray samples).
+//! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull).
 
 mod flags;
 mod ncc;
@@ -27,6 +27,7 @@ mod ncc_at_tests;
 mod ncc_batch;
 #[cfg(test)]
 mod ncc_batch_tests;
+mod seed_depths;
 mod seed_hull;
 mod step;
 #[cfg(test)]
@@ -39,5 +40,6 @@ pub use flags::Flag;
 pub use ncc::{box_search_scores, NccBest};
 pub use ncc_at::ncc_at;
 pub use ncc_batch::ncc_at_cameras;
-pub use seed_hull::HullCamera;
+pub use seed_depths::{hull_depths, DepthGrid};
+pub use seed_hull::{hull_inside, hull_pixels, HullCamera, HullView};
 pub use step::{track_camera, CameraStep, TrackOptions};

@@ -1,6 +1,8 @@
-"""The seeding's Rust kernels (benches/README.md, "seednear1"): the hull test's pixel and mask
-read (``seed_hull_held``) must give the numbers of the code it replaces, bit for bit: every
-seed (and so every track) follows from it. The correlation along a seed's line is
+"""The seeding's Rust kernels (benches/README.md, "seednear1", "seedfast1"): the hull test
+(``seed_hull_inside``: the rotation into each camera, the pixel, the footprint and the mask
+read) must give the numbers of the numpy code it replaces, bit for bit: every seed (and so
+every track) follows from it. (Its rotation is OpenBLAS's fused multiply-add chain, which
+numpy's product is on x86-64 with FMA: the machines this is built and tested on.) The correlation along a seed's line is
 ``track_ncc_at``'s (its grouped scoring is checked against one candidate at a time in
 ``rust/track/ncc_at_tests.rs``); here, that it finds the shift on a seed's line."""
 
@@ -8,14 +10,14 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_track_seeding_hull import _camera
+from test_track_seeding_hull import _camera, _numpy_seen_pixels, fused_blas
 
-from elastocap import _core
+from elastocap import InvalidInputError, _core
 from elastocap.cameras import Camera
 from elastocap.cameras.distortion import padded
-from elastocap.tracking.seeding import _camera_frame, _seen_pixels
 
 SEEDS = st.integers(min_value=0, max_value=2**32 - 1)
 
@@ -38,11 +40,21 @@ def test_line_scores_find_the_shift():
     assert abs(scores[0, 20] - 1.0) < 1e-5
 
 
+def _inside(cameras: list[Camera], x: np.ndarray, masks: list[np.ndarray], min_seen: int) -> np.ndarray:
+    return _core.seed_hull_inside(x, np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+                                  np.array([c.K for c in cameras]), np.array([padded(c.dist) for c in cameras]),
+                                  masks, min_seen=min_seen)
+
+
 def _held(camera: Camera, x: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return _core.seed_hull_held(_camera_frame(camera, x), np.ascontiguousarray(camera.K, dtype=float),
-                                np.ascontiguousarray(padded(camera.dist), dtype=float), mask)
+    """One camera's (held, seen) through the hull test: held with no count needed, seen
+    as the hull of a mask that holds everywhere with one view needed."""
+    held = _inside([camera], x, [mask], 0)
+    seen = _inside([camera], x, [np.ones_like(mask)], 1)
+    return held, seen
 
 
+@fused_blas
 @settings(max_examples=40, deadline=None)
 @given(seed=SEEDS, coefficients=st.sampled_from([4, 5, 8, 12]), zero=st.lists(st.booleans(), min_size=12, max_size=12),
        skew=st.booleans())
@@ -52,7 +64,7 @@ def test_hull_held_is_the_numpy_projection_and_read(seed, coefficients, zero, sk
     x = np.concatenate([rng.normal(scale=0.6, size=(2000, 3)), rng.normal(scale=8.0, size=(500, 3))])
     mask = rng.uniform(size=(camera.height, camera.width)) < 0.5
     held, seen = _held(camera, x, mask)
-    uv, want_seen = _seen_pixels(camera, x)
+    uv, want_seen = _numpy_seen_pixels(camera, x)
     want_held = np.ones(len(x), bool)
     at = np.flatnonzero(want_seen)
     want_held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]
@@ -79,3 +91,46 @@ def test_hull_held_rounds_ties_to_even_and_tests_the_edges():
     mask[:] = False
     held, _ = _held(camera, x, mask)
     assert list(held) == [False, False, False, False, True, False, True, True]
+
+
+@fused_blas
+@settings(max_examples=25, deadline=None)
+@given(seed=SEEDS, count=st.integers(min_value=1, max_value=7), min_seen=st.integers(min_value=0, max_value=4))
+def test_hull_is_every_cameras_numpy_read_and_count(seed, count, min_seen):
+    # Several cameras: inside only where every camera that sees the point holds it and at
+    # least min_seen see it (the early exit at the first refusal changes no answer);
+    # non-finite points are outside.
+    rng = np.random.default_rng(seed)
+    min_seen = min(min_seen, count)
+    cameras = [_camera(rng, f"c{i}", 5, rng.uniform(size=12) < 0.5, bool(i % 2)) for i in range(count)]
+    masks = [rng.uniform(size=(c.height, c.width)) < 0.9 for c in cameras]
+    x = np.concatenate([rng.normal(scale=0.6, size=(1500, 3)), rng.normal(scale=8.0, size=(300, 3))])
+    x[rng.uniform(size=len(x)) < 0.03, rng.integers(0, 3)] = rng.choice([np.nan, np.inf, -np.inf])
+    got = _inside(cameras, x, masks, min_seen)
+    finite = np.isfinite(x).all(axis=1)
+    want = finite.copy()
+    seen_by = np.zeros(len(x), int)
+    for camera, mask in zip(cameras, masks):
+        uv, seen = _numpy_seen_pixels(camera, np.nan_to_num(x))
+        at = np.flatnonzero(seen)
+        held = np.ones(len(x), bool)
+        held[at] = mask[np.rint(uv[at, 1]).astype(np.intp), np.rint(uv[at, 0]).astype(np.intp)]
+        want &= held
+        seen_by += seen
+    want &= seen_by >= min_seen
+    assert got.dtype == np.bool_
+    assert np.array_equal(got, want)
+    assert want.any() and (~want).any()
+
+
+def test_hull_refuses_mismatched_cameras():
+    rng = np.random.default_rng(0)
+    camera = _camera(rng, "c", 5, np.zeros(12, bool), False)
+    mask = np.ones((camera.height, camera.width), bool)
+    x = rng.normal(size=(10, 3))
+    with pytest.raises(InvalidInputError):
+        _core.seed_hull_inside(x, np.array([camera.R] * 2), np.array([camera.t] * 2), np.array([camera.K] * 2),
+                               np.array([padded(camera.dist)] * 2), [mask], min_seen=0)
+    with pytest.raises(InvalidInputError):
+        _core.seed_hull_inside(x[:, :2].copy(), np.array([camera.R]), np.array([camera.t]), np.array([camera.K]),
+                               np.array([padded(camera.dist)]), [mask], min_seen=0)

@@ -36,7 +36,9 @@ __all__ = [
     "track_step",
     "track_box_search",
     "track_ncc_at",
-    "seed_hull_held",
+    "seed_hull_inside",
+    "seed_hull_depths",
+    "seed_pixels",
     "track_ncc_at_cameras",
 ]
 
@@ -476,12 +478,40 @@ def track_ncc_at(
     *,
     size: int = 11,
 ) -> NDArray[np.float64]: ...
-def seed_hull_held(
-    x: NDArray[np.float64],
+def seed_hull_inside(
+    points: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
     k: NDArray[np.float64],
     dist: NDArray[np.float64],
-    mask: NDArray[np.bool_],
-) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]: ...
+    masks: list[NDArray[np.bool_]],
+    *,
+    min_seen: int,
+) -> NDArray[np.bool_]: ...
+def seed_hull_depths(
+    origins: NDArray[np.float64],
+    dirs: NDArray[np.float64],
+    coarse: NDArray[np.float64],
+    fractions: NDArray[np.float64],
+    step: float,
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    masks: list[NDArray[np.bool_]],
+    *,
+    min_seen: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
+def seed_pixels(
+    points: NDArray[np.float64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    *,
+    width: int,
+    height: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
 def track_ncc_at_cameras(
     templates: list[NDArray[np.float32]],
     points: NDArray[np.float64],

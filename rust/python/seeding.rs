@@ -1,62 +1,244 @@
-//! Binding of the seeding's kernel: the visual hull's test of ray samples in one camera.
-//! (The correlation along a seed's line is `track_ncc_at`'s.)
+//! Binding of the seeding's kernels: the visual hull's test of ray samples and the depth
+//! search along a seed's ray. (The correlation along a seed's line is `track_ncc_at`'s.)
 
-use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
-use crate::track::HullCamera;
+use crate::track::{hull_depths, hull_inside, hull_pixels, DepthGrid, HullCamera, HullView};
 
-/// `(held (N,), seen (N,))` bool for camera coordinates `x` (N, 3) of one camera with
-/// intrinsics `k` (3, 3) and distortion `dist` (12,) and its mask (H, W) bool: seen = in
-/// front and inside the image's pixel footprints, held = the mask at the nearest pixel
-/// where seen, true elsewhere. Pixels as `elastocap.tracking.seeding._seen_pixels`, bit
-/// for bit.
-#[pyfunction]
-fn seed_hull_held<'py>(
-    py: Python<'py>,
-    x: PyReadonlyArray2<'py, f64>,
-    k: PyReadonlyArray2<'py, f64>,
-    dist: PyReadonlyArray1<'py, f64>,
-    mask: PyReadonlyArray2<'py, bool>,
-) -> PyResult<(Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>)> {
-    use rayon::prelude::*;
-    let x = rows::<3>(&x, "x")?;
-    if k.shape() != [3, 3] || dist.len() != DIST_LEN {
+/// Camera `i` of the flat arrays `r` (C x 9), `t` (C x 3), `k` (C x 9), `dist` (C x 12)
+/// with a `width x height` image and its mask (empty where only pixels are wanted).
+#[allow(clippy::too_many_arguments)]
+fn view_of<'a>(
+    r: &[f64],
+    t: &[f64],
+    k: &[f64],
+    dist: &[f64],
+    i: usize,
+    width: usize,
+    height: usize,
+    mask: &'a [bool],
+) -> HullView<'a> {
+    HullView {
+        r: std::array::from_fn(|a| std::array::from_fn(|b| r[9 * i + 3 * a + b])),
+        t: std::array::from_fn(|a| t[3 * i + a]),
+        camera: HullCamera {
+            k: std::array::from_fn(|a| std::array::from_fn(|b| k[9 * i + 3 * a + b])),
+            dist: std::array::from_fn(|a| dist[DIST_LEN * i + a]),
+            width,
+            height,
+        },
+        mask,
+    }
+}
+
+/// The hull's cameras from the arrays (checked: one pose, intrinsics and lens per mask).
+fn hull_views<'a>(
+    r: &'a PyReadonlyArray3<'_, f64>,
+    t: &'a PyReadonlyArray2<'_, f64>,
+    k: &'a PyReadonlyArray3<'_, f64>,
+    dist: &'a PyReadonlyArray2<'_, f64>,
+    masks: &'a [PyReadonlyArray2<'_, bool>],
+) -> PyResult<Vec<HullView<'a>>> {
+    let c = masks.len();
+    if r.shape() != [c, 3, 3]
+        || t.shape() != [c, 3]
+        || k.shape() != [c, 3, 3]
+        || dist.shape() != [c, DIST_LEN]
+    {
         return Err(invalid_input(format!(
-            "k must have shape (3, 3) and dist ({DIST_LEN},), got {:?} and {:?}",
+            "for {c} masks r and k must have shape ({c}, 3, 3), t ({c}, 3) and dist ({c}, {DIST_LEN}), \
+             got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
             k.shape(),
+            t.shape(),
             dist.shape()
         )));
     }
-    let kv = c_slice(&k, "k")?;
-    let dv = c_slice(&dist, "dist")?;
-    let shape = mask.shape();
-    let camera = HullCamera {
-        k: std::array::from_fn(|i| std::array::from_fn(|j| kv[3 * i + j])),
-        dist: std::array::from_fn(|i| dv[i]),
-        width: shape[1],
-        height: shape[0],
+    let (rv, tv) = (c_slice(r, "r")?, c_slice(t, "t")?);
+    let (kv, dv) = (c_slice(k, "k")?, c_slice(dist, "dist")?);
+    masks
+        .iter()
+        .enumerate()
+        .map(|(i, mask)| {
+            let shape = mask.shape();
+            Ok(view_of(
+                rv,
+                tv,
+                kv,
+                dv,
+                i,
+                shape[1],
+                shape[0],
+                c_slice(mask, "masks")?,
+            ))
+        })
+        .collect()
+}
+
+/// `(N,)` bool: whether each world point of `points` (N, 3) lies in the visual hull of the
+/// cameras `r` (C, 3, 3), `t` (C, 3), `k` (C, 3, 3), `dist` (C, 12) with silhouettes `masks`
+/// (C arrays (H, W) bool, each its camera's image): finite, inside every mask where that
+/// camera sees it (in front, inside the image's pixel footprints; the mask read at the
+/// nearest pixel), and seen by at least `min_seen` of them. Pixels as
+/// `elastocap.tracking.seeding._seen_pixels`, bit for bit.
+#[pyfunction]
+#[pyo3(signature = (points, r, t, k, dist, masks, *, min_seen))]
+#[allow(clippy::too_many_arguments)]
+fn seed_hull_inside<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray3<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    k: PyReadonlyArray3<'py, f64>,
+    dist: PyReadonlyArray2<'py, f64>,
+    masks: Vec<PyReadonlyArray2<'py, bool>>,
+    min_seen: usize,
+) -> PyResult<Bound<'py, PyArray1<bool>>> {
+    use rayon::prelude::*;
+    let points = rows::<3>(&points, "points")?;
+    let views = hull_views(&r, &t, &k, &dist, &masks)?;
+    let inside = PyArray1::<bool>::zeros(py, points.len(), false);
+    {
+        let mut w = inside.readwrite();
+        let out = w.as_slice_mut()?;
+        super::detach(py, || {
+            // Chunks: a sample's test is a few dozen operations per camera.
+            out.par_chunks_mut(4096)
+                .zip(points.par_chunks(4096))
+                .for_each(|(o, p)| hull_inside(p, &views, min_seen, o));
+        });
+    }
+    Ok(inside)
+}
+
+/// The depth search of the rays `origins`, `dirs` (M, 3; finite) through the visual hull
+/// of the cameras (as `seed_hull_inside`): the ray's first run through the hull on the
+/// depths `coarse` (K,), widened by `step` on both ends, sampled at `fractions` (D,) of
+/// it: `(fine (M, D, 3) world points, inside (M, D) bool)`, inside all false for a ray
+/// that never enters the hull. numpy's `_hull_depths` before "seedfast1", bit for bit.
+#[pyfunction]
+#[pyo3(signature = (origins, dirs, coarse, fractions, step, r, t, k, dist, masks, *, min_seen))]
+#[allow(clippy::too_many_arguments)]
+fn seed_hull_depths<'py>(
+    py: Python<'py>,
+    origins: PyReadonlyArray2<'py, f64>,
+    dirs: PyReadonlyArray2<'py, f64>,
+    coarse: PyReadonlyArray1<'py, f64>,
+    fractions: PyReadonlyArray1<'py, f64>,
+    step: f64,
+    r: PyReadonlyArray3<'py, f64>,
+    t: PyReadonlyArray2<'py, f64>,
+    k: PyReadonlyArray3<'py, f64>,
+    dist: PyReadonlyArray2<'py, f64>,
+    masks: Vec<PyReadonlyArray2<'py, bool>>,
+    min_seen: usize,
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<bool>>)> {
+    use rayon::prelude::*;
+    let origins = rows::<3>(&origins, "origins")?;
+    let dirs = rows::<3>(&dirs, "dirs")?;
+    if dirs.len() != origins.len() {
+        return Err(invalid_input(format!(
+            "origins and dirs must hold as many rays, got {} and {}",
+            origins.len(),
+            dirs.len()
+        )));
+    }
+    let coarse = c_slice(&coarse, "coarse")?;
+    let fractions = c_slice(&fractions, "fractions")?;
+    if coarse.len() < 2 || fractions.is_empty() {
+        return Err(invalid_input(format!(
+            "coarse needs 2 depths at least and fractions 1, got {} and {}",
+            coarse.len(),
+            fractions.len()
+        )));
+    }
+    let views = hull_views(&r, &t, &k, &dist, &masks)?;
+    let grid = DepthGrid {
+        coarse,
+        fractions,
+        step,
+        views: &views,
+        min_seen,
     };
-    let m = c_slice(&mask, "mask")?;
-    let n = x.len();
-    let mut held = vec![false; n];
-    let mut seen = vec![false; n];
-    super::detach(py, || {
-        // Chunks: the per-sample work is a few dozen operations.
-        held.par_chunks_mut(4096)
-            .zip(seen.par_chunks_mut(4096))
-            .zip(x.par_chunks(4096))
-            .for_each(|((h, s), x)| {
-                for ((h, s), &x) in h.iter_mut().zip(s.iter_mut()).zip(x) {
-                    (*h, *s) = camera.held(x, m);
-                }
-            });
-    });
-    Ok((PyArray1::from_vec(py, held), PyArray1::from_vec(py, seen)))
+    let (m, d) = (origins.len(), fractions.len());
+    let fine = PyArray3::<f64>::zeros(py, [m, d, 3], false);
+    let inside = PyArray2::<bool>::zeros(py, [m, d], false);
+    {
+        let mut fw = fine.readwrite();
+        let mut iw = inside.readwrite();
+        let fine_out = fw.as_slice_mut()?.as_chunks_mut::<3>().0;
+        let inside_out = iw.as_slice_mut()?;
+        super::detach(py, || {
+            // Rays in groups: a ray's search is ~100-200 hull tests.
+            const RAYS: usize = 16;
+            fine_out
+                .par_chunks_mut(RAYS * d)
+                .zip(inside_out.par_chunks_mut(RAYS * d))
+                .zip(origins.par_chunks(RAYS).zip(dirs.par_chunks(RAYS)))
+                .for_each(|((f, i), (o, dr))| hull_depths(o, dr, &grid, f, i));
+        });
+    }
+    Ok((fine, inside))
+}
+
+/// `(uv (N, 2), seen (N,))`: the pixels of world points `points` (N, 3) in the camera
+/// `r` (3, 3), `t` (3,), `k` (3, 3), `dist` (12,) with a `width x height` image, and whether
+/// each is seen (in front, inside the pixel footprints). `Camera.project`'s pixels wherever
+/// they are finite, bit for bit (the hull test's arithmetic, `seed_hull_inside`).
+#[pyfunction]
+#[pyo3(signature = (points, r, t, k, dist, *, width, height))]
+#[allow(clippy::too_many_arguments)]
+fn seed_pixels<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'py, f64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray1<'py, f64>,
+    k: PyReadonlyArray2<'py, f64>,
+    dist: PyReadonlyArray1<'py, f64>,
+    width: usize,
+    height: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>)> {
+    use rayon::prelude::*;
+    let points = rows::<3>(&points, "points")?;
+    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
+        return Err(invalid_input(format!(
+            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
+            k.shape(),
+            t.shape(),
+            dist.shape()
+        )));
+    }
+    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
+    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
+    let view = view_of(rv, tv, kv, dv, 0, width, height, &[]);
+    let n = points.len();
+    let uv = PyArray2::<f64>::zeros(py, [n, 2], false);
+    let seen = PyArray1::<bool>::zeros(py, n, false);
+    {
+        let mut uw = uv.readwrite();
+        let mut sw = seen.readwrite();
+        let uv_out = uw.as_slice_mut()?.as_chunks_mut::<2>().0;
+        let seen_out = sw.as_slice_mut()?;
+        super::detach(py, || {
+            uv_out
+                .par_chunks_mut(4096)
+                .zip(seen_out.par_chunks_mut(4096))
+                .zip(points.par_chunks(4096))
+                .for_each(|((u, s), p)| hull_pixels(p, &view, u, s));
+        });
+    }
+    Ok((uv, seen))
 }
 
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(seed_hull_held, m)?)
+    m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_pixels, m)?)
 }

@@ -107,124 +107,79 @@ def _partners(cameras: Sequence[Camera]) -> NDArray[np.int64]:
     return np.argsort(-cosine, axis=1)[:, :-1]
 
 
-def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
-                 masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
-    """Whether points lie inside every other camera's mask where they project into its
-    image, and are seen by at least half of them (the visual hull; space that few cameras
-    see is not bounded by it: right in front of a camera of a ring, the cameras across see
-    the space behind the subject and count it inside)."""
-    inside: NDArray[np.bool_] = np.asarray(np.isfinite(flat).all(axis=1))
-    x = np.nan_to_num(flat)
-    seen_by = np.zeros(len(x), int)
-    for other, mask in zip(cameras, masks):
-        if other is cam:
-            continue
-        # Only the points no camera has yet put outside (most ray samples leave the hull
-        # in the first camera checked; the answer for the others is already False).
-        rows = np.flatnonzero(inside)
-        if rows.size == 0:
-            break
-        # The mask is read only where the point is seen (in the image, in front); the
-        # pixel is the rounded position, as the whole-pixel footprint test implies. The
-        # pixel and the read in the core, one pass per sample, with _seen_pixels'
-        # operations (benches/README.md, "seednear1").
+_Poses = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+
+
+def _hull_cameras(cam: Camera, cameras: Sequence[Camera],
+                  masks: Sequence[NDArray[np.bool_]]) -> tuple[_Poses, list[NDArray[np.bool_]], int]:
+    """The other cameras' poses and lenses as the core's hull kernels take them (``r`` (C, 3,
+    3), ``t`` (C, 3), ``k`` (C, 3, 3), ``dist`` (C, 12)), their masks (H, W) (checked
+    against their images), and how many must see a point: half of them."""
+    others = [(other, mask) for other, mask in zip(cameras, masks) if other is not cam]
+    for other, mask in others:
         if mask.shape != (other.height, other.width):
             raise ValueError(f"a mask of shape {mask.shape} for a {other.width} x {other.height} camera")
-        held, seen = _core.seed_hull_held(_camera_frame(other, x[rows]), np.ascontiguousarray(other.K, dtype=float),
-                                          np.ascontiguousarray(padded(other.dist), dtype=float),
-                                          np.ascontiguousarray(mask, dtype=bool))
-        inside[rows] = held
-        seen_by[rows] += seen
-    return inside & (seen_by >= max(2, (len(cameras) - 1) // 2))
+    poses = (np.array([other.R for other, _ in others], dtype=float).reshape(-1, 3, 3),
+             np.array([other.t for other, _ in others], dtype=float).reshape(-1, 3),
+             np.array([other.K for other, _ in others], dtype=float).reshape(-1, 3, 3),
+             np.array([padded(other.dist) for other, _ in others], dtype=float).reshape(-1, 12))
+    return poses, [np.ascontiguousarray(mask, dtype=bool) for _, mask in others], max(2, (len(cameras) - 1) // 2)
+
+
+def _inside_hull(flat: NDArray[np.float64], cam: Camera, cameras: Sequence[Camera],
+                 masks: Sequence[NDArray[np.bool_]]) -> NDArray[np.bool_]:
+    """(N,) bool: whether the world points ``flat`` (N, 3) are finite, lie inside every
+    other camera's mask (H, W) where they project into its image, and are seen by at least
+    half of them (the visual hull; space that few cameras see is not bounded by it: right in
+    front of a camera of a ring, the cameras across see the space behind the subject and
+    count it inside).
+
+    In the core, one sample at a time through the cameras, stopping at the first mask that
+    does not hold it: the rotation, the pixel (``_seen_pixels``' operations), the footprint
+    test and the mask read at the rounded pixel, all of numpy's numbers to the bit
+    (benches/README.md, "seednear1", "seedfast1"). The test :func:`_hull_depths` makes."""
+    (r, t, k, dist), held, min_seen = _hull_cameras(cam, cameras, masks)
+    inside: NDArray[np.bool_] = _core.seed_hull_inside(np.ascontiguousarray(flat, dtype=float), r, t, k, dist, held,
+                                                       min_seen=min_seen)
+    return inside
 
 
 def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """``camera.project(points)`` (N, 3) finite world points -> pixels (N, 2), and whether
     each is seen (N,): in front (depth > 0) and inside the image's pixel footprints.
 
-    The same floating-point operations as :meth:`Camera.project` (its pixels equal, bit for
-    bit, wherever they are finite and inside the image: the only rows the hull reads)
-    without the terms of the lens model whose coefficient is zero (each adds an exact
-    zero to a finite value: three cameras of the test rig have none) and without its input
-    checks: the hull search projects a seeding frame's ~10^7 ray samples (benches/README.md,
-    "seedframe1")."""
-    n = len(points)
-    x = _camera_frame(camera, points)
-    depth = x[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ab = x[:, :2] / depth[:, None]
-        a, b = ab[:, 0], ab[:, 1]
-        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = (float(v) for v in padded(camera.dist))
-        if k1 or k2 or k3 or k4 or k5 or k6 or p1 or p2 or s1 or s2 or s3 or s4:
-            # distortion.distort's expression, term for term, in its order.
-            r2 = a * a + b * b
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            if k4 or k5 or k6:
-                radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-            a2 = a * radial
-            b2 = b * radial
-            if p1:
-                a2 = a2 + 2 * p1 * a * b
-                b2 = b2 + p1 * (r2 + 2 * b * b)
-            if p2:
-                a2 = a2 + p2 * (r2 + 2 * a * a)
-                b2 = b2 + 2 * p2 * a * b
-            if s1 or s2:
-                a2 = a2 + r2 * (s1 + r2 * s2)
-            if s3 or s4:
-                b2 = b2 + r2 * (s3 + r2 * s4)
-        else:
-            a2, b2 = a, b
-        K = camera.K
-        uv = np.empty((n, 2))
-        uv[:, 0] = K[0, 0] * a2 + K[0, 1] * b2 + K[0, 2]
-        uv[:, 1] = K[1, 1] * b2 + K[1, 2]
-    seen = ((depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < camera.width - 0.5)
-            & (uv[:, 1] >= -0.5) & (uv[:, 1] < camera.height - 0.5))
+    In the core, with the hull test's arithmetic (``seed_pixels``; benches/README.md,
+    "seedfast1"): the same floating-point operations as :meth:`Camera.project` (its pixels
+    equal, bit for bit, wherever they are finite) without the lens terms whose coefficient is
+    zero (each adds an exact zero to a finite value) and without its input checks; the seed
+    loop projects every candidate's 96 depth samples into its partners."""
+    uv, seen = _core.seed_pixels(np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(camera.R, dtype=float),
+                                 np.ascontiguousarray(camera.t, dtype=float), np.ascontiguousarray(camera.K, dtype=float),
+                                 np.ascontiguousarray(padded(camera.dist), dtype=float), width=camera.width,
+                                 height=camera.height)
     return uv, seen
-
-
-def _camera_frame(camera: Camera, points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(N, 3) world points -> (N, 3) camera coordinates ``R X + t``, as
-    :meth:`Camera.project` computes them (a BLAS product, then the translation)."""
-    x = np.empty((len(points), 3))
-    for i in range(0, len(points), _CHUNK):
-        # Chunks: OpenBLAS threads larger products and spins on shared cores ("speed1").
-        x[i:i + _CHUNK] = points[i:i + _CHUNK] @ camera.R.T + camera.t
-    return x
-
-
-# Rows per projection of ray samples. OpenBLAS splits a matrix product over threads once
-# m * n * k reaches 4 * 65536 (29,000 rows of a 3x3 rotation): on two shared cores its threads
-# spin against the tracker's own and the product of a seeding frame's ~300,000 samples took
-# 10x the CPU seconds of single-threaded chunks, with the same numbers (benches/README.md,
-# "speed1").
-_CHUNK = 16384
 
 
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Ray samples (M, K, 3) from ``cam`` through ``seeds`` over the ray's first run inside
-    the visual hull (where the front surface lies): found on a coarse grid across the rig's
-    depth range, then sampled finely; and which of them lie inside the hull."""
+    """Ray samples (M, K, 3) from ``cam`` through ``seeds`` (M, 2) over the ray's first run
+    inside the visual hull (where the front surface lies): found on a coarse grid across the
+    rig's depth range, then sampled finely; and which of them lie inside the hull (M, K;
+    none where the ray never enters it).
+
+    In the core (``seed_hull_depths``, the test of :func:`_inside_hull`), ray by ray: it
+    tests the coarse grid only until the first run ends and a ray that misses the hull gets
+    no fine test; the samples and answers are those of the numpy search it replaced
+    (benches/README.md, "seedfast1")."""
     origins, dirs = cam.rays(seeds)
     dirs = np.nan_to_num(dirs)
     centres = np.array([c.center for c in cameras])
     reach = np.linalg.norm(centres - cam.center, axis=1).max()
     coarse = np.linspace(0.05 * reach, 1.2 * reach, _COARSE)
-    step = coarse[1] - coarse[0]
-    points = origins[:, None, :] + coarse[None, :, None] * dirs[:, None, :]
-    hull = _inside_hull(points.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _COARSE)
-    first = np.argmax(hull, axis=1)
-    after = np.arange(_COARSE)[None, :] >= first[:, None]
-    run = hull & after & (np.cumsum(after & ~hull, axis=1) == 0)
-    last = _COARSE - 1 - np.argmax(run[:, ::-1], axis=1)
-    near = coarse[first] - step
-    far = coarse[last] + step
-    t = near[:, None] + (far - near)[:, None] * np.linspace(0, 1, _DEPTHS)[None, :]
-    fine = origins[:, None, :] + t[..., None] * dirs[:, None, :]
-    inside = _inside_hull(fine.reshape(-1, 3), cam, cameras, masks).reshape(len(seeds), _DEPTHS)
-    inside &= np.any(hull, axis=1)[:, None]
+    (r, t, k, dist), held, min_seen = _hull_cameras(cam, cameras, masks)
+    fine, inside = _core.seed_hull_depths(np.ascontiguousarray(origins, dtype=float), np.ascontiguousarray(dirs, dtype=float),
+                                          coarse, np.linspace(0, 1, _DEPTHS), float(coarse[1] - coarse[0]), r, t, k, dist,
+                                          held, min_seen=min_seen)
     return fine, inside
 
 
