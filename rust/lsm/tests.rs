@@ -568,7 +568,10 @@ fn gathered_bilinear_samples_equal_the_portable_loop_to_the_bit() {
                 rng.random_range(-0.2..0.2),
             )
         };
-        let mut b = [rng.random_range(0.0..w as f64), rng.random_range(0.0..h as f64)];
+        let mut b = [
+            rng.random_range(0.0..w as f64),
+            rng.random_range(0.0..h as f64),
+        ];
         if case % 3 == 0 {
             b = [b[0].round(), b[1].round()];
         }
@@ -594,12 +597,19 @@ fn gathered_bilinear_samples_equal_the_portable_loop_to_the_bit() {
         checked += 1;
     }
     // The patch fits at the very border too: the identity at the corners.
-    for b in [[7.0, 7.0], [(w - 8) as f64, (h - 8) as f64], [7.0, (h - 8) as f64]] {
+    for b in [
+        [7.0, 7.0],
+        [(w - 8) as f64, (h - 8) as f64],
+        [7.0, (h - 8) as f64],
+    ] {
         let a = [1.0, 0.0, 0.0, 1.0];
         super::resample::resample(&image, a, b, &dx, &dy, &mut want, Interpolation::Bilinear);
         // SAFETY: as above.
         unsafe { super::gather::bilinear_wide(&image, a, b, &dx, &dy, &mut got) };
-        assert!(got.iter().zip(&want).all(|(g, x)| g.to_bits() == x.to_bits()));
+        assert!(got
+            .iter()
+            .zip(&want)
+            .all(|(g, x)| g.to_bits() == x.to_bits()));
         checked += 1;
     }
     assert!(checked > 1000, "only {checked} warps fit");

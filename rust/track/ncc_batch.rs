@@ -70,19 +70,16 @@ pub fn ncc_at_cameras(
     if k == 0 {
         return Ok(());
     }
-    scores
-        .par_chunks_mut(k)
-        .enumerate()
-        .for_each(|(i, row)| {
-            let c = cameras[i];
-            ncc_at(
-                &templates[c],
-                points[i],
-                &searches[c],
-                &candidates[i * k..(i + 1) * k],
-                size,
-                row,
-            )
-        });
+    scores.par_chunks_mut(k).enumerate().for_each(|(i, row)| {
+        let c = cameras[i];
+        ncc_at(
+            &templates[c],
+            points[i],
+            &searches[c],
+            &candidates[i * k..(i + 1) * k],
+            size,
+            row,
+        )
+    });
     Ok(())
 }

@@ -111,18 +111,31 @@ fn bad_indices_and_lengths_are_refused() {
     assert!(run(&[0, 0], &candidates, &mut scores, 1).is_ok());
     assert!(matches!(
         run(&[0, 1], &candidates, &mut scores, 1),
-        Err(crate::Error::IndexOutOfRange { argument: "cameras", row: 1, .. })
+        Err(crate::Error::IndexOutOfRange {
+            argument: "cameras",
+            row: 1,
+            ..
+        })
     ));
     assert!(matches!(
         run(&[0], &candidates, &mut scores, 1),
-        Err(crate::Error::LengthMismatch { argument: "cameras", .. })
+        Err(crate::Error::LengthMismatch {
+            argument: "cameras",
+            ..
+        })
     ));
     assert!(matches!(
         run(&[0, 0], &candidates[..3], &mut scores, 1),
-        Err(crate::Error::LengthMismatch { argument: "candidates", .. })
+        Err(crate::Error::LengthMismatch {
+            argument: "candidates",
+            ..
+        })
     ));
     assert!(matches!(
         run(&[0, 0], &candidates, &mut scores, 2),
-        Err(crate::Error::LengthMismatch { argument: "searches", .. })
+        Err(crate::Error::LengthMismatch {
+            argument: "searches",
+            ..
+        })
     ));
 }

@@ -144,8 +144,17 @@ fn box_search_scores_every_shift_as_ncc_does() {
     let (ta, tb) = (view(&a), view(&b));
     let (point, prediction, size, radius) = ([60.0, 50.0], [60.4, 49.3], 15, 6);
     let mut scratch = super::ncc::BoxScratch::default();
-    let best =
-        super::ncc::box_search(&ta, point, &tb, prediction, size, radius, None, &mut scratch).unwrap();
+    let best = super::ncc::box_search(
+        &ta,
+        point,
+        &tb,
+        prediction,
+        size,
+        radius,
+        None,
+        &mut scratch,
+    )
+    .unwrap();
     let shifts = 2 * radius + 1;
     let candidates: Vec<[f64; 2]> = (0..shifts * shifts)
         .map(|i| {
@@ -192,8 +201,10 @@ fn box_search_fast_rows_score_as_the_general_rows_do() {
     let (point, prediction, size) = ([60.0, 50.0], [60.3, 50.6], 15);
     let mut fast = super::ncc::BoxScratch::default();
     let mut general = super::ncc::BoxScratch::default();
-    let best = super::ncc::box_search(&ta, point, &tb, prediction, size, 6, None, &mut fast).unwrap();
-    let wide = super::ncc::box_search(&ta, point, &tb, prediction, size, 9, None, &mut general).unwrap();
+    let best =
+        super::ncc::box_search(&ta, point, &tb, prediction, size, 6, None, &mut fast).unwrap();
+    let wide =
+        super::ncc::box_search(&ta, point, &tb, prediction, size, 9, None, &mut general).unwrap();
     assert_eq!(fast.scores.len(), 13 * 13);
     assert_eq!(general.scores.len(), 19 * 19);
     for r in 0..13 {
