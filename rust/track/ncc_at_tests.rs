@@ -141,7 +141,10 @@ fn a_product_by_the_inverse_rounds_as_the_quotient_unless_flagged() {
             through += 1;
         }
     }
-    assert!(apart > 100 && through > 60_000 && flagged > 10_000, "{apart} apart, {flagged} flagged, {through} through");
+    assert!(
+        apart > 100 && through > 60_000 && flagged > 10_000,
+        "{apart} apart, {flagged} flagged, {through} through"
+    );
     // Subnormal f32 results and zero.
     assert!(near_f32_tie(1e-40) && near_f32_tie(-1e-39));
     assert!(!near_f32_tie(0.0) && !near_f32_tie(0.5) && !near_f32_tie(-0.25));
@@ -154,19 +157,31 @@ fn groups_that_fall_back_to_the_division_score_as_one_at_a_time() {
     // groups take the division's path (counted: the test must see it).
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let n = 15 * 15;
-    let template = normalised(&(0..n).map(|_| rng.random_range(0.0f32..255.0)).collect::<Vec<_>>())
-        .expect("textured");
+    let template = normalised(
+        &(0..n)
+            .map(|_| rng.random_range(0.0f32..255.0))
+            .collect::<Vec<_>>(),
+    )
+    .expect("textured");
     let mut windows = vec![0.0f32; GROUP * n];
     let mut fell_back = 0;
     for _ in 0..40_000 {
-        windows.iter_mut().for_each(|x| *x = rng.random_range(0.0f32..255.0));
+        windows
+            .iter_mut()
+            .for_each(|x| *x = rng.random_range(0.0f32..255.0));
         let got = score_group(&template, &windows);
         let mut tie = false;
         for (j, &g) in got.iter().enumerate() {
             let lane: Vec<f32> = (0..n).map(|i| windows[i * GROUP + j]).collect();
             let mean = lane.iter().map(|&x| x as f64).sum::<f64>() / n as f64;
-            let norm = lane.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>().sqrt();
-            tie |= lane.iter().any(|&x| near_f32_tie((x as f64 - mean) * (1.0 / norm)));
+            let norm = lane
+                .iter()
+                .map(|&x| (x as f64 - mean).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            tie |= lane
+                .iter()
+                .any(|&x| near_f32_tie((x as f64 - mean) * (1.0 / norm)));
             let s = normalised(&lane).expect("textured");
             let want: f64 = template.iter().zip(&s).map(|(a, b)| (a * b) as f64).sum();
             assert_eq!(g.to_bits(), want.to_bits(), "{g} vs {want}");
