@@ -16,7 +16,7 @@
 //! differs from the quotient by a few units in the last place of the `f64`, then rounded to
 //! `f32`: the same `f32` unless the product lies within a few `f64` units of a rounding
 //! midpoint between two `f32`s (see [`near_f32_tie`]). A group where any value does (about
-//! one value in ten million) is scored again with the division, so every score is still
+//! one value in 17 million) is scored again with the division, so every score is still
 //! the division's to the bit. On CPUs with AVX2 the same code is compiled for it (four
 //! `f64` lanes a register instead of SSE2's two; no fused multiply-add is formed, so the
 //! arithmetic is unchanged).
