@@ -12,7 +12,7 @@
 //! samples of a pixel side by side, one vector load), not one allocation per candidate.
 //!
 //! The normalised window value `((x - mean) / norm) as f32` was one `f64` division per
-//! pixel, half of the time. It is computed as `(x - mean) * (1 / norm)` instead, which
+//! pixel. It is computed as `(x - mean) * (1 / norm)` instead, which
 //! differs from the quotient by a few units in the last place of the `f64`, then rounded to
 //! `f32`: the same `f32` unless the product lies within a few `f64` units of a rounding
 //! midpoint between two `f32`s (see [`near_f32_tie`]). A group where any value does (about
