@@ -12,9 +12,12 @@
 //! order as `dot` (lane by lane over the chunks, then the lanes and the remainder in
 //! `f64`), so every product is the same to the bit.
 
+use super::sample::dot;
+
 /// `[a_k . b_k for k in 0..K]`, each equal to the bit to `dot(a_k, b_k)`. All slices must
-/// have one length (panics otherwise). `K` should stay at or below ten: the chains' lanes
-/// live in vector registers (sixteen under AVX2), beyond that they spill.
+/// have one length (panics otherwise). `K` should stay at or below twelve: the chains
+/// live in vector registers (sixteen under AVX2, with the loads and the product), beyond
+/// that they spill.
 #[inline]
 pub(crate) fn dots<const K: usize>(pairs: [(&[f32], &[f32]); K]) -> [f64; K] {
     let n = pairs.first().map_or(0, |p| p.0.len());
@@ -29,29 +32,56 @@ pub(crate) fn dots<const K: usize>(pairs: [(&[f32], &[f32]); K]) -> [f64; K] {
         // SAFETY: `wide` checked that the CPU has AVX2 and FMA; every slice holds `n` values.
         return unsafe { dots_wide(&pairs, n) };
     }
-    // SAFETY: every slice holds `n` values (asserted above).
-    unsafe { dots_body(&pairs, n) }
+    // The portable build: one product after the other (the definition itself).
+    pairs.map(|(a, b)| dot(a, b))
 }
 
-/// [`dots_body`] compiled for AVX2: each chain's eight lanes in one register (the portable
-/// build's SSE2 needs two, and ten chains of two overflow its sixteen registers). No fused
-/// multiply-add is formed (Rust does not contract `a * b + c`), so the bits are the same.
+/// The `K` chains in AVX registers of eight lanes, one register per chain: lane `l` of
+/// chain `k` adds `a_k[8 c + l] * b_k[8 c + l]` over the chunks `c` in order, as `dot`'s
+/// lane `l` does (a multiply, then an add: no fused multiply-add), then the lanes and the
+/// remainder are reduced by `dot`'s own expressions. (Written with the loop over the
+/// lanes left to the compiler, the chains' lanes stayed in memory, one scalar add at a
+/// time: slower than the separate products.)
 ///
 /// # Safety
 /// The CPU must have AVX2 and FMA; every slice of `pairs` must hold `n` values.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn dots_wide<const K: usize>(pairs: &[(&[f32], &[f32]); K], n: usize) -> [f64; K] {
-    // SAFETY: the caller's.
-    unsafe { dots_body(pairs, n) }
+    use std::arch::x86_64::{
+        _mm256_add_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_setzero_ps, _mm256_storeu_ps,
+    };
+    let chunks = n / 8;
+    let starts: [(*const f32, *const f32); K] = pairs.map(|(a, b)| (a.as_ptr(), b.as_ptr()));
+    let mut acc = [_mm256_setzero_ps(); K];
+    for c in 0..chunks {
+        for (chain, &(a, b)) in acc.iter_mut().zip(&starts) {
+            // SAFETY: `8 c + 8 <= 8 chunks <= n`, the length of both slices (the caller's).
+            let (x, y) = unsafe { (_mm256_loadu_ps(a.add(8 * c)), _mm256_loadu_ps(b.add(8 * c))) };
+            *chain = _mm256_add_ps(*chain, _mm256_mul_ps(x, y));
+        }
+    }
+    std::array::from_fn(|k| {
+        let mut lanes = [0.0f32; 8];
+        // SAFETY: `lanes` holds eight floats.
+        unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), acc[k]) };
+        let (a, b) = pairs[k];
+        let tail: f64 = a[chunks * 8..]
+            .iter()
+            .zip(&b[chunks * 8..])
+            .map(|(&x, &y)| x as f64 * y as f64)
+            .sum();
+        lanes.iter().map(|&l| l as f64).sum::<f64>() + tail
+    })
 }
 
-/// The products of any number of `pairs` into `out` (one per pair), eight chains at a
-/// time (a last short group is padded with its first pair, whose product is dropped);
+/// The products of any number of `pairs` into `out` (one per pair), eleven chains at a
+/// time (the template's 33 sums are three groups; a last short group is padded with its
+/// first pair, whose product is dropped);
 /// each equal to the bit to `dot`.
 pub(crate) fn dots_into(pairs: &[(&[f32], &[f32])], out: &mut [f64]) {
     assert_eq!(pairs.len(), out.len(), "dots_into: one output per pair");
-    const GROUP: usize = 8;
+    const GROUP: usize = 11;
     for (group, out) in pairs.chunks(GROUP).zip(out.chunks_mut(GROUP)) {
         let padded: [(&[f32], &[f32]); GROUP] =
             std::array::from_fn(|k| group.get(k).copied().unwrap_or(group[0]));
@@ -60,40 +90,9 @@ pub(crate) fn dots_into(pairs: &[(&[f32], &[f32])], out: &mut [f64]) {
     }
 }
 
-/// The `K` chains.
-///
-/// # Safety
-/// Every slice of `pairs` must hold `n` values.
-#[inline(always)]
-unsafe fn dots_body<const K: usize>(pairs: &[(&[f32], &[f32]); K], n: usize) -> [f64; K] {
-    let chunks = n / 8;
-    let mut lanes = [[0.0f32; 8]; K];
-    for c in 0..chunks {
-        let at = c * 8;
-        for (lane, (a, b)) in lanes.iter_mut().zip(pairs) {
-            // SAFETY: `at + 8 <= 8 * chunks <= n`, the length of `a` and `b` (the caller's);
-            // unchecked so that the chunk loop keeps no bounds check per product.
-            let (x, y) = unsafe { (a.get_unchecked(at..at + 8), b.get_unchecked(at..at + 8)) };
-            for l in 0..8 {
-                lane[l] += x[l] * y[l];
-            }
-        }
-    }
-    std::array::from_fn(|k| {
-        let (a, b) = pairs[k];
-        // The remainder and the reduction in `dot`'s own expressions.
-        let tail: f64 = a[chunks * 8..]
-            .iter()
-            .zip(&b[chunks * 8..])
-            .map(|(&x, &y)| x as f64 * y as f64)
-            .sum();
-        lanes[k].iter().map(|&l| l as f64).sum::<f64>() + tail
-    })
-}
-
 #[cfg(test)]
 mod tests {
-    use super::super::sample::dot as one;
+    use super::dot as one;
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
@@ -148,7 +147,7 @@ mod tests {
     }
 
     /// `sum` is `dot` with ones (the template's unit weights stand in for it), and the
-    /// products of any number of pairs (`dots_into`, groups of eight and a padded rest)
+    /// products of any number of pairs (`dots_into`, groups of eleven and a padded rest)
     /// are `dot`'s.
     #[test]
     fn sums_and_many_products_equal_the_single_ones_to_the_bit() {
@@ -164,7 +163,12 @@ mod tests {
             }
             for count in [1, 5, 8, 9, 16, 21, 33] {
                 let pairs: Vec<(&[f32], &[f32])> = (0..count)
-                    .map(|i| (columns[i % 7].as_slice(), columns[(i * 3 + 1) % 7].as_slice()))
+                    .map(|i| {
+                        (
+                            columns[i % 7].as_slice(),
+                            columns[(i * 3 + 1) % 7].as_slice(),
+                        )
+                    })
                     .collect();
                 let mut out = vec![0.0; count];
                 dots_into(&pairs, &mut out);

@@ -2,8 +2,8 @@
 //! (fixed per point) and the resampled search patch's (per iteration).
 
 use super::dense::MAX;
-use super::gauss_newton::State;
 use super::dots::dots;
+use super::gauss_newton::State;
 use super::sample::TemplatePatch;
 
 const U: usize = MAX;

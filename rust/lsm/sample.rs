@@ -58,6 +58,7 @@ pub(crate) struct TemplatePatch {
 }
 
 /// The upper triangle of the 6x6 `sum g g^T`, row by row.
+#[rustfmt::skip]
 const UPPER: [(usize, usize); 21] = [
     (0, 0), (0, 1), (0, 2), (0, 3), (0, 4), (0, 5),
     (1, 1), (1, 2), (1, 3), (1, 4), (1, 5),
@@ -260,10 +261,8 @@ impl TemplatePatch {
         let n = self.len();
         let weighted = !self.root_weight.is_empty();
         if weighted {
-            let [value_sum, value_square] = dots([
-                (&self.root_weight, &self.value),
-                (&self.value, &self.value),
-            ]);
+            let [value_sum, value_square] =
+                dots([(&self.root_weight, &self.value), (&self.value, &self.value)]);
             self.value_sum = value_sum;
             self.value_square = value_square;
         }

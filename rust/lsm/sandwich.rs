@@ -12,8 +12,8 @@
 //! `G^T G` is not. Where the texture is strong, `H ~ G` and the sandwich is `(G^T G)^-1`.
 
 use super::dense::{general_inverse, product, product_transposed, MAX};
-use super::normal::Sums;
 use super::dots::dots_into;
+use super::normal::Sums;
 use super::sample::{dot, TemplatePatch};
 
 const U: usize = MAX;
