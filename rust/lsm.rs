@@ -24,6 +24,7 @@ mod cubic;
 #[cfg(all(test, target_arch = "x86_64"))]
 mod cubic_tests;
 mod dense;
+mod dots;
 #[cfg(target_arch = "x86_64")]
 mod gather;
 mod gauss_newton;

@@ -2,8 +2,9 @@
 //! (fixed per point) and the resampled search patch's (per iteration).
 
 use super::dense::MAX;
+use super::dots::dots;
 use super::gauss_newton::State;
-use super::sample::{dot, TemplatePatch};
+use super::sample::TemplatePatch;
 
 const U: usize = MAX;
 
@@ -21,15 +22,25 @@ pub(crate) struct Sums {
 impl Sums {
     pub fn new(patch: &TemplatePatch, samples: &[f32]) -> Self {
         let n = patch.len();
-        let mut geo_search = [0.0; 6];
-        for (k, g) in geo_search.iter_mut().enumerate() {
-            *g = dot(&patch.geo[k * n..(k + 1) * n], samples);
-        }
+        let g = |k: usize| &patch.geo[k * n..(k + 1) * n];
+        // One pass for the nine sums (`dots`: the same bits as nine `dot`s); `sum S` is
+        // the dot product with the unit weights when the patch is not weighted.
+        let [g0, g1, g2, g3, g4, g5, search, search_square, search_value] = dots([
+            (g(0), samples),
+            (g(1), samples),
+            (g(2), samples),
+            (g(3), samples),
+            (g(4), samples),
+            (g(5), samples),
+            (patch.weights(), samples),
+            (samples, samples),
+            (samples, &patch.value),
+        ]);
         Self {
-            geo_search,
-            search: patch.weighted_sum(samples),
-            search_square: dot(samples, samples),
-            search_value: dot(samples, &patch.value),
+            geo_search: [g0, g1, g2, g3, g4, g5],
+            search,
+            search_square,
+            search_value,
         }
     }
 

@@ -3,6 +3,7 @@
 //!
 //! Pixel `(u, v)` = (column, row), pixel centres at integers.
 
+use super::dots::{dots, dots_into};
 use super::resample::{bilinear, cubic_blend, cubic_cell, inside};
 use super::types::{ImageView, Interpolation};
 
@@ -45,6 +46,9 @@ pub(crate) struct TemplatePatch {
     pub root_weight: Vec<f32>,
     /// `sum w`: the number of pixels, or their total weight when weighted.
     pub weight_total: f64,
+    /// Ones, one per pixel: the unweighted patch's root weights, so that a plain sum is
+    /// the dot product with them in the fused sums (`super::dots`; the same bits as `sum`).
+    unit: Vec<f32>,
     /// Grid of `(size + 2)^2` samples for the gradients (scratch).
     border: Vec<f32>,
     /// Bicubic cells and weights of the grid's columns, then rows (scratch).
@@ -52,6 +56,17 @@ pub(crate) struct TemplatePatch {
     /// The columns' weights tap by tap (scratch).
     taps: Vec<f32>,
 }
+
+/// The upper triangle of the 6x6 `sum g g^T`, row by row.
+#[rustfmt::skip]
+const UPPER: [(usize, usize); 21] = [
+    (0, 0), (0, 1), (0, 2), (0, 3), (0, 4), (0, 5),
+    (1, 1), (1, 2), (1, 3), (1, 4), (1, 5),
+    (2, 2), (2, 3), (2, 4), (2, 5),
+    (3, 3), (3, 4), (3, 5),
+    (4, 4), (4, 5),
+    (5, 5),
+];
 
 impl Default for TemplatePatch {
     fn default() -> Self {
@@ -70,6 +85,7 @@ impl Default for TemplatePatch {
             value_square: 0.0,
             root_weight: Vec::new(),
             weight_total: 0.0,
+            unit: Vec::new(),
             border: Vec::new(),
             cells: Vec::new(),
             taps: Vec::new(),
@@ -243,27 +259,42 @@ impl TemplatePatch {
     /// The sums over `geo` (and, when weighted, the value sums again).
     fn geo_sums(&mut self) {
         let n = self.len();
-        self.geo_normal = [0.0; 36];
-        self.geo_sum = [0.0; 6];
-        self.geo_value = [0.0; 6];
         let weighted = !self.root_weight.is_empty();
         if weighted {
-            self.value_sum = dot(&self.root_weight, &self.value);
-            self.value_square = dot(&self.value, &self.value);
+            let [value_sum, value_square] =
+                dots([(&self.root_weight, &self.value), (&self.value, &self.value)]);
+            self.value_sum = value_sum;
+            self.value_square = value_square;
         }
-        for k in 0..6 {
-            let gk = &self.geo[k * n..(k + 1) * n];
-            self.geo_sum[k] = if weighted {
-                dot(&self.root_weight, gk)
-            } else {
-                sum(gk)
-            };
-            self.geo_value[k] = dot(gk, &self.value);
-            for l in k..6 {
-                let s = dot(gk, &self.geo[l * n..(l + 1) * n]);
-                self.geo_normal[k * 6 + l] = s;
-                self.geo_normal[l * 6 + k] = s;
+        // The 33 sums in groups of eight side by side (`dots_into`: the same bits as one
+        // `dot` after the other): `sum w g_k` (`sum g_k` unweighted: the unit weights),
+        // `sum g_k T`, then the upper triangle of `sum g_k g_l`.
+        let g = |k: usize| &self.geo[k * n..(k + 1) * n];
+        let weights = self.weights();
+        let pairs: [(&[f32], &[f32]); 33] = std::array::from_fn(|i| match i {
+            0..6 => (weights, g(i)),
+            6..12 => (g(i - 6), self.value.as_slice()),
+            _ => {
+                let (k, l) = UPPER[i - 12];
+                (g(k), g(l))
             }
+        });
+        let mut out = [0.0; 33];
+        dots_into(&pairs, &mut out);
+        self.geo_sum.copy_from_slice(&out[..6]);
+        self.geo_value.copy_from_slice(&out[6..12]);
+        for (&(k, l), &s) in UPPER.iter().zip(&out[12..]) {
+            self.geo_normal[k * 6 + l] = s;
+            self.geo_normal[l * 6 + k] = s;
+        }
+    }
+
+    /// The root weights of a weighted patch, the unit weights otherwise (`n` values).
+    pub fn weights(&self) -> &[f32] {
+        if self.weighted() {
+            &self.root_weight
+        } else {
+            &self.unit
         }
     }
 
@@ -361,15 +392,6 @@ impl TemplatePatch {
         }
     }
 
-    /// `sum w S` of a search patch already scaled by `weigh_samples`.
-    pub fn weighted_sum(&self, samples: &[f32]) -> f64 {
-        if self.weighted() {
-            dot(&self.root_weight, samples)
-        } else {
-            sum(samples)
-        }
-    }
-
     /// Root mean square gradient along the patch's weakest direction: the square root of
     /// the smaller eigenvalue of the mean structure tensor `mean(grad T grad T^T)`.
     pub fn weakest_gradient(&self) -> f64 {
@@ -412,6 +434,7 @@ impl TemplatePatch {
         self.ring_dx = (0..ring).map(|i| ring_offset(i, |i, s| i % s)).collect();
         self.ring_dy = (0..ring).map(|i| ring_offset(i, |i, s| i / s)).collect();
         self.value = vec![0.0; n];
+        self.unit = vec![1.0; n];
         self.geo = vec![0.0; 6 * n];
         self.border = vec![0.0; (size + 2) * (size + 2)];
     }
@@ -433,8 +456,9 @@ pub(crate) fn dot(a: &[f32], b: &[f32]) -> f64 {
     lanes.iter().map(|&l| l as f64).sum::<f64>() + tail
 }
 
-/// `sum a_i` in eight `f32` lanes, then `f64`.
-#[inline]
+/// `sum a_i` in eight `f32` lanes, then `f64`: what the plain sums were before they
+/// became dot products with the unit weights (`super::dots`); the tests' reference.
+#[cfg(test)]
 pub(crate) fn sum(a: &[f32]) -> f64 {
     let mut lanes = [0.0f32; 8];
     let (chunks, rest) = a.as_chunks::<8>();

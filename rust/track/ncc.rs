@@ -85,8 +85,9 @@ pub struct NccBest {
     pub score: f64,
 }
 
-/// Shifts per row of the box search's fast path (radius up to 7).
-pub(super) const LANES: usize = 16;
+/// Shifts per row of the box search's fast paths: two registers of eight (radius up to 7,
+/// the tracker's step) or three (radius up to 11, the coarse-to-fine first step's 8).
+const MOST_LANES: usize = 24;
 
 /// Per-worker scratch of the box search.
 #[derive(Debug, Default)]
@@ -238,12 +239,15 @@ pub(super) fn box_search_sampled(
 ///
 /// A row of shifts at once: each template sample times a run of `shifts` window samples, a
 /// loop the compiler vectorises (the per-shift dot product of `size^2` terms is a serial
-/// sum it cannot). Up to `LANES` shifts a row, the window is copied into rows of stride
-/// `size + LANES` (zero beyond the window) so that the inner loop runs over a fixed-size
-/// array the compiler unrolls into whole vector registers; the run of `shifts` (13 at the
-/// default radius) otherwise leaves a remainder loop and its set-up at every one of the
-/// `size^2` template samples (profiled: a third of the tracker's step went there). The sums
-/// run in the same order either way, so the dot products are the same to the bit.
+/// sum it cannot). Up to 16 shifts a row (radius 7), or 24 (radius 11), the window is
+/// copied into rows of stride `size + 16` (or `+ 24`; zero beyond the window) so that the
+/// inner loop runs over two (three) whole vector registers; the run of `shifts` (13 at the
+/// default radius, 17 at the coarse-to-fine first step's radius 8) otherwise leaves a
+/// remainder loop and its set-up at every one of the `size^2` template samples (profiled:
+/// a third of the tracker's step went there at radius 6 before the 16 lanes; at radius 8,
+/// which had no fixed-width path, a quarter of the first step's calls, themselves a
+/// quarter of the step). The sums run in the same order on every path, so the dot
+/// products are the same to the bit.
 pub(super) fn shift_dots(
     window: &[f32],
     side: usize,
@@ -255,27 +259,54 @@ pub(super) fn shift_dots(
     let shifts = side + 1 - size;
     out.clear();
     out.resize(shifts * shifts, 0.0);
-    if shifts <= LANES {
-        let stride = size + LANES;
-        padded.clear();
-        padded.resize(side * stride, 0.0);
-        for r in 0..side {
-            padded[r * stride..r * stride + side]
-                .copy_from_slice(&window[r * side..(r + 1) * side]);
-        }
-        for r in 0..shifts {
-            let acc = row_of_shifts(&padded[r * stride..(r + size) * stride], template, size);
-            out[r * shifts..(r + 1) * shifts].copy_from_slice(&acc[..shifts]);
-        }
+    if shifts <= 16 {
+        padded_rows::<2>(window, side, template, size, padded, out);
+    } else if shifts <= MOST_LANES {
+        padded_rows::<3>(window, side, template, size, padded, out);
     } else {
-        for r in 0..shifts {
-            let dots = &mut out[r * shifts..(r + 1) * shifts];
-            for tr in 0..size {
-                let row = &window[(r + tr) * side..(r + tr + 1) * side];
-                for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
-                    for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
-                        *dot += w * t;
-                    }
+        general_rows(window, side, template, size, out);
+    }
+}
+
+/// [`shift_dots`] with `R` registers of eight shifts a row (`shifts <= 8 R`).
+fn padded_rows<const R: usize>(
+    window: &[f32],
+    side: usize,
+    template: &[f32],
+    size: usize,
+    padded: &mut Vec<f32>,
+    out: &mut [f32],
+) {
+    let shifts = side + 1 - size;
+    let stride = size + 8 * R;
+    padded.clear();
+    padded.resize(side * stride, 0.0);
+    for r in 0..side {
+        padded[r * stride..r * stride + side].copy_from_slice(&window[r * side..(r + 1) * side]);
+    }
+    for r in 0..shifts {
+        let acc = row_of_shifts::<R>(&padded[r * stride..(r + size) * stride], template, size);
+        out[r * shifts..(r + 1) * shifts].copy_from_slice(&acc[..shifts]);
+    }
+}
+
+/// [`shift_dots`] of any number of shifts a row: a run of `shifts` window samples per
+/// template sample (the reference the fixed-width rows are tested against).
+pub(super) fn general_rows(
+    window: &[f32],
+    side: usize,
+    template: &[f32],
+    size: usize,
+    out: &mut [f32],
+) {
+    let shifts = side + 1 - size;
+    for r in 0..shifts {
+        let dots = &mut out[r * shifts..(r + 1) * shifts];
+        for tr in 0..size {
+            let row = &window[(r + tr) * side..(r + tr + 1) * side];
+            for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
+                for (dot, &w) in dots.iter_mut().zip(&row[j..j + shifts]) {
+                    *dot += w * t;
                 }
             }
         }
@@ -321,30 +352,39 @@ pub(super) fn refine(
     }
 }
 
-/// The dot products of the template (`size x size`, mean-free) with the `LANES` windows
-/// starting at the first `LANES` columns of `rows` (`size` rows of stride `size + LANES`).
-pub(super) fn row_of_shifts(rows: &[f32], template: &[f32], size: usize) -> [f32; LANES] {
+/// The dot products of the template (`size x size`, mean-free) with the `8 R` windows
+/// starting at the first `8 R` columns of `rows` (`size` rows of stride `size + 8 R`), in
+/// the first `8 R` entries.
+fn row_of_shifts<const R: usize>(rows: &[f32], template: &[f32], size: usize) -> [f32; MOST_LANES] {
     #[cfg(target_arch = "x86_64")]
     if crate::lsm::wide() {
         // SAFETY: `wide` checked that the CPU has AVX2 and FMA.
-        return unsafe { row_of_shifts_wide(rows, template, size) };
+        return unsafe { row_of_shifts_wide::<R>(rows, template, size) };
     }
-    let stride = size + LANES;
-    let mut acc = [0.0f32; LANES];
+    let stride = size + 8 * R;
+    let mut acc = [[0.0f32; 8]; R];
     for tr in 0..size {
         let row = &rows[tr * stride..(tr + 1) * stride];
         for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
-            let run: &[f32; LANES] = row[j..j + LANES].try_into().expect("padded row");
-            for (a, &w) in acc.iter_mut().zip(run) {
-                *a += w * t;
+            for (q, lanes) in acc.iter_mut().enumerate() {
+                let run: &[f32; 8] = row[j + 8 * q..j + 8 * q + 8]
+                    .try_into()
+                    .expect("padded row");
+                for (a, &w) in lanes.iter_mut().zip(run) {
+                    *a += w * t;
+                }
             }
         }
     }
-    acc
+    let mut out = [0.0f32; MOST_LANES];
+    for (q, lanes) in acc.iter().enumerate() {
+        out[8 * q..8 * q + 8].copy_from_slice(lanes);
+    }
+    out
 }
 
-/// [`row_of_shifts`] in two AVX registers of eight lanes (the portable build's SSE2 takes
-/// four, and the compiler, left to itself under AVX2, shuffled the sixteen-lane array
+/// [`row_of_shifts`] in `R` AVX registers of eight lanes (the portable build's SSE2 takes
+/// four, and the compiler, left to itself under AVX2, shuffled a sixteen-lane array
 /// between half registers: slower than SSE2). A multiply then an add, as the portable
 /// loop (no fused multiply-add), so the dot products are the same to the bit.
 ///
@@ -352,34 +392,33 @@ pub(super) fn row_of_shifts(rows: &[f32], template: &[f32], size: usize) -> [f32
 /// The CPU must have AVX2 and FMA ([`crate::lsm::wide`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn row_of_shifts_wide(rows: &[f32], template: &[f32], size: usize) -> [f32; LANES] {
+unsafe fn row_of_shifts_wide<const R: usize>(
+    rows: &[f32],
+    template: &[f32],
+    size: usize,
+) -> [f32; MOST_LANES] {
     use std::arch::x86_64::{
         _mm256_add_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_setzero_ps,
         _mm256_storeu_ps,
     };
-    let stride = size + LANES;
-    let (mut low, mut high) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+    let stride = size + 8 * R;
+    let mut acc = [_mm256_setzero_ps(); R];
     for tr in 0..size {
         let row = &rows[tr * stride..(tr + 1) * stride];
         for (j, &t) in template[tr * size..(tr + 1) * size].iter().enumerate() {
-            let run: &[f32; LANES] = row[j..j + LANES].try_into().expect("padded row");
+            let run = &row[j..j + 8 * R];
             let t = _mm256_set1_ps(t);
-            // SAFETY: `run` holds sixteen floats: two unaligned loads of eight.
-            let (a, b) = unsafe {
-                (
-                    _mm256_loadu_ps(run.as_ptr()),
-                    _mm256_loadu_ps(run.as_ptr().add(8)),
-                )
-            };
-            low = _mm256_add_ps(low, _mm256_mul_ps(a, t));
-            high = _mm256_add_ps(high, _mm256_mul_ps(b, t));
+            for (q, a) in acc.iter_mut().enumerate() {
+                // SAFETY: `run` holds `8 R` floats: an unaligned load of eight at `8 q`.
+                let w = unsafe { _mm256_loadu_ps(run.as_ptr().add(8 * q)) };
+                *a = _mm256_add_ps(*a, _mm256_mul_ps(w, t));
+            }
         }
     }
-    let mut acc = [0.0f32; LANES];
-    // SAFETY: `acc` holds sixteen floats.
-    unsafe {
-        _mm256_storeu_ps(acc.as_mut_ptr(), low);
-        _mm256_storeu_ps(acc.as_mut_ptr().add(8), high);
+    let mut out = [0.0f32; MOST_LANES];
+    for (q, a) in acc.iter().enumerate() {
+        // SAFETY: `out` holds 24 floats, `8 q + 8 <= 24`.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr().add(8 * q), *a) };
     }
-    acc
+    out
 }

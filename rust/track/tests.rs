@@ -188,9 +188,10 @@ fn box_search_scores_every_shift_as_ncc_does() {
 
 #[test]
 fn box_search_fast_rows_score_as_the_general_rows_do() {
-    // Radius 6 runs the fixed-width rows (13 shifts in 16 lanes), radius 9 the general
-    // loop (19 shifts): the shared shifts must score the same (the dot products run in the
-    // same order; the window's summed-area tables differ in their last bits).
+    // Radius 6 runs the fixed-width rows of 16 lanes (13 shifts), radius 9 those of 24
+    // (19 shifts; the general loop: `fixed_width_shift_rows_equal_the_general_rows_to_the_bit`):
+    // the shared shifts must score the same (the dot products run in the same order; the
+    // window's summed-area tables differ in their last bits).
     let (a, b) = (texture(120, 100, [0.0; 2]), texture(120, 100, [1.3, 2.1]));
     let view = |data| ImageView {
         data,
@@ -225,4 +226,43 @@ fn box_search_fast_rows_score_as_the_general_rows_do() {
         "{:?}",
         best.centre
     );
+}
+
+#[test]
+fn fixed_width_shift_rows_equal_the_general_rows_to_the_bit() {
+    // The box search's dot products at every shift: the rows of two registers (up to 16
+    // shifts), of three (up to 24: the coarse-to-fine first step's radius 8) and the
+    // general loop must give the same bits (same terms, same order). Random windows over
+    // several magnitudes, radii 1-12 (12 takes the general loop), odd sizes 3-21.
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(41);
+    let mut checked = [0usize; 3];
+    for size in (3..=21).step_by(2) {
+        for radius in 1..=12 {
+            let side = size + 2 * radius;
+            let shifts = 2 * radius + 1;
+            for _ in 0..3 {
+                let window: Vec<f32> = (0..side * side)
+                    .map(|_| rng.random_range(-1.0..1.0f32) * rng.random_range(1.0..300.0f32))
+                    .collect();
+                let template: Vec<f32> = (0..size * size)
+                    .map(|_| rng.random_range(-0.2..0.2f32))
+                    .collect();
+                let (mut padded, mut fast) = (Vec::new(), Vec::new());
+                super::ncc::shift_dots(&window, side, &template, size, &mut padded, &mut fast);
+                let mut general = vec![0.0f32; shifts * shifts];
+                super::ncc::general_rows(&window, side, &template, size, &mut general);
+                assert_eq!(fast.len(), general.len());
+                for (k, (a, b)) in fast.iter().zip(&general).enumerate() {
+                    assert_eq!(
+                        a.to_bits(),
+                        b.to_bits(),
+                        "size {size} radius {radius} shift {k}"
+                    );
+                }
+                checked[usize::from(shifts > 16) + usize::from(shifts > 24)] += 1;
+            }
+        }
+    }
+    assert!(checked.iter().all(|&c| c > 0), "{checked:?}");
 }
