@@ -25,7 +25,7 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size
-from elastocap.tracking.frame_images import CheckedImages
+from elastocap.tracking.frame_images import CheckedImages, WeightPool
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.new_points import add_new_points
 from elastocap.tracking.pyramid_search import Pyramids
@@ -82,6 +82,8 @@ class FrameTracker:
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
         # current images are the next frame's previous ones: reduced once).
         self.pyramids = Pyramids()
+        # The template weights' arrays, reused once no frame holds them (frame_images.py).
+        self.weight_pool = WeightPool()
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         # Checked once here for every match of the frame (frame_images.py).
@@ -95,7 +97,7 @@ class FrameTracker:
     def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
         if not self.o["mask_weights"]:
             return None
-        return CheckedImages(np.ascontiguousarray(m, dtype=np.float32) for m in masks)
+        return self.weight_pool.weights(masks)
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;
