@@ -68,9 +68,11 @@ class WeightPool:
         self.lists: list[CheckedImages] = []
 
     def _free(self, shapes: list[tuple[int, ...]]) -> CheckedImages | None:
-        for i, listed in enumerate(self.lists):
+        for i in range(len(self.lists)):
+            listed = self.lists[i]
             # References: the pool's list, ``listed`` here and getrefcount's argument;
             # for each array its list, ``image`` and the argument (a view holds its base).
+            # (Not ``enumerate``: its cached tuple would hold one more.)
             if sys.getrefcount(listed) != 3 or [image.shape for image in listed] != shapes:
                 continue
             if all(sys.getrefcount(image) == 3 for image in listed):
