@@ -1,6 +1,6 @@
 """framefast2 (issue 15's speed line): the tracked frame's pieces made cheaper, each held
 to the code it replaced, to the bit: the mask weights written into freed arrays
-(:class:`~elastocap.tracking.frame_images.WeightPool`), the rows' NaN-ignoring median
+(:class:`~elastocap.tracking.frame_images.ImagePool`), the rows' NaN-ignoring median
 (:func:`~elastocap.tracking.rigidity.nanmedian_rows`) and the z-buffer's grid in the core
 (``_core.track_occluded``) against scipy's k-d tree."""
 
@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from elastocap._core import InvalidInputError, track_occluded
-from elastocap.tracking.frame_images import CheckedImages, WeightPool
+from elastocap.tracking.frame_images import CheckedImages, ImagePool
 from elastocap.tracking.rigidity import nanmedian_rows
 
 
@@ -25,13 +25,13 @@ def _masks(rng: np.random.Generator, shapes: list[tuple[int, int]]) -> list[np.n
 
 def test_pool_weights_equal_the_conversion_and_reuse_only_free_arrays() -> None:
     rng = np.random.default_rng(0)
-    pool = WeightPool()
+    pool = ImagePool()
     shapes = [(7, 9), (7, 9), (5, 4)]
     made = []
     previous = current = None  # the tracker's frame before and this frame
     for _ in range(8):
         masks = _masks(rng, shapes)
-        previous, current = current, pool.weights(masks)
+        previous, current = current, pool.as_float(masks)
         for w, m in zip(current, masks):
             assert w.dtype == np.float32 and w.flags.c_contiguous
             assert np.array_equal(w.view(np.uint32), np.ascontiguousarray(m, dtype=np.float32).view(np.uint32))
@@ -46,24 +46,24 @@ def test_pool_never_overwrites_what_a_caller_holds() -> None:
     rng = np.random.default_rng(1)
     shapes = [(6, 8), (6, 8)]
     for hold in ("list", "array", "view"):
-        pool = WeightPool(keep=1)
-        first = pool.weights(_masks(rng, shapes))
+        pool = ImagePool(keep=1)
+        first = pool.as_float(_masks(rng, shapes))
         kept = {"list": first, "array": first[1], "view": first[0][2:4]}[hold]
         before = np.array(kept, copy=True)
         del first
-        second = pool.weights(_masks(rng, shapes))
+        second = pool.as_float(_masks(rng, shapes))
         assert all(np.shares_memory(kept, w) is False for w in second)
         assert np.array_equal(np.asarray(kept), before)
 
 
 def test_pool_takes_other_masks_as_before() -> None:
-    pool = WeightPool()
-    weights = pool.weights([np.array([[0.0, 0.5], [1.0, 2.0]])])
+    pool = ImagePool()
+    weights = pool.as_float([np.array([[0.0, 0.5], [1.0, 2.0]])])
     assert weights[0].dtype == np.float32 and weights[0][0, 1] == 0.5
     assert pool.lists == []  # not pooled
     with pytest.raises(InvalidInputError):
-        pool.weights([np.array([[0.0, np.nan], [1.0, 2.0]])])
-    ints = pool.weights([np.array([[0, 3], [255, 1]], np.uint8)])
+        pool.as_float([np.array([[0.0, np.nan], [1.0, 2.0]])])
+    ints = pool.as_float([np.array([[0, 3], [255, 1]], np.uint8)])
     assert np.array_equal(ints[0], np.array([[0, 3], [255, 1]], np.float32))
 
 

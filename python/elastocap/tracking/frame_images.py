@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from elastocap.stereo.matching import checked_image, checked_weights
 
-__all__ = ["CheckedImages", "WeightPool", "checked", "checked_weights_of"]
+__all__ = ["CheckedImages", "ImagePool", "checked", "checked_weights_of"]
 
 
 class CheckedImages(list[NDArray[np.float32]]):
@@ -29,7 +29,7 @@ class CheckedImages(list[NDArray[np.float32]]):
     @classmethod
     def listed(cls, images: Iterable[NDArray[np.float32]]) -> CheckedImages:
         """The ``images`` listed as they are, for arrays that are C-contiguous float32 and
-        finite by construction (masks written as 0/1 floats, :class:`WeightPool`): the
+        finite by construction (:class:`ImagePool`): the
         scan would find nothing."""
         out = cls(())
         out.extend(images)
@@ -51,17 +51,19 @@ def checked_weights_of(weights: Sequence[NDArray[np.float32]], k: int, shape: tu
     return checked_weights(weights[k], shape)
 
 
-class WeightPool:
-    """The frame's template weights (its C masks (H, W) bool as 0/1 float32), written into
-    the arrays of an earlier frame that nothing holds any more.
+class ImagePool:
+    """A frame's C images (H, W) converted to float32 (its masks as 0/1 template weights,
+    its grey levels from uint8), written into the arrays of an earlier frame that nothing
+    holds any more.
 
     Why: a fresh 1024x768 float32 image is 3 MB, which the allocator maps anew and the
     kernel faults in page by page on the first write: the eight masks' conversion cost
     ~11 ms a frame that way and ~1 ms into arrays already mapped (the same values). The
-    tracker keeps the frame before's weights (its ``weights``), so the arrays of the
-    frame before that are free again on the next frame. A list is reused only when the
-    pool's references are its only ones (nothing else holds the list, an array of it, or
-    a view into one): what any caller still holds is never overwritten."""
+    tracker keeps the frame before's images (its ``grey`` and ``weights``), so the arrays
+    of the frame before that are free again on the next frame. A list is reused only when
+    the pool's references are its only ones (nothing else holds the list, an array of it,
+    or a view into one, e.g. the reduced images' cache, which holds its images): what any
+    caller still holds is never overwritten."""
 
     def __init__(self, keep: int = 3) -> None:
         self.keep = keep
@@ -79,18 +81,18 @@ class WeightPool:
                 return self.lists.pop(i)
         return None
 
-    def weights(self, masks: Sequence[NDArray[np.bool_]]) -> CheckedImages:
-        """(C of (H, W) float32) the ``masks`` as 0/1 floats, listed checked (finite by
-        construction); the same values as ``np.ascontiguousarray(mask, dtype=np.float32)``."""
-        if any(np.asarray(mask).dtype.kind not in "bui" for mask in masks):
-            # Not bool or whole numbers: converted and scanned as before, not pooled.
-            return CheckedImages(np.ascontiguousarray(mask, dtype=np.float32) for mask in masks)
-        shapes = [np.shape(mask) for mask in masks]
+    def as_float(self, images: Sequence[NDArray[np.generic]]) -> CheckedImages:
+        """(C of (H, W) float32) ``images`` (bool or whole numbers) as floats, listed checked
+        (finite by construction); the same values as ``np.ascontiguousarray(image,
+        dtype=np.float32)``. Any other dtype is converted and scanned as before, not pooled."""
+        if any(np.asarray(image).dtype.kind not in "bui" for image in images):
+            return CheckedImages(np.ascontiguousarray(image, dtype=np.float32) for image in images)
+        shapes = [np.shape(image) for image in images]
         out = self._free(shapes)
         if out is None:
             out = CheckedImages.listed(np.empty(shape, np.float32) for shape in shapes)
-        for image, mask in zip(out, masks):
-            np.copyto(image, mask, casting="unsafe")
+        for array, image in zip(out, images):
+            np.copyto(array, image, casting="unsafe")
         self.lists.append(out)
         del self.lists[: -self.keep]
         return out

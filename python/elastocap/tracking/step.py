@@ -25,7 +25,7 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size
-from elastocap.tracking.frame_images import CheckedImages, WeightPool
+from elastocap.tracking.frame_images import ImagePool
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.new_points import add_new_points
 from elastocap.tracking.pyramid_search import Pyramids
@@ -42,6 +42,8 @@ __all__ = ["FrameTracker"]
 
 
 def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """(H, W) float32 grey levels of an RGB image (benches/track_ceiling.py; the tracker's
+    own frames go through its pool, the same values)."""
     return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32))
 
 
@@ -82,12 +84,17 @@ class FrameTracker:
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
         # current images are the next frame's previous ones: reduced once).
         self.pyramids = Pyramids()
-        # The template weights' arrays, reused once no frame holds them (frame_images.py).
-        self.weight_pool = WeightPool()
+        # The grey images' and template weights' arrays, reused once no frame holds them
+        # (frame_images.py): the tracker and the reduced images' cache hold two frames'
+        # grey images, the tracker one frame's weights.
+        self.grey_pool = ImagePool()
+        self.weight_pool = ImagePool(keep=2)
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
-        # Checked once here for every match of the frame (frame_images.py).
-        grey = CheckedImages(_grey(self.capture.image(name, frame)) for name in self.names)
+        # Checked once here for every match of the frame (frame_images.py); written into
+        # the arrays of the frame before last (the values of ``cvtColor(...).astype(np.float32)``).
+        grey = self.grey_pool.as_float([cv2.cvtColor(self.capture.image(name, frame), cv2.COLOR_RGB2GRAY)
+                                        for name in self.names])
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
             self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
@@ -97,7 +104,7 @@ class FrameTracker:
     def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
         if not self.o["mask_weights"]:
             return None
-        return self.weight_pool.weights(masks)
+        return self.weight_pool.as_float(masks)
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;
