@@ -52,18 +52,18 @@ def checked_weights_of(weights: Sequence[NDArray[np.float32]], k: int, shape: tu
 
 
 class ImagePool:
-    """A frame's C images (H, W) converted to float32 (its masks as 0/1 template weights,
-    its grey levels from uint8), written into the arrays of an earlier frame that nothing
-    holds any more.
+    """A frame's C images (H, W) of bool or whole numbers converted to float32 (the
+    tracker's masks as 0/1 template weights), written into the arrays of an earlier frame
+    that nothing holds any more.
 
-    Why: a fresh 1024x768 float32 image is 3 MB, which the allocator maps anew and the
-    kernel faults in page by page on the first write: the eight masks' conversion cost
-    ~11 ms a frame that way and ~1 ms into arrays already mapped (the same values). The
-    tracker keeps the frame before's images (its ``grey`` and ``weights``), so the arrays
-    of the frame before that are free again on the next frame. A list is reused only when
-    the pool's references are its only ones (nothing else holds the list, an array of it,
-    or a view into one, e.g. the reduced images' cache, which holds its images): what any
-    caller still holds is never overwritten."""
+    Why: a fresh 1024x768 float32 image is 3 MB, which the allocator may map anew and the
+    kernel fault in page by page on the first write (the eight masks' conversion measured
+    ~11 ms that way against ~1 ms into arrays already mapped, the same values), and the
+    converted masks were scanned for NaN they cannot hold. The tracker keeps the frame
+    before's weights, so the arrays of the frame before that are free again on the next
+    frame. A list is reused only when the pool's references are its only ones (nothing
+    else holds the list, an array of it, or a view into one): what any caller still holds
+    is never overwritten."""
 
     def __init__(self, keep: int = 3) -> None:
         self.keep = keep

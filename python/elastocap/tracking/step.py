@@ -25,7 +25,7 @@ from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.filters import pixel_size
-from elastocap.tracking.frame_images import ImagePool
+from elastocap.tracking.frame_images import CheckedImages, ImagePool
 from elastocap.tracking.handover import hand_over
 from elastocap.tracking.new_points import add_new_points
 from elastocap.tracking.pyramid_search import Pyramids
@@ -42,8 +42,6 @@ __all__ = ["FrameTracker"]
 
 
 def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
-    """(H, W) float32 grey levels of an RGB image (benches/track_ceiling.py; the tracker's
-    own frames go through its pool, the same values)."""
     return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32))
 
 
@@ -84,17 +82,14 @@ class FrameTracker:
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
         # current images are the next frame's previous ones: reduced once).
         self.pyramids = Pyramids()
-        # The grey images' and template weights' arrays, reused once no frame holds them
-        # (frame_images.py): the tracker and the reduced images' cache hold two frames'
-        # grey images, the tracker one frame's weights.
-        self.grey_pool = ImagePool()
+        # The template weights' arrays, reused once no frame holds them (frame_images.py;
+        # the tracker holds one frame's). (The grey images through a pool measured no
+        # faster: their conversion is cvtColor's.)
         self.weight_pool = ImagePool(keep=2)
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
-        # Checked once here for every match of the frame (frame_images.py); written into
-        # the arrays of the frame before last (the values of ``cvtColor(...).astype(np.float32)``).
-        grey = self.grey_pool.as_float([cv2.cvtColor(self.capture.image(name, frame), cv2.COLOR_RGB2GRAY)
-                                        for name in self.names])
+        # Checked once here for every match of the frame (frame_images.py).
+        grey = CheckedImages(_grey(self.capture.image(name, frame)) for name in self.names)
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
             self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
