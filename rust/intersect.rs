@@ -73,11 +73,25 @@ pub fn intersect_views(
 ) -> Vec<PointIntersection> {
     let c = cameras.len();
     let centers: Vec<[f64; 3]> = cameras.iter().map(Camera::center).collect();
+    // A few points (the tracker's re-intersections of the views it changed) on the calling
+    // thread: each point is independent, so the answers are the same either way, and the
+    // pool's hand-over cost more wall time than such a batch.
+    if c > 0 && obs.len() / c < SERIAL_POINTS {
+        return obs
+            .chunks(c)
+            .zip(cov.chunks(c))
+            .map(|(o, s)| intersect_point(cameras, &centers, o, s, options))
+            .collect();
+    }
     obs.par_chunks(c)
         .zip(cov.par_chunks(c))
         .map(|(o, s)| intersect_point(cameras, &centers, o, s, options))
         .collect()
 }
+
+/// Batches of fewer points than this are intersected on the calling thread (a few us a
+/// point).
+const SERIAL_POINTS: usize = 64;
 
 /// The Gauss-Newton solution over the views `used` of one point.
 struct Solved {

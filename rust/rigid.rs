@@ -21,12 +21,27 @@ pub fn rigid_motions(
     weights: &[f64],
     k: usize,
 ) -> Vec<([f64; 9], [f64; 3])> {
+    // A small batch (the revival's groups: tens of sets) is fitted on the calling thread:
+    // each fit is independent, so the answers are the same either way, and handing a
+    // fraction of a millisecond to the pool cost more wall time than it saved (under load
+    // the call waited for a worker to be scheduled: 10x its CPU time at two threads).
+    if k > 0 && a.len() / k < SERIAL_SETS {
+        return a
+            .chunks(k)
+            .zip(b.chunks(k))
+            .zip(weights.chunks(k))
+            .map(|((a, b), w)| rigid_motion(a, b, w))
+            .collect();
+    }
     a.par_chunks(k)
         .zip(b.par_chunks(k))
         .zip(weights.par_chunks(k))
         .map(|((a, b), w)| rigid_motion(a, b, w))
         .collect()
 }
+
+/// Batches of fewer sets than this run on the calling thread (~1 us a set).
+const SERIAL_SETS: usize = 256;
 
 fn rigid_motion(a: &[[f64; 3]], b: &[[f64; 3]], w: &[f64]) -> ([f64; 9], [f64; 3]) {
     let total: f64 = w.iter().sum();
