@@ -98,6 +98,37 @@ mod tests {
     }
 
     #[test]
+    fn a_batch_and_its_sets_alone_agree() {
+        // 600 sets run on the pool, each set alone on the calling thread (SERIAL_SETS):
+        // the same fits to the bit, zero weights included.
+        let k = 8;
+        let (mut a, mut b, mut w) = (Vec::new(), Vec::new(), Vec::new());
+        for m in 0..600 {
+            let r = rotation([0.0, 0.6, 0.8], 0.01 * m as f64);
+            for j in 0..k {
+                let f = (m * k + j) as f64;
+                let p = [(f * 0.31).sin(), (f * 0.17).cos(), (f * 0.07).sin()];
+                a.push(p);
+                b.push(std::array::from_fn(|i| {
+                    r[3 * i] * p[0]
+                        + r[3 * i + 1] * p[1]
+                        + r[3 * i + 2] * p[2]
+                        + 1e-3 * (f * i as f64).sin()
+                }));
+                w.push(if (m + j) % 5 == 0 { 0.0 } else { 1.0 });
+            }
+        }
+        assert!(a.len() / k >= SERIAL_SETS);
+        let batch = rigid_motions(&a, &b, &w, k);
+        for (m, whole) in batch.iter().enumerate() {
+            let s = m * k..(m + 1) * k;
+            let one = rigid_motions(&a[s.clone()], &b[s.clone()], &w[s], k)[0];
+            assert_eq!(whole.0.map(f64::to_bits), one.0.map(f64::to_bits));
+            assert_eq!(whole.1.map(f64::to_bits), one.1.map(f64::to_bits));
+        }
+    }
+
+    #[test]
     fn recovers_a_rigid_motion_and_ignores_zero_weights() {
         let r = rotation([0.6, 0.0, 0.8], 2.5);
         let t = [0.3, -1.0, 2.0];

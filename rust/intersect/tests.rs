@@ -107,3 +107,46 @@ fn one_view_leaves_the_point_unsolved() {
     assert_eq!(out[0].used, vec![true, false, false]);
     assert!(out[0].normalised.iter().all(|w| w.is_nan()));
 }
+
+#[test]
+fn a_batch_and_its_points_alone_agree() {
+    // A batch of 150 points runs on the pool, each point alone on the calling thread
+    // (SERIAL_POINTS): the same answers to the bit, noisy views and a planted blunder.
+    let cameras: Vec<Camera> = (0..4).map(|i| arc_camera(i, 4)).collect();
+    let mut obs = Vec::new();
+    let mut cov = Vec::new();
+    for n in 0..150 {
+        let f = n as f64;
+        let p = [
+            0.3 * (f * 0.37).sin(),
+            0.2 * (f * 0.11).cos(),
+            0.25 * (f * 0.53).sin(),
+        ];
+        for (k, cam) in cameras.iter().enumerate() {
+            let mut uv = cam.project_jacobian(&p).0;
+            uv[0] += 0.3 * ((f + k as f64) * 1.7).sin();
+            uv[1] += 0.3 * ((f - k as f64) * 2.3).cos();
+            if n % 17 == 3 && k == 1 {
+                uv[0] += 15.0;
+            }
+            obs.push(uv);
+            cov.push([0.25, 0.02, 0.02, 0.3]);
+        }
+    }
+    assert!(obs.len() / cameras.len() >= SERIAL_POINTS);
+    let batch = intersect_views(&cameras, &obs, &cov, options());
+    for (n, whole) in batch.iter().enumerate() {
+        let one = &intersect_views(
+            &cameras,
+            &obs[4 * n..4 * n + 4],
+            &cov[4 * n..4 * n + 4],
+            options(),
+        )[0];
+        assert_eq!(whole.point.map(f64::to_bits), one.point.map(f64::to_bits));
+        assert_eq!(whole.used, one.used);
+        assert_eq!(
+            format!("{:?}", whole.covariance),
+            format!("{:?}", one.covariance)
+        );
+    }
+}
