@@ -17,7 +17,8 @@
 //! scoring by it), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
-//! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull).
+//! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
+//! `zbuffer` (the visibility's test of nearer tracked points on a point's line of sight).
 
 mod flags;
 mod ncc;
@@ -35,6 +36,7 @@ mod tests;
 mod weighted_ncc;
 #[cfg(test)]
 mod weighted_tests;
+mod zbuffer;
 
 pub use flags::Flag;
 pub use ncc::{box_search_scores, NccBest};
@@ -43,3 +45,4 @@ pub use ncc_batch::ncc_at_cameras;
 pub use seed_depths::{hull_depths, DepthGrid};
 pub use seed_hull::{hull_inside, hull_pixels, HullCamera, HullView};
 pub use step::{track_camera, CameraStep, TrackOptions};
+pub use zbuffer::occluded;

@@ -40,6 +40,7 @@ __all__ = [
     "seed_hull_depths",
     "seed_pixels",
     "track_ncc_at_cameras",
+    "track_occluded",
 ]
 
 __version__: str
@@ -521,3 +522,12 @@ def track_ncc_at_cameras(
     *,
     size: int = 11,
 ) -> NDArray[np.float64]: ...
+def track_occluded(
+    occluders: NDArray[np.float64],
+    depths: NDArray[np.float64],
+    points: NDArray[np.float64],
+    thresholds: NDArray[np.float64],
+    *,
+    radius: float,
+    nearest: int,
+) -> NDArray[np.bool_]: ...

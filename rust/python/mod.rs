@@ -22,6 +22,7 @@ mod snake;
 mod solve;
 mod track;
 mod track_views;
+mod track_visibility;
 
 use numpy::{Element, PyReadonlyArray, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -78,6 +79,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     track::register(m)?;
     seeding::register(m)?;
     track_views::register(m)?;
+    track_visibility::register(m)?;
     intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 

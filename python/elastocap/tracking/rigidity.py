@@ -58,7 +58,6 @@ and the views (so every image figure) are untouched.
 
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -68,7 +67,7 @@ from scipy.spatial import cKDTree
 from elastocap._core import rigid_fits
 from elastocap.tracking import settings
 
-__all__ = ["NeighbourPlan", "neighbour_plans", "rigid_fusion", "rigid_motions", "rigid_residuals"]
+__all__ = ["NeighbourPlan", "nanmedian_rows", "neighbour_plans", "rigid_fusion", "rigid_motions", "rigid_residuals"]
 
 
 def rigid_motions(a: NDArray[np.float64], b: NDArray[np.float64],
@@ -288,7 +287,7 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
         across[rows] = np.linalg.norm(d - depth[:, None] * u, axis=1) / pixel[rows]
         own = np.einsum("nij,nkj->nki", r, then[near]) + t[:, None] - moved[near]
         res = np.where(weight > 0, np.linalg.norm(own, axis=2), np.nan) / pixel[rows][:, None]
-        spread[rows] = np.nanmedian(res, axis=1)  # every row has chosen neighbours
+        spread[rows] = nanmedian_rows(res)  # every row has chosen neighbours
         # Leave one out: K fits per point, each without one of its neighbours.
         m, k = near.shape
         w = np.repeat(weight[:, None, :], k, axis=1) * (1.0 - np.eye(k))[None]  # (M, K, K)
@@ -299,7 +298,27 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
             miss = np.einsum("nij,nj->ni", r1, then[near[i, j]]) + t1 - moved[near[i, j]]
             loo = np.full((m, k), np.nan)
             loo[i, j] = np.linalg.norm(miss, axis=1) / pixel[rows][i]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # rows without three neighbours
-                held_out[rows] = np.nanmedian(loo, axis=1)
+            held_out[rows] = nanmedian_rows(loo)  # NaN: rows without three neighbours
     return RigidResiduals(across, along, spread, held_out, prediction)
+
+
+def nanmedian_rows(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(M,) each row's median of ``values`` (M, K) float64 ignoring NaN (NaN for a row of
+    none), the same to the bit as ``np.nanmedian(values, axis=1)``: that sorts the rows
+    behind a mask (``np.ma.median``: K < 600), ~0.2 ms a call here, where a plain sort puts
+    the NaN last alike; the middle one, or the two middle ones' sum halved (as
+    ``np.ma.median`` forms it; an odd count's middle one doubled and halved is itself; a zero
+    median is +0)."""
+    m, k = values.shape
+    if k == 0:
+        return np.full(m, np.nan)
+    ordered = np.sort(values, axis=1)
+    count = k - np.isnan(values).sum(axis=1)
+    high = count // 2
+    low = np.where(count % 2 == 1, high, high - 1)
+    lo = np.take_along_axis(ordered, np.clip(low, 0, k - 1)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(ordered, np.clip(high, 0, k - 1)[:, None], axis=1)[:, 0]
+    # + 0.0: a median of zeros is +0 there whatever their sign (the sum starts from +0).
+    out = (lo + hi) / 2.0 + 0.0
+    out[count == 0] = np.nan
+    return out

@@ -18,8 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
+from elastocap._core import track_occluded
 from elastocap.cameras import Camera
 
 __all__ = ["predicted_visible"]
@@ -85,13 +85,13 @@ def predicted_visible(cameras: Sequence[Camera], masks: Sequence[NDArray[np.bool
             front = odepth > 0
             ouv, odepth = ouv[front], odepth[front]
             if len(odepth):
-                k_near = min(_OCCLUDERS, len(odepth))
-                dist, near = cKDTree(ouv).query(uv[ok], k=k_near, distance_upper_bound=radius)
-                dist, near = dist.reshape(-1, k_near), near.reshape(-1, k_near)
-                hit = np.isfinite(dist)
                 # One pixel at the point's depth, in world units: depth / focal length.
                 pixel = depth[ok] / float(cam.K[0, 0])
-                nearer = np.where(hit, odepth[np.minimum(near, len(odepth) - 1)], np.inf) < (depth[ok] - gap * pixel)[:, None]
-                ok[np.flatnonzero(ok)[nearer.any(axis=1)]] = False
+                # The core's grid, by the rule of cKDTree(ouv).query(uv[ok], k=_OCCLUDERS,
+                # distance_upper_bound=radius) (the tree cost ~0.01 CPU s a frame).
+                hidden = track_occluded(np.ascontiguousarray(ouv), np.ascontiguousarray(odepth),
+                                        np.ascontiguousarray(uv[ok]), depth[ok] - gap * pixel,
+                                        radius=float(radius), nearest=_OCCLUDERS)
+                ok[np.flatnonzero(ok)[hidden]] = False
         out[rows[ok], k] = True
     return out
