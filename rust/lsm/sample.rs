@@ -207,10 +207,15 @@ impl TemplatePatch {
             let gxdy_col = &mut gxdy_col[span.clone()];
             let gydx_col = &mut gydx_col[span.clone()];
             let gydy_col = &mut gydy_col[span];
+            // Every operand a slice of exactly `size` (the compiler then drops the bounds
+            // checks, which kept the loop scalar).
+            let (left, middle, right) =
+                (&centre[..size], &centre[1..size + 1], &centre[2..size + 2]);
+            let (above, below) = (&above[1..size + 1], &below[1..size + 1]);
             for c in 0..size {
-                let gx = 0.5 * (centre[c + 2] - centre[c]);
-                let gy = 0.5 * (below[c + 1] - above[c + 1]);
-                value[c] = centre[c + 1];
+                let gx = 0.5 * (right[c] - left[c]);
+                let gy = 0.5 * (below[c] - above[c]);
+                value[c] = middle[c];
                 gx_col[c] = gx;
                 gy_col[c] = gy;
                 gxdx_col[c] = gx * dx[c];
