@@ -76,11 +76,13 @@ pub(crate) fn normalised_into(values: &[f32], out: &mut Vec<f32>) -> bool {
         .sum::<f64>()
         .sqrt();
     out.clear();
-    if !(norm > 1e-9) {
-        return false;
+    // Written so that NaN is flat too.
+    if norm > 1e-9 {
+        out.extend(values.iter().map(|&x| ((x as f64 - mean) / norm) as f32));
+        true
+    } else {
+        false
     }
-    out.extend(values.iter().map(|&x| ((x as f64 - mean) / norm) as f32));
-    true
 }
 
 /// Rows of the summed-area tables' first pass run side by side (independent running
@@ -141,6 +143,9 @@ pub(crate) fn summed_area_tables(
         for r in 1..side {
             let (above, below) = table.split_at_mut((r + 1) * stride);
             let above = &above[r * stride..];
+            // `above + below`, the single pass's order (the same bits as `+=` but for
+            // which NaN's payload a sum of two NaNs keeps).
+            #[allow(clippy::assign_op_pattern)]
             for (b, &a) in below[..stride].iter_mut().zip(above) {
                 *b = a + *b;
             }
