@@ -164,23 +164,13 @@ impl TemplatePatch {
                 }
             }
         }
+        self.values_and_gradients();
+        // The two sums alone, after the loop above: serial `f64` chains (their order is
+        // their value), which inside it kept the values' and gradients' loop scalar.
         let (mut sum_value, mut sum_square) = (0.0f64, 0.0f64);
-        for r in 0..size {
-            for c in 0..size {
-                let i = r * size + c;
-                let at = |rr: usize, cc: usize| self.border[rr * m + cc];
-                let t = at(r + 1, c + 1);
-                let gx = 0.5 * (at(r + 1, c + 2) - at(r + 1, c));
-                let gy = 0.5 * (at(r + 2, c + 1) - at(r, c + 1));
-                let (dx, dy) = (self.dx[i], self.dy[i]);
-                self.value[i] = t;
-                let row = [gx, gy, gx * dx, gx * dy, gy * dx, gy * dy];
-                for (k, g) in row.into_iter().enumerate() {
-                    self.geo[k * n + i] = g;
-                }
-                sum_value += t as f64;
-                sum_square += (t as f64) * (t as f64);
-            }
+        for &t in &self.value {
+            sum_value += t as f64;
+            sum_square += (t as f64) * (t as f64);
         }
         self.value_sum = sum_value;
         self.value_square = sum_square;
@@ -188,6 +178,52 @@ impl TemplatePatch {
         self.weight_total = n as f64;
         self.geo_sums();
         true
+    }
+
+    /// The grey values (`value`) and the six geometric Jacobian columns (`geo`) from the
+    /// widened grid of samples (`border`, `(size + 2)^2`): central differences, row by
+    /// row, each row's columns one vector loop (no sum in it, so it vectorises).
+    fn values_and_gradients(&mut self) {
+        let (size, m) = (self.size, self.size + 2);
+        let n = size * size;
+        let (value, geo, border) = (&mut self.value, &mut self.geo, &self.border);
+        let (gx_col, rest) = geo.split_at_mut(n);
+        let (gy_col, rest) = rest.split_at_mut(n);
+        let (gxdx_col, rest) = rest.split_at_mut(n);
+        let (gxdy_col, rest) = rest.split_at_mut(n);
+        let (gydx_col, gydy_col) = rest.split_at_mut(n);
+        for r in 0..size {
+            let (above, centre, below) = (
+                &border[r * m..(r + 1) * m],
+                &border[(r + 1) * m..(r + 2) * m],
+                &border[(r + 2) * m..(r + 3) * m],
+            );
+            let span = r * size..(r + 1) * size;
+            let (dx, dy) = (&self.dx[span.clone()], &self.dy[span.clone()]);
+            let value = &mut value[span.clone()];
+            let gx_col = &mut gx_col[span.clone()];
+            let gy_col = &mut gy_col[span.clone()];
+            let gxdx_col = &mut gxdx_col[span.clone()];
+            let gxdy_col = &mut gxdy_col[span.clone()];
+            let gydx_col = &mut gydx_col[span.clone()];
+            let gydy_col = &mut gydy_col[span];
+            // Every operand a slice of exactly `size` (the compiler then drops the bounds
+            // checks, which kept the loop scalar).
+            let (left, middle, right) =
+                (&centre[..size], &centre[1..size + 1], &centre[2..size + 2]);
+            let (above, below) = (&above[1..size + 1], &below[1..size + 1]);
+            for c in 0..size {
+                let gx = 0.5 * (right[c] - left[c]);
+                let gy = 0.5 * (below[c] - above[c]);
+                value[c] = middle[c];
+                gx_col[c] = gx;
+                gy_col[c] = gy;
+                gxdx_col[c] = gx * dx[c];
+                gxdy_col[c] = gx * dy[c];
+                gydx_col[c] = gy * dx[c];
+                gydy_col[c] = gy * dy[c];
+            }
+        }
     }
 
     /// The widened grid's bicubic samples (`size + 2` squared, into `border`) around
@@ -439,6 +475,10 @@ impl TemplatePatch {
         self.border = vec![0.0; (size + 2) * (size + 2)];
     }
 }
+
+#[cfg(test)]
+#[path = "sample_tests.rs"]
+mod tests;
 
 /// `sum a_i b_i` in eight `f32` lanes (so that it vectorises), then `f64`: over a patch
 /// of at most 255^2 pixels, about 1e-6 relative.

@@ -61,6 +61,13 @@ pub(crate) fn fill_window(image: &ImageView<'_>, centre: [f64; 2], side: usize, 
 
 /// Mean-free template with unit norm; `None` for a flat patch.
 pub(crate) fn normalised(values: &[f32]) -> Option<Vec<f32>> {
+    let mut out = Vec::with_capacity(values.len());
+    normalised_into(values, &mut out).then_some(out)
+}
+
+/// [`normalised`] into `out` (a buffer kept by the caller: the box search ran one
+/// allocation per view); false, `out` unspecified, for a flat patch.
+pub(crate) fn normalised_into(values: &[f32], out: &mut Vec<f32>) -> bool {
     let n = values.len() as f64;
     let mean = values.iter().map(|&x| x as f64).sum::<f64>() / n;
     let norm = values
@@ -68,12 +75,101 @@ pub(crate) fn normalised(values: &[f32]) -> Option<Vec<f32>> {
         .map(|&x| (x as f64 - mean).powi(2))
         .sum::<f64>()
         .sqrt();
-    (norm > 1e-9).then(|| {
-        values
-            .iter()
-            .map(|&x| ((x as f64 - mean) / norm) as f32)
-            .collect()
-    })
+    out.clear();
+    // Written so that NaN is flat too.
+    if norm > 1e-9 {
+        out.extend(values.iter().map(|&x| ((x as f64 - mean) / norm) as f32));
+        true
+    } else {
+        false
+    }
+}
+
+/// Rows of the summed-area tables' first pass run side by side (independent running
+/// sums, see [`summed_area_tables`]).
+const SAT_ROWS: usize = 4;
+
+/// Summed-area tables of the window (`side x side`, row-major) and of its squares into
+/// `sum` and `square`, `(side + 1)^2` each with a zero first row and column:
+/// `sum[(r + 1)(side + 1) + c + 1]` is the sum of the window's rows `0..=r`, columns
+/// `0..=c`, in `f64`.
+///
+/// Each entry is the entry above plus the row's running sum up to it, the running sums
+/// added column by column: the order of every sum is fixed, so that it is exact to compute
+/// it in two passes: the running sums along the rows, [`SAT_ROWS`] rows side by side (one
+/// row's sums are a serial chain of adds, and one row at a time waited on its latency),
+/// then the rows of the table down the columns, a whole row of the table at once (vectors).
+/// The entries are those of the single pass to the bit (`a + b == b + a` in IEEE
+/// arithmetic; a running sum that starts at `+0` is never `-0`, so the zero first row
+/// adds nothing).
+pub(crate) fn summed_area_tables(
+    window: &[f32],
+    side: usize,
+    sum: &mut Vec<f64>,
+    square: &mut Vec<f64>,
+) {
+    let stride = side + 1;
+    sum.clear();
+    sum.resize(stride * stride, 0.0);
+    square.clear();
+    square.resize(stride * stride, 0.0);
+    let mut r = 0;
+    while r + SAT_ROWS <= side {
+        let (mut row, mut row2) = ([0.0f64; SAT_ROWS], [0.0f64; SAT_ROWS]);
+        for c in 0..side {
+            for k in 0..SAT_ROWS {
+                let x = window[(r + k) * side + c] as f64;
+                row[k] += x;
+                row2[k] += x * x;
+                sum[(r + k + 1) * stride + c + 1] = row[k];
+                square[(r + k + 1) * stride + c + 1] = row2[k];
+            }
+        }
+        r += SAT_ROWS;
+    }
+    for r in r..side {
+        let (mut row, mut row2) = (0.0f64, 0.0f64);
+        for c in 0..side {
+            let x = window[r * side + c] as f64;
+            row += x;
+            row2 += x * x;
+            sum[(r + 1) * stride + c + 1] = row;
+            square[(r + 1) * stride + c + 1] = row2;
+        }
+    }
+    // Down the columns: table row `r + 1` += table row `r` (row 1 is the first running
+    // sums already: the zero row adds nothing).
+    for table in [sum, square] {
+        for r in 1..side {
+            let (above, below) = table.split_at_mut((r + 1) * stride);
+            let above = &above[r * stride..];
+            // `above + below`, the single pass's order (the same bits as `+=` but for
+            // which NaN's payload a sum of two NaNs keeps).
+            #[allow(clippy::assign_op_pattern)]
+            for (b, &a) in below[..stride].iter_mut().zip(above) {
+                *b = a + *b;
+            }
+        }
+    }
+}
+
+/// The summed-area tables of [`summed_area_tables`] in one pass, one row after the other
+/// (what the box search ran before; the tests' reference).
+#[cfg(test)]
+pub(crate) fn summed_area_tables_single_pass(window: &[f32], side: usize) -> (Vec<f64>, Vec<f64>) {
+    let stride = side + 1;
+    let (mut sum, mut square) = (vec![0.0; stride * stride], vec![0.0; stride * stride]);
+    for r in 0..side {
+        let (mut row, mut row2) = (0.0, 0.0);
+        for c in 0..side {
+            let x = window[r * side + c] as f64;
+            row += x;
+            row2 += x * x;
+            sum[(r + 1) * stride + c + 1] = sum[r * stride + c + 1] + row;
+            square[(r + 1) * stride + c + 1] = square[r * stride + c + 1] + row2;
+        }
+    }
+    (sum, square)
 }
 
 /// The best shift of a box search.
@@ -93,6 +189,8 @@ const MOST_LANES: usize = 24;
 #[derive(Debug, Default)]
 pub(crate) struct BoxScratch {
     pub(super) template: Vec<f32>,
+    /// The template mean-free and of unit norm ([`normalised_into`]).
+    normalised: Vec<f32>,
     window: Vec<f32>,
     padded: Vec<f32>,
     sum: Vec<f64>,
@@ -172,65 +270,77 @@ pub(super) fn box_search_sampled(
     radius: usize,
     scratch: &mut BoxScratch,
 ) -> Option<NccBest> {
-    let template = normalised(&scratch.template)?;
+    if !normalised_into(&scratch.template, &mut scratch.normalised) {
+        return None;
+    }
     let side = size + 2 * radius;
     if !sample_window(search, prediction, side, &mut scratch.window) {
         return None;
     }
-    // Summed-area tables of the window and its squares, (side + 1)^2.
-    let stride = side + 1;
-    scratch.sum.clear();
-    scratch.sum.resize(stride * stride, 0.0);
-    scratch.square.clear();
-    scratch.square.resize(stride * stride, 0.0);
-    for r in 0..side {
-        let (mut row, mut row2) = (0.0, 0.0);
-        for c in 0..side {
-            let x = scratch.window[r * side + c] as f64;
-            row += x;
-            row2 += x * x;
-            scratch.sum[(r + 1) * stride + c + 1] = scratch.sum[r * stride + c + 1] + row;
-            scratch.square[(r + 1) * stride + c + 1] = scratch.square[r * stride + c + 1] + row2;
-        }
-    }
-    let box_sum = |table: &[f64], r: usize, c: usize| {
-        table[(r + size) * stride + c + size]
-            - table[r * stride + c + size]
-            - table[(r + size) * stride + c]
-            + table[r * stride + c]
-    };
-    let n = (size * size) as f64;
+    summed_area_tables(&scratch.window, side, &mut scratch.sum, &mut scratch.square);
     let shifts = 2 * radius + 1;
     shift_dots(
         &scratch.window,
         side,
-        &template,
+        &scratch.normalised,
         size,
         &mut scratch.padded,
         &mut scratch.dots,
     );
-    scratch.scores.clear();
+    plain_scores(
+        &scratch.sum,
+        &scratch.square,
+        &scratch.dots,
+        side,
+        size,
+        &mut scratch.scores,
+    );
+    // The first best in row-major order, as the scores were pushed before.
     let (mut best, mut best_at) = (f64::NEG_INFINITY, (radius, radius));
-    for r in 0..shifts {
-        for c in 0..shifts {
-            let dot = scratch.dots[r * shifts + c];
-            let s = box_sum(&scratch.sum, r, c);
-            let ss = box_sum(&scratch.square, r, c);
-            let variance = ss - s * s / n;
-            // The template is mean-free, so the window's mean drops out of the dot product.
-            let score = if variance > 1e-9 {
-                dot as f64 / variance.sqrt()
-            } else {
-                0.0
-            };
-            scratch.scores.push(score);
-            if score > best {
-                best = score;
-                best_at = (r, c);
-            }
+    for (i, &score) in scratch.scores.iter().enumerate() {
+        if score > best {
+            best = score;
+            best_at = (i / shifts, i % shifts);
         }
     }
     Some(refine(&scratch.scores, best_at, best, prediction, radius))
+}
+
+/// The plain correlation of every shift (`(side + 1 - size)^2`, row-major, into `scores`)
+/// from the window's summed-area tables ([`summed_area_tables`]) and the mean-free, unit
+/// template's dot products `dots` ([`shift_dots`]). A row of shifts is one loop without
+/// a branch (the choice of 0 for a flat window is a select), so that the square roots and
+/// divisions run four to a vector instead of one by one (correctly rounded either way:
+/// the same bits); the best shift is found after, in a loop of its own.
+pub(crate) fn plain_scores(
+    sum: &[f64],
+    square: &[f64],
+    dots: &[f32],
+    side: usize,
+    size: usize,
+    scores: &mut Vec<f64>,
+) {
+    let (stride, shifts) = (side + 1, side + 1 - size);
+    let n = (size * size) as f64;
+    scores.clear();
+    scores.resize(shifts * shifts, 0.0);
+    for r in 0..shifts {
+        // The box of shift (r, c): table rows r and r + size, columns c and c + size.
+        let top = &sum[r * stride..r * stride + stride];
+        let bottom = &sum[(r + size) * stride..(r + size) * stride + stride];
+        let top2 = &square[r * stride..r * stride + stride];
+        let bottom2 = &square[(r + size) * stride..(r + size) * stride + stride];
+        let dots = &dots[r * shifts..(r + 1) * shifts];
+        let out = &mut scores[r * shifts..(r + 1) * shifts];
+        for c in 0..shifts {
+            let s = bottom[c + size] - top[c + size] - bottom[c] + top[c];
+            let ss = bottom2[c + size] - top2[c + size] - bottom2[c] + top2[c];
+            let variance = ss - s * s / n;
+            // The template is mean-free, so the window's mean drops out of the dot product.
+            let score = dots[c] as f64 / variance.sqrt();
+            out[c] = if variance > 1e-9 { score } else { 0.0 };
+        }
+    }
 }
 
 /// The dot products of `template` (`size x size`) with the window (`side x side`,
@@ -422,3 +532,7 @@ unsafe fn row_of_shifts_wide<const R: usize>(
     }
     out
 }
+
+#[cfg(test)]
+#[path = "ncc_tests.rs"]
+mod tests;
