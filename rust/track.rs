@@ -43,6 +43,6 @@ pub use ncc::{box_search_scores, NccBest};
 pub use ncc_at::ncc_at;
 pub use ncc_batch::ncc_at_cameras;
 pub use seed_depths::{hull_depths, DepthGrid};
-pub use seed_hull::{hull_inside, hull_pixels, HullCamera, HullView};
+pub use seed_hull::{hull_inside, hull_pixels, line_pixels, HullCamera, HullView, OUTSIDE};
 pub use step::{track_camera, CameraStep, TrackOptions};
 pub use zbuffer::occluded;

@@ -39,6 +39,7 @@ __all__ = [
     "seed_hull_inside",
     "seed_hull_depths",
     "seed_pixels",
+    "seed_line_pixels",
     "track_ncc_at_cameras",
     "track_occluded",
 ]
@@ -513,6 +514,18 @@ def seed_pixels(
     width: int,
     height: int,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]: ...
+def seed_line_pixels(
+    points: NDArray[np.float64],
+    inside: NDArray[np.bool_],
+    rows: NDArray[np.int64],
+    r: NDArray[np.float64],
+    t: NDArray[np.float64],
+    k: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    *,
+    width: int,
+    height: int,
+) -> NDArray[np.float64]: ...
 def track_ncc_at_cameras(
     templates: list[NDArray[np.float32]],
     points: NDArray[np.float64],

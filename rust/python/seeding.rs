@@ -9,7 +9,9 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
-use crate::track::{hull_depths, hull_inside, hull_pixels, DepthGrid, HullCamera, HullView};
+use crate::track::{
+    hull_depths, hull_inside, hull_pixels, line_pixels, DepthGrid, HullCamera, HullView,
+};
 
 /// Camera `i` of the flat arrays `r` (C x 9), `t` (C x 3), `k` (C x 9), `dist` (C x 12)
 /// with a `width x height` image and its mask (empty where only pixels are wanted).
@@ -237,8 +239,84 @@ fn seed_pixels<'py>(
     Ok((uv, seen))
 }
 
+/// `uv (T, D, 2)`: the pixels of the seed rays' samples `points[rows]` (M, D, 3; `rows`
+/// (T,) indices into M) in the partner camera `r`, `t`, `k`, `dist` with a `width x height`
+/// image, after numpy's `nan_to_num`, and `-1e6` (both coordinates) where the sample is not
+/// `inside` (M, D) the hull: the line `track_ncc_at` scores, in one parallel call (numpy
+/// gathered, cleaned, projected (`seed_pixels`) and masked them on one core).
+#[pyfunction]
+#[pyo3(signature = (points, inside, rows, r, t, k, dist, *, width, height))]
+#[allow(clippy::too_many_arguments)]
+fn seed_line_pixels<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray3<'py, f64>,
+    inside: PyReadonlyArray2<'py, bool>,
+    rows: PyReadonlyArray1<'py, i64>,
+    r: PyReadonlyArray2<'py, f64>,
+    t: PyReadonlyArray1<'py, f64>,
+    k: PyReadonlyArray2<'py, f64>,
+    dist: PyReadonlyArray1<'py, f64>,
+    width: usize,
+    height: usize,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    use rayon::prelude::*;
+    let [m, d, three] = [points.shape()[0], points.shape()[1], points.shape()[2]];
+    if three != 3 || inside.shape() != [m, d] {
+        return Err(invalid_input(format!(
+            "points must have shape (M, D, 3) and inside (M, D), got {:?} and {:?}",
+            points.shape(),
+            inside.shape()
+        )));
+    }
+    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
+        return Err(invalid_input(format!(
+            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
+            k.shape(),
+            t.shape(),
+            dist.shape()
+        )));
+    }
+    let samples = c_slice(&points, "points")?.as_chunks::<3>().0;
+    let held = c_slice(&inside, "inside")?;
+    let picked = c_slice(&rows, "rows")?;
+    if let Some(&bad) = picked.iter().find(|&&i| i < 0 || i as usize >= m) {
+        return Err(invalid_input(format!("rows must index the {m} rays, got {bad}")));
+    }
+    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
+    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
+    let view = view_of(rv, tv, kv, dv, 0, width, height, &[]);
+    let uv = PyArray3::<f64>::zeros(py, [picked.len(), d, 2], false);
+    if d > 0 {
+        let mut uw = uv.readwrite();
+        let out = uw.as_slice_mut()?.as_chunks_mut::<2>().0;
+        super::detach(py, || {
+            // Rays in groups of 16 (~1,500 samples a task), each with its own scratch.
+            const RAYS: usize = 16;
+            out.par_chunks_mut(RAYS * d)
+                .zip(picked.par_chunks(RAYS))
+                .for_each(|(o, group)| {
+                    let (mut finite, mut seen) = (Vec::with_capacity(d), Vec::with_capacity(d));
+                    for (o, &i) in o.chunks_exact_mut(d).zip(group) {
+                        let i = i as usize;
+                        let ray = i * d..(i + 1) * d;
+                        line_pixels(
+                            &samples[ray.clone()],
+                            &held[ray],
+                            &view,
+                            o,
+                            (&mut finite, &mut seen),
+                        );
+                    }
+                });
+        });
+    }
+    Ok(uv)
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)?;
     m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)?;
-    m.add_function(wrap_pyfunction!(seed_pixels, m)?)
+    m.add_function(wrap_pyfunction!(seed_pixels, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_line_pixels, m)?)
 }

@@ -346,6 +346,54 @@ unsafe fn hull_pixels_wide(
     fill_pixels(points, view, uv, seen);
 }
 
+/// Where a seed's line scores nothing: both coordinates of a sample outside the hull, far
+/// outside any image (`seed_points`' `-1e6`).
+pub const OUTSIDE: f64 = -1e6;
+
+/// One seed ray's samples `points` (D) as its partner scores them along the line: the
+/// pixels in `view`'s camera of numpy's `nan_to_num` of each sample ([`hull_pixels`]), and
+/// [`OUTSIDE`] where the sample is not `inside` the hull (D), into `uv` (D). `scratch`
+/// (D points, D flags) is overwritten. `seed_points`' gather, `nan_to_num`, projection
+/// and masking of the rows it scores, to the bit (benches/README.md, "seedpar1").
+pub fn line_pixels(
+    points: &[[f64; 3]],
+    inside: &[bool],
+    view: &HullView<'_>,
+    uv: &mut [[f64; 2]],
+    scratch: (&mut Vec<[f64; 3]>, &mut Vec<bool>),
+) {
+    assert!(
+        inside.len() == points.len() && uv.len() == points.len(),
+        "one flag and one pixel per sample"
+    );
+    let (finite, seen) = scratch;
+    finite.clear();
+    finite.extend(points.iter().map(|p| p.map(nan_to_num)));
+    seen.clear();
+    seen.resize(points.len(), false);
+    hull_pixels(finite, view, uv, seen);
+    for (o, &held) in uv.iter_mut().zip(inside) {
+        if !held {
+            *o = [OUTSIDE, OUTSIDE];
+        }
+    }
+}
+
+/// numpy's `nan_to_num` of one float64: NaN to 0, the infinities to the largest finite
+/// values of their sign.
+#[inline]
+fn nan_to_num(x: f64) -> f64 {
+    if x.is_nan() {
+        0.0
+    } else if x == f64::INFINITY {
+        f64::MAX
+    } else if x == f64::NEG_INFINITY {
+        f64::MIN
+    } else {
+        x
+    }
+}
+
 /// [`in_hull`] of each of `points` into `out` (the same length).
 pub fn hull_inside(points: &[[f64; 3]], views: &[HullView<'_>], min_seen: usize, out: &mut [bool]) {
     assert_eq!(points.len(), out.len(), "one answer per point");

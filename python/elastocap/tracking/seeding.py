@@ -8,6 +8,8 @@ into every other camera and forward intersection."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -22,7 +24,7 @@ from elastocap.tracking import settings
 from elastocap.tracking.seed_check import rematch_depth
 from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
 
-__all__ = ["seed_candidates", "seed_points"]
+__all__ = ["CandidateMaps", "candidate_maps", "seed_candidates", "seed_points"]
 
 # Depth samples along a seed's ray: enough that neighbouring samples project within about a
 # pixel of each other in a partner camera across the hull's depth.
@@ -34,22 +36,62 @@ _UNIQUENESS = 0.1
 _COARSE = 120
 
 
-def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
-                    spacing: int, size: int, min_texture: float, bare: int = 0,
-                    margin: int | None = None) -> NDArray[np.float64]:
-    """(M, 2) seed pixels of one camera: cell centres inside the mask eroded by the patch,
-    textured, in cells holding none of ``covered`` (K, 2); plus the most interior pixel of
-    every mask region that got no seed.
+class CandidateMaps(NamedTuple):
+    """The part of one camera's seed candidates that does not depend on the tracked points
+    (:func:`candidate_maps`): computed for every camera at once, off the seed loop's thread.
 
-    ``bare`` > 0 keeps only the cells with none of ``covered`` within ``bare`` cells (the
-    areas the tracks left bare, such as a fast limb whose points were all lost, not the odd
-    cell between tracked points): the cheap seeding of the frames between full seedings."""
+    ``inner`` (H, W) bool: the mask eroded by the patch's reach and off the image's border;
+    ``vs``, ``us`` (G, W') int: the cell centres' rows and columns (pixels); ``textured``
+    (G, W') bool: which centres lie in ``inner`` with a texture of at least ``min_texture``;
+    ``labels`` (H, W) int32: ``inner``'s 8-connected regions (0 outside it), ``count`` of
+    them with the background; ``distance`` (H, W) float32: ``inner``'s L2 distance
+    transform (pixels), or None until a region needs it."""
+
+    inner: NDArray[np.bool_]
+    vs: NDArray[np.intp]
+    us: NDArray[np.intp]
+    textured: NDArray[np.bool_]
+    count: int
+    labels: NDArray[np.int32]
+    distance: NDArray[np.float32] | None
+
+
+def candidate_maps(mask: NDArray[np.bool_], grey: NDArray[np.float32], *, spacing: int, size: int, min_texture: float,
+                   margin: int | None = None, distance: bool = False) -> CandidateMaps:
+    """:class:`CandidateMaps` of one camera's ``mask`` (H, W) and ``grey`` (H, W): the erosion,
+    texture, regions (and with ``distance`` the distance transform) :func:`seed_candidates`
+    reads. OpenCV's calls in it release the GIL, so :func:`seed_points` runs them in a
+    thread beside its loop (benches/README.md, "seedpar1")."""
     h, w = mask.shape
     reach = size // 2 + 2 if margin is None else margin
     kernel = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
     inner = cv2.erode(mask.astype(np.uint8), kernel) > 0
     inner[:reach], inner[-reach:], inner[:, :reach], inner[:, -reach:] = False, False, False, False
     texture = _texture(grey, inner, size)
+    vs, us = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
+    textured = inner[vs, us] & (texture[vs, us] >= min_texture)
+    inner8 = inner.astype(np.uint8)
+    count, labels = cv2.connectedComponents(inner8)
+    far = cv2.distanceTransform(inner8, cv2.DIST_L2, 3) if distance else None
+    return CandidateMaps(inner, vs, us, textured, int(count), labels, far)
+
+
+def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
+                    spacing: int, size: int, min_texture: float, bare: int = 0,
+                    margin: int | None = None, maps: CandidateMaps | None = None) -> NDArray[np.float64]:
+    """(M, 2) seed pixels of one camera: cell centres inside the mask eroded by the patch,
+    textured, in cells holding none of ``covered`` (K, 2); plus the most interior pixel of
+    every mask region that got no seed.
+
+    ``bare`` > 0 keeps only the cells with none of ``covered`` within ``bare`` cells (the
+    areas the tracks left bare, such as a fast limb whose points were all lost, not the odd
+    cell between tracked points): the cheap seeding of the frames between full seedings.
+    ``maps``: :func:`candidate_maps` of ``mask`` and ``grey`` at the same ``spacing``,
+    ``size``, ``min_texture`` and ``margin`` if already made."""
+    if maps is None:
+        maps = candidate_maps(mask, grey, spacing=spacing, size=size, min_texture=min_texture, margin=margin)
+    h, w = mask.shape
+    vs, us, labels = maps.vs, maps.us, maps.labels
     cells = np.zeros(((h + spacing - 1) // spacing, (w + spacing - 1) // spacing), bool)
     ok = np.isfinite(covered).all(axis=1)
     if ok.any():
@@ -58,18 +100,18 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
         cells[cv, cu] = True
     if bare > 0:
         cells = cv2.dilate(cells.astype(np.uint8), np.ones((2 * bare + 1, 2 * bare + 1), np.uint8)) > 0
-    vs, us = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
-    pick = inner[vs, us] & (texture[vs, us] >= min_texture) & ~cells[vs // spacing, us // spacing]
+    pick = maps.textured & ~cells[vs // spacing, us // spacing]
     seeds = [np.column_stack([us[pick], vs[pick]]).astype(float)]
-    count, labels = cv2.connectedComponents(inner.astype(np.uint8))
-    have = np.zeros(count, bool)
+    have = np.zeros(maps.count, bool)
     have[labels[vs[pick], us[pick]]] = True
     if ok.any():
         cu = np.clip(np.round(covered[ok, 0]).astype(int), 0, w - 1)
         cv = np.clip(np.round(covered[ok, 1]).astype(int), 0, h - 1)
         have[labels[cv, cu]] = True
     if (~have[1:]).any():
-        distance = cv2.distanceTransform(inner.astype(np.uint8), cv2.DIST_L2, 3)
+        distance = maps.distance
+        if distance is None:
+            distance = cv2.distanceTransform(maps.inner.astype(np.uint8), cv2.DIST_L2, 3)
         for region in np.flatnonzero(~have[1:]) + 1:
             where = np.flatnonzero((labels == region).ravel())
             best = where[np.argmax(distance.ravel()[where])]
@@ -88,12 +130,14 @@ def _texture(grey: NDArray[np.float32], inner: NDArray[np.bool_], size: int) -> 
     whole image's bit for bit (their windows see the same pixels; benches/README.md,
     "seedframe1")."""
     texture = np.zeros(grey.shape, np.float32)
-    vs, us = np.nonzero(inner)
+    # The box from the rows and columns that hold any of ``inner`` (np.nonzero's extremes,
+    # without its (N,) index arrays).
+    vs, us = np.flatnonzero(inner.any(axis=1)), np.flatnonzero(inner.any(axis=0))
     if vs.size == 0:
         return texture
     pad = size + 4
-    v0, v1 = max(0, int(vs.min()) - pad), min(grey.shape[0], int(vs.max()) + pad + 1)
-    u0, u1 = max(0, int(us.min()) - pad), min(grey.shape[1], int(us.max()) + pad + 1)
+    v0, v1 = max(0, int(vs[0]) - pad), min(grey.shape[0], int(vs[-1]) + pad + 1)
+    u0, u1 = max(0, int(us[0]) - pad), min(grey.shape[1], int(us[-1]) + pad + 1)
     box = np.ascontiguousarray(grey[v0:v1, u0:u1])
     texture[v0:v1, u0:u1] = np.sqrt(np.maximum(cv2.cornerMinEigenVal(box, size, ksize=3), 0)) * 8  # Sobel scale -> grey/px
     return texture
@@ -160,6 +204,23 @@ def _seen_pixels(camera: Camera, points: NDArray[np.float64]) -> tuple[NDArray[n
     return uv, seen
 
 
+def _line_pixels(camera: Camera, points: NDArray[np.float64], inside: NDArray[np.bool_],
+                 rows: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(T, K, 2) pixels in ``camera`` of the ray samples ``points[rows]`` ((M, K, 3) world
+    points; ``rows`` (T,)): :func:`_seen_pixels` of their ``np.nan_to_num``, and -1e6 (outside
+    any image: no score) where a sample is not ``inside`` (M, K) the hull.
+
+    In the core (``seed_line_pixels``), in parallel: numpy's gather, clean-up and masking
+    around ``seed_pixels`` ran on one core while the other waited (benches/README.md,
+    "seedpar1"); the numbers are the same to the bit."""
+    uv: NDArray[np.float64] = _core.seed_line_pixels(
+        np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(inside, dtype=bool),
+        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(camera.R, dtype=float),
+        np.ascontiguousarray(camera.t, dtype=float), np.ascontiguousarray(camera.K, dtype=float),
+        np.ascontiguousarray(padded(camera.dist), dtype=float), width=camera.width, height=camera.height)
+    return uv
+
+
 def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Camera],
                  masks: Sequence[NDArray[np.bool_]]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Ray samples (M, K, 3) from ``cam`` through ``seeds`` (M, 2) over the ray's first run
@@ -192,85 +253,119 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
     ``covered`` (N, C, 2) holds the tracked points' views; seeds go where no point lies, one
     camera after the other (so a point seeded from one camera covers its cells in the
     others); with ``bare`` > 0 only where none lies within ``bare`` cells
-    (:func:`seed_candidates`)."""
+    (:func:`seed_candidates`).
+
+    The cameras' :func:`candidate_maps` (which do not depend on the points) are made in a
+    thread beside the loop, in camera order: on two cores the loop's own numpy and Python
+    work leaves one idle, and OpenCV's calls release the GIL (benches/README.md,
+    "seedpar1"). The loop takes them in order, so the seeds are those of one thread."""
     c = len(cameras)
     partners = _partners(cameras)
     views: list[NDArray[np.float64]] = []
     cover = [covered[:, k] for k in range(c)]
-    for k, cam in enumerate(cameras):
-        seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture, bare=bare,
-                                margin=margin)
-        if len(seeds) == 0:
-            continue
-        points, hull = _hull_depths(cam, seeds, cameras, masks)
-        found = np.full((len(seeds), 2), np.nan)
-        partner_of = np.full(len(seeds), -1)
-        for p in partners[k][:2]:
-            todo = np.flatnonzero(np.isnan(found[:, 0]) & hull.any(axis=1))
-            if todo.size == 0:
-                break
-            other = cameras[p]
-            uv, _ = _seen_pixels(other, np.nan_to_num(points[todo].reshape(-1, 3)))
-            uv = uv.reshape(len(todo), _DEPTHS, 2)
-            uv[~hull[todo]] = -1e6  # outside any image: no score
-            # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
-            # seednear1's own eight-at-a-time copy of the same sums).
-            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
-            scores = np.where(np.isfinite(scores), scores, -np.inf)
-            best = np.argmax(scores, axis=1)
-            peak = scores[np.arange(len(todo)), best]
-            # A repeated texture along the line makes a false match as likely as the true
-            # one: the best peak must stand out from every candidate away from it.
-            padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
-            local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
-            if settings.SEED_PEAK_PIXELS is None:
-                away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
-            else:
-                # Apart in the partner's image: the samples' spacing there varies from
-                # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
-                offset = uv - uv[np.arange(len(todo)), best][:, None, :]
-                away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
-            second = np.where(local & away, scores, -np.inf).max(axis=1)
-            # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
-            with np.errstate(invalid="ignore"):
-                good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
-            rows, best = todo[good], best[good]
-            if rows.size == 0:
+    def maps_of(k: int, distance: bool) -> CandidateMaps:
+        return candidate_maps(masks[k], images[k], spacing=spacing, size=size, min_texture=min_texture, margin=margin,
+                              distance=distance)
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seed_maps")
+    try:
+        # Camera 0's maps on this thread (nothing to overlap them with yet), the others' in
+        # the pool, with the distance transform a region left without seeds needs.
+        later = [pool.submit(maps_of, k, True) for k in range(1, c)]
+        for k in range(c):
+            maps = later[k - 1].result() if k else maps_of(k, False)
+            seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture,
+                                    bare=bare, margin=margin, maps=maps)
+            if len(seeds) == 0:
                 continue
-            lo = np.clip(best - 1, 0, _DEPTHS - 1)
-            hi = np.clip(best + 1, 0, _DEPTHS - 1)
-            a, _ = other.project(points[rows, lo])
-            b, _ = other.project(points[rows, hi])
-            line = np.column_stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0], a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]])
-            m = match_patches(images[k], seeds[rows], [images[p]], initial=uv[good, best][:, None, :],
-                              epipolar=line[:, None, :], size=size, min_texture=min_texture, max_iterations=20)
-            ok = (m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
-            found[rows[ok]] = m.positions[ok, 0]
-            partner_of[rows[ok]] = p
-        rows = np.flatnonzero(partner_of >= 0)
+            new = _camera_seeds(images, masks, cameras, k, seeds, partners[k][:2], size=size,
+                                min_correlation=min_correlation, min_views=min_views, min_texture=min_texture,
+                                tolerance=tolerance, max_residual=max_residual, floor=floor)
+            if new is None:
+                continue
+            views.append(new)
+            for j in range(c):
+                cover[j] = np.concatenate([cover[j], new[:, j]])
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return np.concatenate(views) if views else np.zeros((0, c, 2))
+
+
+def _camera_seeds(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
+                  k: int, seeds: NDArray[np.float64], partners: NDArray[np.int64], *, size: int, min_correlation: float,
+                  min_views: int, min_texture: float, tolerance: float, max_residual: float,
+                  floor: float) -> NDArray[np.float64] | None:
+    """The new points of camera ``k``'s ``seeds`` (S, 2 pixels): their views (M, C, 2; NaN
+    where not matched), or None where no seed found a partner. Each seed's depth along its
+    ray inside the hull by NCC and then least squares in the ``partners`` (up to 2 camera
+    indices, nearest first; the second only for the seeds the first did not match),
+    confirmed by spatial matching into the other cameras (:func:`seed_points`' steps)."""
+    c = len(cameras)
+    cam = cameras[k]
+    points, hull = _hull_depths(cam, seeds, cameras, masks)
+    found = np.full((len(seeds), 2), np.nan)
+    partner_of = np.full(len(seeds), -1)
+    for p in partners:
+        todo = np.flatnonzero(np.isnan(found[:, 0]) & hull.any(axis=1))
+        if todo.size == 0:
+            break
+        other = cameras[p]
+        uv = _line_pixels(other, points, hull, todo)
+        # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
+        # seednear1's own eight-at-a-time copy of the same sums).
+        scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
+        scores = np.where(np.isfinite(scores), scores, -np.inf)
+        best = np.argmax(scores, axis=1)
+        peak = scores[np.arange(len(todo)), best]
+        # A repeated texture along the line makes a false match as likely as the true
+        # one: the best peak must stand out from every candidate away from it.
+        padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
+        local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
+        if settings.SEED_PEAK_PIXELS is None:
+            away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
+        else:
+            # Apart in the partner's image: the samples' spacing there varies from
+            # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
+            offset = uv - uv[np.arange(len(todo)), best][:, None, :]
+            away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
+        second = np.where(local & away, scores, -np.inf).max(axis=1)
+        # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
+        with np.errstate(invalid="ignore"):
+            good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+        rows, best = todo[good], best[good]
         if rows.size == 0:
             continue
-        uv = np.full((rows.size, c, 2), np.nan)
-        uv[:, k] = seeds[rows]
-        uv[np.arange(rows.size), partner_of[rows]] = found[rows]
-        cov = np.where(np.isfinite(uv)[..., None], np.eye(2) * 0.01, np.nan)
-        x, _, pair, _ = intersect_views(cameras, uv, cov, max_residual=max_residual, floor=floor)
-        # Confirm in every other camera by spatial matching from the seed camera.
-        targets = project_all(cameras, x, margin=size)
-        targets[:, k] = np.nan
-        matched, mcov = spatial_match(images, np.full(rows.size, k), seeds[rows], targets, size=size,
-                                      min_correlation=min_correlation, tolerance=tolerance, min_texture=min_texture,
-                                      cameras=cameras, points=x, normals=facing_normals(cameras, x, pair))
-        matched[:, k] = seeds[rows]
-        mcov[:, k] = np.eye(2) * 1e-4
-        x, _, used, _ = intersect_views(cameras, matched, mcov, max_residual=max_residual, floor=floor)
-        keep = used.sum(axis=1) >= min_views
-        new = np.where(used[keep][..., None], matched[keep], np.nan)
-        if settings.SEED_DEPTH_SIZE:
-            # The partner's depth with a small window (seed_check: a large one lies behind a limb).
-            new = rematch_depth(images, cameras, k, new, size=settings.SEED_DEPTH_SIZE,
-                                min_correlation=min_correlation, min_texture=min_texture)
-        views.append(new)
-        for j in range(c):
-            cover[j] = np.concatenate([cover[j], new[:, j]])
-    return np.concatenate(views) if views else np.zeros((0, c, 2))
+        lo = np.clip(best - 1, 0, _DEPTHS - 1)
+        hi = np.clip(best + 1, 0, _DEPTHS - 1)
+        a, _ = other.project(points[rows, lo])
+        b, _ = other.project(points[rows, hi])
+        line = np.column_stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0], a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]])
+        m = match_patches(images[k], seeds[rows], [images[p]], initial=uv[good, best][:, None, :],
+                          epipolar=line[:, None, :], size=size, min_texture=min_texture, max_iterations=20)
+        ok = (m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
+        found[rows[ok]] = m.positions[ok, 0]
+        partner_of[rows[ok]] = p
+    rows = np.flatnonzero(partner_of >= 0)
+    if rows.size == 0:
+        return None
+    uv = np.full((rows.size, c, 2), np.nan)
+    uv[:, k] = seeds[rows]
+    uv[np.arange(rows.size), partner_of[rows]] = found[rows]
+    cov = np.where(np.isfinite(uv)[..., None], np.eye(2) * 0.01, np.nan)
+    x, _, pair, _ = intersect_views(cameras, uv, cov, max_residual=max_residual, floor=floor)
+    # Confirm in every other camera by spatial matching from the seed camera.
+    targets = project_all(cameras, x, margin=size)
+    targets[:, k] = np.nan
+    matched, mcov = spatial_match(images, np.full(rows.size, k), seeds[rows], targets, size=size,
+                                  min_correlation=min_correlation, tolerance=tolerance, min_texture=min_texture,
+                                  cameras=cameras, points=x, normals=facing_normals(cameras, x, pair))
+    matched[:, k] = seeds[rows]
+    mcov[:, k] = np.eye(2) * 1e-4
+    x, _, used, _ = intersect_views(cameras, matched, mcov, max_residual=max_residual, floor=floor)
+    keep = used.sum(axis=1) >= min_views
+    new = np.where(used[keep][..., None], matched[keep], np.nan)
+    if settings.SEED_DEPTH_SIZE:
+        # The partner's depth with a small window (seed_check: a large one lies behind a limb).
+        new = rematch_depth(images, cameras, k, new, size=settings.SEED_DEPTH_SIZE,
+                            min_correlation=min_correlation, min_texture=min_texture)
+    return new
