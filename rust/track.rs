@@ -18,6 +18,7 @@
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
 //! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
+//! `seed_peaks` (the best correlation along a seed's line and the best peak away from it),
 //! `zbuffer` (the visibility's test of nearer tracked points on a point's line of sight).
 
 mod flags;
@@ -30,6 +31,7 @@ mod ncc_batch;
 mod ncc_batch_tests;
 mod seed_depths;
 mod seed_hull;
+mod seed_peaks;
 mod step;
 #[cfg(test)]
 mod tests;
@@ -44,5 +46,6 @@ pub use ncc_at::ncc_at;
 pub use ncc_batch::ncc_at_cameras;
 pub use seed_depths::{hull_depths, DepthGrid};
 pub use seed_hull::{hull_inside, hull_pixels, line_pixels, HullCamera, HullView, OUTSIDE};
+pub use seed_peaks::{line_peak, Away};
 pub use step::{track_camera, CameraStep, TrackOptions};
 pub use zbuffer::occluded;

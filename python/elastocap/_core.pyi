@@ -40,6 +40,7 @@ __all__ = [
     "seed_hull_depths",
     "seed_pixels",
     "seed_line_pixels",
+    "seed_line_peaks",
     "track_ncc_at_cameras",
     "track_occluded",
 ]
@@ -526,6 +527,13 @@ def seed_line_pixels(
     width: int,
     height: int,
 ) -> NDArray[np.float64]: ...
+def seed_line_peaks(
+    scores: NDArray[np.float64],
+    *,
+    width: int,
+    uv: NDArray[np.float64] | None = None,
+    pixels: float | None = None,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]: ...
 def track_ncc_at_cameras(
     templates: list[NDArray[np.float32]],
     points: NDArray[np.float64],

@@ -10,7 +10,8 @@ use pyo3::prelude::*;
 use super::{c_slice, invalid_input, rows};
 use crate::camera::DIST_LEN;
 use crate::track::{
-    hull_depths, hull_inside, hull_pixels, line_pixels, DepthGrid, HullCamera, HullView,
+    hull_depths, hull_inside, hull_pixels, line_peak, line_pixels, Away, DepthGrid, HullCamera,
+    HullView,
 };
 
 /// Camera `i` of the flat arrays `r` (C x 9), `t` (C x 3), `k` (C x 9), `dist` (C x 12)
@@ -314,9 +315,74 @@ fn seed_line_pixels<'py>(
     Ok(uv)
 }
 
+/// `(best (T,) int64, peak (T,), second (T,))` of each line's `scores` (T, D; NaN or
+/// infinite where not scored): the first index of the largest finite score, that score
+/// (-inf if none), and the largest finite local maximum away from it (-inf if none): more
+/// than `width` samples apart, or with `pixels`, more than `pixels` apart in the partner's
+/// image by `uv` (T, D, 2). `seed_points`' numpy chain, to the bit, in parallel.
+#[pyfunction]
+#[pyo3(signature = (scores, *, width, uv=None, pixels=None))]
+#[allow(clippy::type_complexity)]
+fn seed_line_peaks<'py>(
+    py: Python<'py>,
+    scores: PyReadonlyArray2<'py, f64>,
+    width: usize,
+    uv: Option<PyReadonlyArray3<'py, f64>>,
+    pixels: Option<f64>,
+) -> PyResult<(
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+)> {
+    use rayon::prelude::*;
+    let [t, d] = [scores.shape()[0], scores.shape()[1]];
+    let values = c_slice(&scores, "scores")?;
+    let (away, lines): (Away, &[[f64; 2]]) = match (pixels, &uv) {
+        (None, _) => (Away::Samples(width), &[]),
+        (Some(p), Some(uv)) if uv.shape() == [t, d, 2] => {
+            (Away::Pixels(p), c_slice(uv, "uv")?.as_chunks::<2>().0)
+        }
+        (Some(_), _) => {
+            return Err(invalid_input(format!(
+                "pixels needs uv of shape ({t}, {d}, 2), got {:?}",
+                uv.as_ref().map(|u| u.shape().to_vec())
+            )))
+        }
+    };
+    if d == 0 {
+        return Err(invalid_input("scores must have a sample a line at least".to_string()));
+    }
+    let best = PyArray1::<i64>::zeros(py, t, false);
+    let peak = PyArray1::<f64>::zeros(py, t, false);
+    let second = PyArray1::<f64>::zeros(py, t, false);
+    {
+        let (mut bw, mut pw, mut sw) = (best.readwrite(), peak.readwrite(), second.readwrite());
+        let (bo, po, so) = (bw.as_slice_mut()?, pw.as_slice_mut()?, sw.as_slice_mut()?);
+        super::detach(py, || {
+            // Lines in groups of 64 (~6,000 scores a task).
+            const LINES: usize = 64;
+            bo.par_chunks_mut(LINES)
+                .zip(po.par_chunks_mut(LINES))
+                .zip(so.par_chunks_mut(LINES))
+                .enumerate()
+                .for_each(|(g, ((b, p), s))| {
+                    for (j, ((b, p), s)) in b.iter_mut().zip(p).zip(s).enumerate() {
+                        let i = g * LINES + j;
+                        let line = &values[i * d..(i + 1) * d];
+                        let pixels = if lines.is_empty() { &[][..] } else { &lines[i * d..(i + 1) * d] };
+                        let (bi, pi, si) = line_peak(line, pixels, away);
+                        (*b, *p, *s) = (bi as i64, pi, si);
+                    }
+                });
+        });
+    }
+    Ok((best, peak, second))
+}
+
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(seed_hull_inside, m)?)?;
     m.add_function(wrap_pyfunction!(seed_hull_depths, m)?)?;
     m.add_function(wrap_pyfunction!(seed_pixels, m)?)?;
-    m.add_function(wrap_pyfunction!(seed_line_pixels, m)?)
+    m.add_function(wrap_pyfunction!(seed_line_pixels, m)?)?;
+    m.add_function(wrap_pyfunction!(seed_line_peaks, m)?)
 }

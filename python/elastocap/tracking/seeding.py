@@ -314,21 +314,14 @@ def _camera_seeds(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray
         # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
         # seednear1's own eight-at-a-time copy of the same sums).
         scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
-        scores = np.where(np.isfinite(scores), scores, -np.inf)
-        best = np.argmax(scores, axis=1)
-        peak = scores[np.arange(len(todo)), best]
         # A repeated texture along the line makes a false match as likely as the true
-        # one: the best peak must stand out from every candidate away from it.
-        padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
-        local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
-        if settings.SEED_PEAK_PIXELS is None:
-            away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
-        else:
-            # Apart in the partner's image: the samples' spacing there varies from
-            # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
-            offset = uv - uv[np.arange(len(todo)), best][:, None, :]
-            away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
-        second = np.where(local & away, scores, -np.inf).max(axis=1)
+        # one: the best peak must stand out from every local maximum away from it (more
+        # than _PEAK_WIDTH samples, or settings.SEED_PEAK_PIXELS pixels in the partner's
+        # image: the samples' spacing there varies from ~0.1 px (a short baseline) to a
+        # few pixels). In the core, in parallel (benches/README.md, "seedpar1").
+        best, peak, second = _core.seed_line_peaks(np.ascontiguousarray(scores, dtype=float), width=_PEAK_WIDTH,
+                                                   uv=uv if settings.SEED_PEAK_PIXELS is not None else None,
+                                                   pixels=settings.SEED_PEAK_PIXELS)
         # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
         with np.errstate(invalid="ignore"):
             good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
