@@ -282,7 +282,9 @@ fn seed_line_pixels<'py>(
     let held = c_slice(&inside, "inside")?;
     let picked = c_slice(&rows, "rows")?;
     if let Some(&bad) = picked.iter().find(|&&i| i < 0 || i as usize >= m) {
-        return Err(invalid_input(format!("rows must index the {m} rays, got {bad}")));
+        return Err(invalid_input(format!(
+            "rows must index the {m} rays, got {bad}"
+        )));
     }
     let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
     let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
@@ -350,7 +352,9 @@ fn seed_line_peaks<'py>(
         }
     };
     if d == 0 {
-        return Err(invalid_input("scores must have a sample a line at least".to_string()));
+        return Err(invalid_input(
+            "scores must have a sample a line at least".to_string(),
+        ));
     }
     let best = PyArray1::<i64>::zeros(py, t, false);
     let peak = PyArray1::<f64>::zeros(py, t, false);
@@ -369,7 +373,11 @@ fn seed_line_peaks<'py>(
                     for (j, ((b, p), s)) in b.iter_mut().zip(p).zip(s).enumerate() {
                         let i = g * LINES + j;
                         let line = &values[i * d..(i + 1) * d];
-                        let pixels = if lines.is_empty() { &[][..] } else { &lines[i * d..(i + 1) * d] };
+                        let pixels = if lines.is_empty() {
+                            &[][..]
+                        } else {
+                            &lines[i * d..(i + 1) * d]
+                        };
                         let (bi, pi, si) = line_peak(line, pixels, away);
                         (*b, *p, *s) = (bi as i64, pi, si);
                     }

@@ -40,12 +40,24 @@ pub fn line_peak(scores: &[f64], uv: &[[f64; 2]], away: Away) -> (usize, f64, f6
             best = i;
         }
     }
-    let peak = if d > 0 { finite(best) } else { f64::NEG_INFINITY };
+    let peak = if d > 0 {
+        finite(best)
+    } else {
+        f64::NEG_INFINITY
+    };
     let mut second = f64::NEG_INFINITY;
     for i in 0..d {
         let s = finite(i);
-        let before = if i > 0 { finite(i - 1) } else { f64::NEG_INFINITY };
-        let after = if i + 1 < d { finite(i + 1) } else { f64::NEG_INFINITY };
+        let before = if i > 0 {
+            finite(i - 1)
+        } else {
+            f64::NEG_INFINITY
+        };
+        let after = if i + 1 < d {
+            finite(i + 1)
+        } else {
+            f64::NEG_INFINITY
+        };
         // numpy's `local` also requires the score finite: -inf is never a local maximum.
         if !(s.is_finite() && s >= before && s >= after) {
             continue;

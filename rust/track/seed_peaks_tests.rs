@@ -9,7 +9,10 @@ fn the_best_and_the_best_peak_away_from_it() {
     assert_eq!(line_peak(&s, &uv, Away::Samples(3)), (2, 0.9, 0.8));
     // More than 6 samples away: 9 only; more than 7: none.
     assert_eq!(line_peak(&s, &uv, Away::Samples(6)), (2, 0.9, 0.8));
-    assert_eq!(line_peak(&s, &uv, Away::Samples(7)), (2, 0.9, f64::NEG_INFINITY));
+    assert_eq!(
+        line_peak(&s, &uv, Away::Samples(7)),
+        (2, 0.9, f64::NEG_INFINITY)
+    );
 }
 
 #[test]
@@ -32,7 +35,10 @@ fn unscored_samples_are_minus_infinity_and_never_peaks() {
     assert_eq!(line_peak(&s, &uv, Away::Samples(2)), (2, 0.3, 0.2));
     let none = [n, n, n];
     let (best, peak, second) = line_peak(&none, &uv[..3], Away::Samples(0));
-    assert_eq!((best, peak, second), (0, f64::NEG_INFINITY, f64::NEG_INFINITY));
+    assert_eq!(
+        (best, peak, second),
+        (0, f64::NEG_INFINITY, f64::NEG_INFINITY)
+    );
 }
 
 #[test]
@@ -42,5 +48,8 @@ fn apart_in_pixels() {
     let uv: Vec<[f64; 2]> = (0..6).map(|i| [1.5 * i as f64, 10.0]).collect();
     assert_eq!(line_peak(&s, &uv, Away::Pixels(3.0)), (1, 0.9, 0.7));
     assert_eq!(line_peak(&s, &uv, Away::Pixels(2.9)), (1, 0.9, 0.8));
-    assert_eq!(line_peak(&s, &uv, Away::Pixels(6.0)), (1, 0.9, f64::NEG_INFINITY));
+    assert_eq!(
+        line_peak(&s, &uv, Away::Pixels(6.0)),
+        (1, 0.9, f64::NEG_INFINITY)
+    );
 }

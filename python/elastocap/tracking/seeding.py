@@ -43,7 +43,7 @@ class CandidateMaps(NamedTuple):
     ``inner`` (H, W) bool: the mask eroded by the patch's reach and off the image's border;
     ``vs``, ``us`` (G, W') int: the cell centres' rows and columns (pixels); ``textured``
     (G, W') bool: which centres lie in ``inner`` with a texture of at least ``min_texture``;
-    ``labels`` (H, W) int32: ``inner``'s 8-connected regions (0 outside it), ``count`` of
+    ``labels`` (H, W) int32: ``inner``'s 8-connected regions (0 outside it), ``regions`` of
     them with the background; ``distance`` (H, W) float32: ``inner``'s L2 distance
     transform (pixels), or None until a region needs it."""
 
@@ -51,7 +51,7 @@ class CandidateMaps(NamedTuple):
     vs: NDArray[np.intp]
     us: NDArray[np.intp]
     textured: NDArray[np.bool_]
-    count: int
+    regions: int
     labels: NDArray[np.int32]
     distance: NDArray[np.float32] | None
 
@@ -72,8 +72,14 @@ def candidate_maps(mask: NDArray[np.bool_], grey: NDArray[np.float32], *, spacin
     textured = inner[vs, us] & (texture[vs, us] >= min_texture)
     inner8 = inner.astype(np.uint8)
     count, labels = cv2.connectedComponents(inner8)
-    far = cv2.distanceTransform(inner8, cv2.DIST_L2, 3) if distance else None
-    return CandidateMaps(inner, vs, us, textured, int(count), labels, far)
+    return CandidateMaps(inner, vs, us, textured, int(count), np.asarray(labels, np.int32),
+                         _distance(inner8) if distance else None)
+
+
+def _distance(inner: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """(H, W) float32: each pixel's L2 distance (pixels, OpenCV's 3x3 approximation) to the
+    nearest pixel outside ``inner`` (H, W; nonzero inside)."""
+    return np.asarray(cv2.distanceTransform(inner, cv2.DIST_L2, 3), np.float32)
 
 
 def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered: NDArray[np.float64], *,
@@ -102,16 +108,14 @@ def seed_candidates(mask: NDArray[np.bool_], grey: NDArray[np.float32], covered:
         cells = cv2.dilate(cells.astype(np.uint8), np.ones((2 * bare + 1, 2 * bare + 1), np.uint8)) > 0
     pick = maps.textured & ~cells[vs // spacing, us // spacing]
     seeds = [np.column_stack([us[pick], vs[pick]]).astype(float)]
-    have = np.zeros(maps.count, bool)
+    have = np.zeros(maps.regions, bool)
     have[labels[vs[pick], us[pick]]] = True
     if ok.any():
         cu = np.clip(np.round(covered[ok, 0]).astype(int), 0, w - 1)
         cv = np.clip(np.round(covered[ok, 1]).astype(int), 0, h - 1)
         have[labels[cv, cu]] = True
     if (~have[1:]).any():
-        distance = maps.distance
-        if distance is None:
-            distance = cv2.distanceTransform(maps.inner.astype(np.uint8), cv2.DIST_L2, 3)
+        distance = _distance(maps.inner.astype(np.uint8)) if maps.distance is None else maps.distance
         for region in np.flatnonzero(~have[1:]) + 1:
             where = np.flatnonzero((labels == region).ravel())
             best = where[np.argmax(distance.ravel()[where])]
