@@ -84,6 +84,31 @@ fn hull_views<'a>(
         .collect()
 }
 
+/// One camera from the arrays `r` (3, 3), `t` (3,), `k` (3, 3), `dist` (12,) (checked) with
+/// a `width x height` image and no mask: the pixels' camera of `seed_pixels` and
+/// `seed_line_pixels`.
+fn one_view<'a>(
+    r: &'a PyReadonlyArray2<'_, f64>,
+    t: &'a PyReadonlyArray1<'_, f64>,
+    k: &'a PyReadonlyArray2<'_, f64>,
+    dist: &'a PyReadonlyArray1<'_, f64>,
+    width: usize,
+    height: usize,
+) -> PyResult<HullView<'a>> {
+    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
+        return Err(invalid_input(format!(
+            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
+            r.shape(),
+            k.shape(),
+            t.shape(),
+            dist.shape()
+        )));
+    }
+    let (rv, tv) = (c_slice(r, "r")?, c_slice(t, "t")?);
+    let (kv, dv) = (c_slice(k, "k")?, c_slice(dist, "dist")?);
+    Ok(view_of(rv, tv, kv, dv, 0, width, height, &[]))
+}
+
 /// `(N,)` bool: whether each world point of `points` (N, 3) lies in the visual hull of the
 /// cameras `r` (C, 3, 3), `t` (C, 3), `k` (C, 3, 3), `dist` (C, 12) with silhouettes `masks`
 /// (C arrays (H, W) bool, each its camera's image): finite, inside every mask where that
@@ -209,18 +234,7 @@ fn seed_pixels<'py>(
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>)> {
     use rayon::prelude::*;
     let points = rows::<3>(&points, "points")?;
-    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
-        return Err(invalid_input(format!(
-            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
-            r.shape(),
-            k.shape(),
-            t.shape(),
-            dist.shape()
-        )));
-    }
-    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
-    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
-    let view = view_of(rv, tv, kv, dv, 0, width, height, &[]);
+    let view = one_view(&r, &t, &k, &dist, width, height)?;
     let n = points.len();
     let uv = PyArray2::<f64>::zeros(py, [n, 2], false);
     let seen = PyArray1::<bool>::zeros(py, n, false);
@@ -269,15 +283,6 @@ fn seed_line_pixels<'py>(
             inside.shape()
         )));
     }
-    if r.shape() != [3, 3] || t.len() != 3 || k.shape() != [3, 3] || dist.len() != DIST_LEN {
-        return Err(invalid_input(format!(
-            "r and k must have shape (3, 3), t (3,) and dist ({DIST_LEN},), got {:?}, {:?}, {:?} and {:?}",
-            r.shape(),
-            k.shape(),
-            t.shape(),
-            dist.shape()
-        )));
-    }
     let samples = c_slice(&points, "points")?.as_chunks::<3>().0;
     let held = c_slice(&inside, "inside")?;
     let picked = c_slice(&rows, "rows")?;
@@ -286,9 +291,7 @@ fn seed_line_pixels<'py>(
             "rows must index the {m} rays, got {bad}"
         )));
     }
-    let (rv, tv) = (c_slice(&r, "r")?, c_slice(&t, "t")?);
-    let (kv, dv) = (c_slice(&k, "k")?, c_slice(&dist, "dist")?);
-    let view = view_of(rv, tv, kv, dv, 0, width, height, &[]);
+    let view = one_view(&r, &t, &k, &dist, width, height)?;
     let uv = PyArray3::<f64>::zeros(py, [picked.len(), d, 2], false);
     if d > 0 {
         let mut uw = uv.readwrite();
