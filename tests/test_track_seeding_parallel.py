@@ -8,7 +8,9 @@ seed (and so every track) follows from them.
   it, numpy's ``where`` / ``argmax`` / padded comparison / masked ``max`` chain.
 - ``candidate_maps``: the cover-independent part of a camera's candidates, made in a
   thread beside the loop; candidates from given maps are those made in place, and the
-  texture's box (from the rows and columns that hold the eroded mask) is ``np.nonzero``'s."""
+  texture's box (from the rows and columns that hold the eroded mask) is ``np.nonzero``'s.
+- ``match_checked(epipolar=)``: the line's least-squares match on images checked once per
+  seeding call is ``match_patches``' on the same line."""
 
 from __future__ import annotations
 
@@ -21,6 +23,8 @@ from test_track_seeding_hull import _camera
 from elastocap import InvalidInputError, _core
 from elastocap.cameras import Camera
 from elastocap.cameras.distortion import padded
+from elastocap.stereo import match_patches
+from elastocap.stereo.matching import MatchStatus, checked_image, match_checked
 from elastocap.tracking import seeding
 from elastocap.tracking.seeding import candidate_maps, seed_candidates
 
@@ -171,3 +175,30 @@ def test_candidates_from_given_maps_are_those_made_in_place(seed, spacing, size,
         np.testing.assert_array_equal(seed_candidates(mask, grey, cover, bare=bare, maps=maps, **options), alone)
         np.testing.assert_array_equal(seeding._texture(grey, maps.inner, size),
                                       _texture_box_reference(grey, maps.inner, size))
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=SEEDS, n=st.integers(1, 30), shaped=st.booleans())
+def test_checked_match_on_a_line_is_match_patches(seed, n, shaped):
+    # The seeding's least-squares match on the epipolar line from images checked once
+    # (match_checked(epipolar=)) gives match_patches' every field, bit for bit.
+    rng = np.random.default_rng(seed)
+    template = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 1.5)
+    shift = rng.uniform(-2, 2, 2)
+    search = cv2.warpAffine(template, np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]]]), (160, 120),
+                            flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    points = np.column_stack([rng.uniform(15, 145, n), rng.uniform(15, 105, n)])
+    initial = points + shift + rng.normal(scale=0.7, size=(n, 2))
+    # Lines through the true match, some tilted, (a, b, c) with a u + b v + c = 0.
+    angle = rng.uniform(0, np.pi, n)
+    a, b = np.sin(angle), -np.cos(angle)
+    true = points + shift
+    line = np.column_stack([a, b, -(a * true[:, 0] + b * true[:, 1])])
+    options = dict(size=11, min_texture=1.0, max_iterations=20)
+    want = match_patches(template, points, [search], initial=initial[:, None, :], epipolar=line[:, None, :], **options)
+    got = match_checked(checked_image(template), points, [checked_image(search)], initial=initial[:, None, :],
+                        epipolar=line[:, None, :] if shaped else line, **options)
+    for field in ("status", "positions", "affine", "gain", "offset", "sigma0", "covariance", "correlation",
+                  "iterations"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+    assert (want.status[:, 0] == MatchStatus.CONVERGED).any()

@@ -337,16 +337,18 @@ def match_patches(
 
 def match_checked(template: NDArray[np.float32], points: NDArray[np.float64], search_images: list[NDArray[np.float32]],
                   *, initial: NDArray[np.float64], size: int, min_texture: float, max_iterations: int,
-                  weights: NDArray[np.float32] | None = None) -> Matches:
+                  weights: NDArray[np.float32] | None = None, epipolar: NDArray[np.float64] | None = None) -> Matches:
     """:func:`match_patches` (its other options at their defaults) on images already
     checked by :func:`checked_image` and weights by :func:`checked_weights`: a caller that
-    matches many small batches in the same images (the tracker, per camera pair) checks
-    each image once, not once per batch (a finiteness check and a copy of a 1024x768
-    image cost ~1-3 ms, the match of a few dozen patches about as much). ``points`` (N, 2)
-    and ``initial`` (N, S, 2) or (N, S, 2, 3) as in :func:`match_patches`."""
+    matches many small batches in the same images (the tracker, per camera pair; the
+    seeding, per camera and partner) checks each image once, not once per batch (a
+    finiteness check and a copy of a 1024x768 image cost ~1-3 ms, the match of a few dozen
+    patches about as much). ``points`` (N, 2), ``initial`` (N, S, 2) or (N, S, 2, 3) and
+    ``epipolar`` (N, S, 3) or (N, 3) lines as in :func:`match_patches`."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     starts = _starts(initial, pts, len(search_images))
-    return _run(template, pts, search_images, starts, None, size=size, max_iterations=max_iterations, tolerance=0.01,
+    lines = None if epipolar is None else _lines(epipolar, len(pts), len(search_images))
+    return _run(template, pts, search_images, starts, lines, size=size, max_iterations=max_iterations, tolerance=0.01,
                 max_shift=size / 2, max_scale=3.0, min_texture=float(min_texture), line_sigma=0.0,
                 interpolation="bicubic", threads=None, weights=weights, extra={}, max_sigma0=None, min_correlation=None)
 

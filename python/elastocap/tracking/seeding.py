@@ -18,8 +18,7 @@ from numpy.typing import NDArray
 from elastocap import _core
 from elastocap.cameras import Camera
 from elastocap.cameras.distortion import padded
-from elastocap.stereo import match_patches
-from elastocap.stereo.matching import MatchStatus
+from elastocap.stereo.matching import MatchStatus, checked_image, match_checked
 from elastocap.tracking import settings
 from elastocap.tracking.seed_check import rematch_depth
 from elastocap.tracking.views import facing_normals, intersect_views, project_all, spatial_match
@@ -273,16 +272,21 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
 
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seed_maps")
     try:
-        # Camera 0's maps on this thread (nothing to overlap them with yet), the others' in
-        # the pool, with the distance transform a region left without seeds needs.
+        # The images checked for the matches once (not in each of the 2 x C calls), then
+        # camera 0's maps on this thread (nothing to overlap them with yet) and the others'
+        # in the pool, with the distance transform a region left without seeds needs.
+        checks = [pool.submit(checked_image, image) for image in images]
         later = [pool.submit(maps_of, k, True) for k in range(1, c)]
+        checked: list[NDArray[np.float32]] = []
         for k in range(c):
             maps = later[k - 1].result() if k else maps_of(k, False)
+            if k == 0:
+                checked = [check.result() for check in checks]
             seeds = seed_candidates(masks[k], images[k], cover[k], spacing=spacing, size=size, min_texture=min_texture,
                                     bare=bare, margin=margin, maps=maps)
             if len(seeds) == 0:
                 continue
-            new = _camera_seeds(images, masks, cameras, k, seeds, partners[k][:2], size=size,
+            new = _camera_seeds(images, checked, masks, cameras, k, seeds, partners[k][:2], size=size,
                                 min_correlation=min_correlation, min_views=min_views, min_texture=min_texture,
                                 tolerance=tolerance, max_residual=max_residual, floor=floor)
             if new is None:
@@ -295,15 +299,16 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
     return np.concatenate(views) if views else np.zeros((0, c, 2))
 
 
-def _camera_seeds(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
-                  k: int, seeds: NDArray[np.float64], partners: NDArray[np.int64], *, size: int, min_correlation: float,
-                  min_views: int, min_texture: float, tolerance: float, max_residual: float,
-                  floor: float) -> NDArray[np.float64] | None:
+def _camera_seeds(images: Sequence[NDArray[np.float32]], checked: Sequence[NDArray[np.float32]],
+                  masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera], k: int, seeds: NDArray[np.float64],
+                  partners: NDArray[np.int64], *, size: int, min_correlation: float, min_views: int, min_texture: float,
+                  tolerance: float, max_residual: float, floor: float) -> NDArray[np.float64] | None:
     """The new points of camera ``k``'s ``seeds`` (S, 2 pixels): their views (M, C, 2; NaN
     where not matched), or None where no seed found a partner. Each seed's depth along its
     ray inside the hull by NCC and then least squares in the ``partners`` (up to 2 camera
     indices, nearest first; the second only for the seeds the first did not match),
-    confirmed by spatial matching into the other cameras (:func:`seed_points`' steps)."""
+    confirmed by spatial matching into the other cameras (:func:`seed_points`' steps).
+    ``checked``: ``images`` as :func:`checked_image` returns them."""
     c = len(cameras)
     cam = cameras[k]
     points, hull = _hull_depths(cam, seeds, cameras, masks)
@@ -337,7 +342,7 @@ def _camera_seeds(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray
         a, _ = other.project(points[rows, lo])
         b, _ = other.project(points[rows, hi])
         line = np.column_stack([a[:, 1] - b[:, 1], b[:, 0] - a[:, 0], a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]])
-        m = match_patches(images[k], seeds[rows], [images[p]], initial=uv[good, best][:, None, :],
+        m = match_checked(checked[k], seeds[rows], [checked[p]], initial=uv[good, best][:, None, :],
                           epipolar=line[:, None, :], size=size, min_texture=min_texture, max_iterations=20)
         ok = (m.status[:, 0] == MatchStatus.CONVERGED) & (m.correlation[:, 0] >= min_correlation)
         found[rows[ok]] = m.positions[ok, 0]
