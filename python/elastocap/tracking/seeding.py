@@ -213,9 +213,12 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             uv, _ = _seen_pixels(other, np.nan_to_num(points[todo].reshape(-1, 3)))
             uv = uv.reshape(len(todo), _DEPTHS, 2)
             uv[~hull[todo]] = -1e6  # outside any image: no score
-            # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
-            # seednear1's own eight-at-a-time copy of the same sums).
-            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
+            # Only the scores that can decide the test below are exact (the others -inf: a
+            # row whose best is below min_correlation keeps nothing, and a score below the
+            # best minus _UNIQUENESS is neither the peak nor a rival that refuses it, and
+            # leaves its neighbours' local maxima as they are); benches/README.md, "seedfloor1".
+            scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size,
+                                        decide=(min_correlation, _UNIQUENESS))
             scores = np.where(np.isfinite(scores), scores, -np.inf)
             best = np.argmax(scores, axis=1)
             peak = scores[np.arange(len(todo)), best]
