@@ -183,6 +183,35 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
     return fine, inside
 
 
+def _unique_peaks(scores: NDArray[np.float64], uv: NDArray[np.float64],
+                  min_correlation: float) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """Seeding's test on the correlation along each candidate's line: whether it holds (M,)
+    and the best sample (M,), from the scores (M, K; NaN or -inf where none) at the
+    samples' pixels ``uv`` (M, K, 2) in the partner. Holds where the best score reaches
+    ``min_correlation`` and beats every local maximum away from it by ``_UNIQUENESS``;
+    the scores ``track_ncc_at(decide=...)`` leaves at -inf cannot change either answer."""
+    scores = np.where(np.isfinite(scores), scores, -np.inf)
+    best = np.argmax(scores, axis=1)
+    rows = np.arange(len(scores))
+    peak = scores[rows, best]
+    # A repeated texture along the line makes a false match as likely as the true
+    # one: the best peak must stand out from every candidate away from it.
+    around = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
+    local = (scores >= around[:, :-2]) & (scores >= around[:, 2:]) & np.isfinite(scores)
+    if settings.SEED_PEAK_PIXELS is None:
+        away = np.abs(np.arange(scores.shape[1])[None, :] - best[:, None]) > _PEAK_WIDTH
+    else:
+        # Apart in the partner's image: the samples' spacing there varies from
+        # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
+        offset = uv - uv[rows, best][:, None, :]
+        away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
+    second = np.where(local & away, scores, -np.inf).max(axis=1)
+    # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
+    with np.errstate(invalid="ignore"):
+        good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+    return good, best
+
+
 def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
                 covered: NDArray[np.float64], *, spacing: int, size: int, min_correlation: float, min_views: int,
                 min_texture: float, tolerance: float, max_residual: float, floor: float,
@@ -219,24 +248,7 @@ def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[n
             # leaves its neighbours' local maxima as they are); benches/README.md, "seedfloor1".
             scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size,
                                         decide=(min_correlation, _UNIQUENESS))
-            scores = np.where(np.isfinite(scores), scores, -np.inf)
-            best = np.argmax(scores, axis=1)
-            peak = scores[np.arange(len(todo)), best]
-            # A repeated texture along the line makes a false match as likely as the true
-            # one: the best peak must stand out from every candidate away from it.
-            padded = np.pad(scores, ((0, 0), (1, 1)), constant_values=-np.inf)
-            local = (scores >= padded[:, :-2]) & (scores >= padded[:, 2:]) & np.isfinite(scores)
-            if settings.SEED_PEAK_PIXELS is None:
-                away = np.abs(np.arange(_DEPTHS)[None, :] - best[:, None]) > _PEAK_WIDTH
-            else:
-                # Apart in the partner's image: the samples' spacing there varies from
-                # ~0.1 px (a short baseline) to a few pixels (settings.SEED_PEAK_PIXELS).
-                offset = uv - uv[np.arange(len(todo)), best][:, None, :]
-                away = np.hypot(offset[..., 0], offset[..., 1]) > settings.SEED_PEAK_PIXELS
-            second = np.where(local & away, scores, -np.inf).max(axis=1)
-            # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
-            with np.errstate(invalid="ignore"):
-                good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+            good, best = _unique_peaks(scores, uv, min_correlation)
             rows, best = todo[good], best[good]
             if rows.size == 0:
                 continue
