@@ -23,9 +23,8 @@
 //! and every window whose estimate is not trusted, are scored by [`super::ncc_at`]'s own
 //! grouped arithmetic, so they are its scores to the bit.
 
-use super::ncc::{fill_window, normalised, sample_window, window_inside};
-
-use super::ncc_at::{fill_lane, score_group, GROUP};
+use super::ncc::{fill_window, window_inside};
+use super::ncc_at::{fill_lane, score_group, template_patch, window_corner, GROUP};
 use crate::lsm::ImageView;
 
 /// Bound on the difference between a trusted estimate and the exact score (the analysis
@@ -127,11 +126,7 @@ fn decisive_body(
 ) {
     let n = size * size;
     let mut values = Vec::with_capacity(n);
-    let template = if sample_window(template_image, point, size, &mut values) {
-        normalised(&values)
-    } else {
-        None
-    };
+    let template = template_patch(template_image, point, size, &mut values);
     let count = scores.len().min(candidates.len());
     let Some(template) = template else {
         scores[..count].fill(f64::NAN);
@@ -190,19 +185,17 @@ const BLOCK: usize = 8;
 
 /// [`fill_window`]'s samples (the same arithmetic, sample for sample), eight columns of a
 /// row at a time: a window side of 15 is a block at column 0 and one at column 7 (the
-/// overlapping column is written twice with the same value). The scalar loop took ~2/3 of
-/// the estimate's time; sides below eight go through [`fill_window`].
+/// overlapping column is written twice with the same value). With [`fill_window`]'s loop,
+/// which the compiler left one column at a time, the estimates of big16's seeding frame 5
+/// took 208 ns a position, with this 148 (benches/README.md, "seedfloor1"); sides below
+/// eight go through [`fill_window`].
 #[inline(always)]
 pub(super) fn fill_rows(image: &ImageView<'_>, centre: [f64; 2], side: usize, out: &mut [f32]) {
     if side < BLOCK {
         fill_window(image, centre, side, out);
         return;
     }
-    let half = (side / 2) as f64;
-    let (u0, v0) = (centre[0] - half, centre[1] - half);
-    let (iu, iv) = (u0.floor(), v0.floor());
-    let (tu, tv) = ((u0 - iu) as f32, (v0 - iv) as f32);
-    let (iu, iv) = (iu as usize, iv as usize);
+    let (iu, iv, tu, tv) = window_corner(centre, side);
     let width = image.width;
     for (r, dest) in out[..side * side].chunks_exact_mut(side).enumerate() {
         let row0 = &image.data[(iv + r) * width + iu..][..side + 1];
