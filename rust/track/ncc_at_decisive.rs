@@ -154,7 +154,15 @@ fn decisive_body(
         }
     }
     let mut windows = vec![0.0f32; GROUP * n];
-    score_exactly(&template, search, candidates, size, &untrusted, &mut windows, scores);
+    score_exactly(
+        &template,
+        search,
+        candidates,
+        size,
+        &untrusted,
+        &mut windows,
+        scores,
+    );
     let exact_best = untrusted
         .iter()
         .map(|&k| scores[k])
@@ -177,7 +185,15 @@ fn decisive_body(
             scores[k] = f64::NEG_INFINITY;
         }
     }
-    score_exactly(&template, search, candidates, size, &decisive, &mut windows, scores);
+    score_exactly(
+        &template,
+        search,
+        candidates,
+        size,
+        &decisive,
+        &mut windows,
+        scores,
+    );
 }
 
 /// Columns filled together: one `f32` register of AVX2.

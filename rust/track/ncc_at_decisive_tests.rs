@@ -86,12 +86,21 @@ fn decisive_scores_decide_seeding_as_the_exact_ones() {
         let b: Vec<f32> = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as i64 - dx, (i / w) as i64 - dy);
-                let v = a[y.clamp(0, h as i64 - 1) as usize * w + x.clamp(0, w as i64 - 1) as usize];
+                let v =
+                    a[y.clamp(0, h as i64 - 1) as usize * w + x.clamp(0, w as i64 - 1) as usize];
                 v + noise * rng.random_range(-1.0..1.0f32)
             })
             .collect();
-        let ta = ImageView { data: &a, width: w, height: h };
-        let tb = ImageView { data: &b, width: w, height: h };
+        let ta = ImageView {
+            data: &a,
+            width: w,
+            height: h,
+        };
+        let tb = ImageView {
+            data: &b,
+            width: w,
+            height: h,
+        };
         for _ in 0..60 {
             let point = [rng.random_range(10.0..150.0), rng.random_range(10.0..110.0)];
             // 96 samples along a line through the true match (or near it), some leaving
@@ -111,9 +120,20 @@ fn decisive_scores_decide_seeding_as_the_exact_ones() {
                 .collect();
             let mut exact = vec![0.0; 96];
             ncc_at(&ta, point, &tb, &candidates, size, &mut exact);
-            for &(min_correlation, uniqueness) in &[(0.75, 0.1), (0.5, 0.1), (0.9, 0.05), (0.3, 0.3)] {
+            for &(min_correlation, uniqueness) in
+                &[(0.75, 0.1), (0.5, 0.1), (0.9, 0.05), (0.3, 0.3)]
+            {
                 let mut got = vec![0.0; 96];
-                ncc_at_decisive(&ta, point, &tb, &candidates, size, min_correlation, uniqueness, &mut got);
+                ncc_at_decisive(
+                    &ta,
+                    point,
+                    &tb,
+                    &candidates,
+                    size,
+                    min_correlation,
+                    uniqueness,
+                    &mut got,
+                );
                 let peak = exact
                     .iter()
                     .filter(|x| x.is_finite())
@@ -158,8 +178,16 @@ fn low_contrast_and_flat_windows_are_scored_exactly() {
             _ => a[i],
         })
         .collect();
-    let ta = ImageView { data: &a, width: w, height: h };
-    let tb = ImageView { data: &b, width: w, height: h };
+    let ta = ImageView {
+        data: &a,
+        width: w,
+        height: h,
+    };
+    let tb = ImageView {
+        data: &b,
+        width: w,
+        height: h,
+    };
     let candidates: Vec<[f64; 2]> = (0..96).map(|i| [8.0 + i as f64 * 0.6, 30.3]).collect();
     let mut exact = vec![0.0; 96];
     ncc_at(&ta, [45.0, 30.0], &tb, &candidates, 15, &mut exact);
@@ -189,13 +217,29 @@ fn trusted_estimates_are_within_a_tenth_of_the_slack() {
         // Textures of every contrast on every offset, down to where the estimate is refused.
         let scale = 10f32.powi(-(case % 8));
         let base = [0.0f32, 50.0, 250.0][case as usize % 3];
-        let a: Vec<f32> = texture(&mut rng, w, h, 0).iter().map(|&x| base + scale * x).collect();
-        let b: Vec<f32> = texture(&mut rng, w, h, 0).iter().map(|&x| base + scale * x).collect();
-        let ta = ImageView { data: &a, width: w, height: h };
-        let tb = ImageView { data: &b, width: w, height: h };
+        let a: Vec<f32> = texture(&mut rng, w, h, 0)
+            .iter()
+            .map(|&x| base + scale * x)
+            .collect();
+        let b: Vec<f32> = texture(&mut rng, w, h, 0)
+            .iter()
+            .map(|&x| base + scale * x)
+            .collect();
+        let ta = ImageView {
+            data: &a,
+            width: w,
+            height: h,
+        };
+        let tb = ImageView {
+            data: &b,
+            width: w,
+            height: h,
+        };
         let mut values = Vec::new();
         assert!(sample_window(&ta, [40.0, 40.0], 15, &mut values));
-        let Some(template) = normalised(&values) else { continue };
+        let Some(template) = normalised(&values) else {
+            continue;
+        };
         let sum: f64 = template.iter().map(|&t| t as f64).sum();
         let mut window = vec![0.0f32; 225];
         for _ in 0..50 {
@@ -218,7 +262,11 @@ fn blocks_of_columns_fill_as_the_window_does_to_the_bit() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let (w, h) = (60usize, 50usize);
     let a: Vec<f32> = (0..w * h).map(|_| rng.random_range(0.0..255.0)).collect();
-    let image = ImageView { data: &a, width: w, height: h };
+    let image = ImageView {
+        data: &a,
+        width: w,
+        height: h,
+    };
     for side in (3..=31).step_by(2) {
         for _ in 0..20 {
             let half = (side / 2) as f64;
@@ -229,7 +277,12 @@ fn blocks_of_columns_fill_as_the_window_does_to_the_bit() {
             let (mut want, mut got) = (vec![0.0f32; side * side], vec![1.0f32; side * side]);
             fill_window(&image, c, side, &mut want);
             fill_rows(&image, c, side, &mut got);
-            assert!(want.iter().zip(&got).all(|(x, y)| x.to_bits() == y.to_bits()), "side {side}");
+            assert!(
+                want.iter()
+                    .zip(&got)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "side {side}"
+            );
         }
     }
 }
