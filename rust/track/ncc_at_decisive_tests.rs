@@ -12,6 +12,14 @@ use rand_chacha::ChaCha8Rng;
 
 const PEAK_WIDTH: usize = 3;
 
+fn view(data: &[f32], width: usize, height: usize) -> ImageView<'_> {
+    ImageView {
+        data,
+        width,
+        height,
+    }
+}
+
 /// Seeding's test on one row (`seeding.py`): the kept sample, or `None`.
 fn decide(row: &[f64], min_correlation: f64, uniqueness: f64) -> Option<usize> {
     let s: Vec<f64> = row
@@ -91,16 +99,8 @@ fn decisive_scores_decide_seeding_as_the_exact_ones() {
                 v + noise * rng.random_range(-1.0..1.0f32)
             })
             .collect();
-        let ta = ImageView {
-            data: &a,
-            width: w,
-            height: h,
-        };
-        let tb = ImageView {
-            data: &b,
-            width: w,
-            height: h,
-        };
+        let ta = view(&a, w, h);
+        let tb = view(&b, w, h);
         for _ in 0..60 {
             let point = [rng.random_range(10.0..150.0), rng.random_range(10.0..110.0)];
             // 96 samples along a line through the true match (or near it), some leaving
@@ -178,16 +178,8 @@ fn low_contrast_and_flat_windows_are_scored_exactly() {
             _ => a[i],
         })
         .collect();
-    let ta = ImageView {
-        data: &a,
-        width: w,
-        height: h,
-    };
-    let tb = ImageView {
-        data: &b,
-        width: w,
-        height: h,
-    };
+    let ta = view(&a, w, h);
+    let tb = view(&b, w, h);
     let candidates: Vec<[f64; 2]> = (0..96).map(|i| [8.0 + i as f64 * 0.6, 30.3]).collect();
     let mut exact = vec![0.0; 96];
     ncc_at(&ta, [45.0, 30.0], &tb, &candidates, 15, &mut exact);
@@ -225,16 +217,8 @@ fn trusted_estimates_are_within_a_tenth_of_the_slack() {
             .iter()
             .map(|&x| base + scale * x)
             .collect();
-        let ta = ImageView {
-            data: &a,
-            width: w,
-            height: h,
-        };
-        let tb = ImageView {
-            data: &b,
-            width: w,
-            height: h,
-        };
+        let ta = view(&a, w, h);
+        let tb = view(&b, w, h);
         let mut values = Vec::new();
         assert!(sample_window(&ta, [40.0, 40.0], 15, &mut values));
         let Some(template) = normalised(&values) else {
@@ -262,11 +246,7 @@ fn blocks_of_columns_fill_as_the_window_does_to_the_bit() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let (w, h) = (60usize, 50usize);
     let a: Vec<f32> = (0..w * h).map(|_| rng.random_range(0.0..255.0)).collect();
-    let image = ImageView {
-        data: &a,
-        width: w,
-        height: h,
-    };
+    let image = view(&a, w, h);
     for side in (3..=31).step_by(2) {
         for _ in 0..20 {
             let half = (side / 2) as f64;
