@@ -14,7 +14,8 @@
 //! `elastocap.tracking`).
 //!
 //! Submodules: `ncc` (box search by normalised cross-correlation), `ncc_at` (candidate
-//! scoring by it), `ncc_batch` (the correlation at candidates across many images in one pass),
+//! scoring by it), `ncc_at_decisive` (seeding's candidate scores, exact only where they can
+//! decide its test), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
 //! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
@@ -24,6 +25,9 @@
 mod flags;
 mod ncc;
 mod ncc_at;
+mod ncc_at_decisive;
+#[cfg(test)]
+mod ncc_at_decisive_tests;
 #[cfg(test)]
 mod ncc_at_tests;
 mod ncc_batch;
@@ -43,6 +47,7 @@ mod zbuffer;
 pub use flags::Flag;
 pub use ncc::{box_search_scores, NccBest};
 pub use ncc_at::ncc_at;
+pub use ncc_at_decisive::ncc_at_decisive;
 pub use ncc_batch::ncc_at_cameras;
 pub use seed_depths::{hull_depths, DepthGrid};
 pub use seed_hull::{hull_inside, hull_pixels, line_pixels, HullCamera, HullView, OUTSIDE};

@@ -134,3 +134,57 @@ def test_hull_refuses_mismatched_cameras():
     with pytest.raises(InvalidInputError):
         _core.seed_hull_inside(x[:, :2].copy(), np.array([camera.R]), np.array([camera.t]), np.array([camera.K]),
                                np.array([padded(camera.dist)]), [mask], min_seen=0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=SEEDS, period=st.sampled_from([0, 13, 23]), noise=st.sampled_from([0.0, 3.0, 10.0]),
+       min_correlation=st.sampled_from([0.5, 0.75, 0.9]), peak_pixels=st.sampled_from([None, 2.0]))
+def test_decisive_line_scores_decide_seeding_as_the_exact_ones(seed, period, noise, min_correlation, peak_pixels):
+    # track_ncc_at(decide=...) leaves at -inf only scores that cannot change seeding's test
+    # (benches/README.md, "seedfloor1"): every other score is the exact one to the bit, and the
+    # test (seeding._unique_peaks, the code seed_points runs) keeps the same rows and samples.
+    # Lines through a shifted, noisy copy; a repeated texture makes rivals along them.
+    from elastocap.tracking import seeding
+
+    rng = np.random.default_rng(seed)
+    a = _image(rng, 120, 160)
+    if period:
+        a = np.ascontiguousarray(a[:, np.arange(160) % period])
+    shift = rng.integers(-6, 7, 2)
+    b = (np.roll(a, (shift[1], shift[0]), axis=(0, 1)) + noise * rng.uniform(-1, 1, a.shape)).astype(np.float32)
+    points = rng.uniform([15, 15], [145, 105], (40, 2))
+    angle = rng.uniform(0, np.pi, 40)
+    step = rng.uniform(0.1, 1.2, 40)
+    t = (np.arange(96)[None, :] - 48 + rng.uniform(-40, 40, 40)[:, None]) * step[:, None]
+    centre = points + shift + rng.uniform(-1, 1, (40, 2))
+    uv = centre[:, None, :] + t[..., None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)[:, None, :]
+    exact = _core.track_ncc_at(a, points, b, uv, size=15)
+    got = _core.track_ncc_at(a, points, b, uv, size=15, decide=(min_correlation, seeding._UNIQUENESS))
+    same = (exact.view(np.int64) == got.view(np.int64)) | (np.isnan(exact) & np.isnan(got))
+    assert np.all(same | (got == -np.inf))
+    assert (got == -np.inf).any()
+    saved = seeding.settings.SEED_PEAK_PIXELS
+    try:
+        seeding.settings.SEED_PEAK_PIXELS = peak_pixels
+        good, best = seeding._unique_peaks(exact, uv, min_correlation)
+        good_got, best_got = seeding._unique_peaks(got, uv, min_correlation)
+    finally:
+        seeding.settings.SEED_PEAK_PIXELS = saved
+    assert np.array_equal(good, good_got)
+    assert np.array_equal(best[good], best_got[good])
+
+
+def test_decisive_line_scores_reject_no_real_candidate():
+    # On a capture's seeding-like lines most scores are left at -inf, and rows are still kept.
+    from elastocap.tracking import seeding
+
+    rng = np.random.default_rng(5)
+    a = _image(rng, 120, 160)
+    b = np.roll(a, (2, 3), axis=(0, 1))
+    points = rng.uniform([20, 20], [140, 100], (60, 2))
+    uv = points[:, None, :] + [3.0, 2.0] + np.linspace(-20, 20, 96)[None, :, None] * [1.0, 0.0]
+    got = _core.track_ncc_at(a, points, b, uv, size=15, decide=(0.75, seeding._UNIQUENESS))
+    good, best = seeding._unique_peaks(got, uv, 0.75)
+    assert good.mean() > 0.8
+    assert np.all(np.abs(np.take_along_axis(uv, best[:, None, None], 1)[:, 0] - points - [3.0, 2.0]).max(axis=1)[good] < 0.3)
+    assert (got == -np.inf).mean() > 0.5

@@ -480,6 +480,7 @@ def track_ncc_at(
     candidates: NDArray[np.float64],
     *,
     size: int = 11,
+    decide: tuple[float, float] | None = None,
 ) -> NDArray[np.float64]: ...
 def seed_hull_inside(
     points: NDArray[np.float64],

@@ -8,7 +8,9 @@ use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
-use crate::track::{box_search_scores, ncc_at, track_camera, CameraStep, TrackOptions};
+use crate::track::{
+    box_search_scores, ncc_at, ncc_at_decisive, track_camera, CameraStep, TrackOptions,
+};
 
 /// A C-contiguous float32 image as the core reads it.
 pub(super) fn view<'a>(
@@ -194,9 +196,12 @@ pub(super) fn candidate_rows<'a>(
 
 /// `(N, K)` correlation of the template patch around each of `points` (N, 2) with the
 /// patch of `search` around each of its `candidates` (N, K, 2); NaN where a patch leaves
-/// its image or is flat.
+/// its image or is flat. With `decide = (min_correlation, uniqueness)` (seeding's test)
+/// only the scores that can decide that test are exact, the others -inf: in a row whose
+/// best is below `min_correlation` any score may be -inf, in another a score below the
+/// best minus `uniqueness` may be (`ncc_at_decisive`).
 #[pyfunction]
-#[pyo3(signature = (template, points, search, candidates, *, size=11))]
+#[pyo3(signature = (template, points, search, candidates, *, size=11, decide=None))]
 fn track_ncc_at<'py>(
     py: Python<'py>,
     template: PyReadonlyArray2<'py, f32>,
@@ -204,6 +209,7 @@ fn track_ncc_at<'py>(
     search: PyReadonlyArray2<'py, f32>,
     candidates: PyReadonlyArray3<'py, f64>,
     size: usize,
+    decide: Option<(f64, f64)>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     use rayon::prelude::*;
     let t = view(&template, "template")?;
@@ -216,9 +222,21 @@ fn track_ncc_at<'py>(
         let out = w.as_slice_mut()?;
         super::detach(py, || {
             if k > 0 {
-                out.par_chunks_mut(k).enumerate().for_each(|(i, row)| {
-                    ncc_at(&t, p[i], &s, &cand[i * k..(i + 1) * k], size, row)
-                });
+                out.par_chunks_mut(k)
+                    .enumerate()
+                    .for_each(|(i, row)| match decide {
+                        Some((least, margin)) => ncc_at_decisive(
+                            &t,
+                            p[i],
+                            &s,
+                            &cand[i * k..(i + 1) * k],
+                            size,
+                            least,
+                            margin,
+                            row,
+                        ),
+                        None => ncc_at(&t, p[i], &s, &cand[i * k..(i + 1) * k], size, row),
+                    });
             }
         });
     }

@@ -75,11 +75,7 @@ fn ncc_at_body(
 ) {
     let n = size * size;
     let mut values = Vec::with_capacity(n);
-    let template = if sample_window(template_image, point, size, &mut values) {
-        normalised(&values)
-    } else {
-        None
-    };
+    let template = template_patch(template_image, point, size, &mut values);
     let Some(template) = template else {
         scores
             .iter_mut()
@@ -122,6 +118,33 @@ fn ncc_at_body(
     }
 }
 
+/// The normalised template patch of side `size` around `point` ([`normalised`]); `None`
+/// where it leaves its image or is flat. `values` is scratch (left holding the samples).
+#[inline(always)]
+pub(super) fn template_patch(
+    image: &ImageView<'_>,
+    point: [f64; 2],
+    size: usize,
+    values: &mut Vec<f32>,
+) -> Option<Vec<f32>> {
+    if sample_window(image, point, size, values) {
+        normalised(values)
+    } else {
+        None
+    }
+}
+
+/// The integer pixel at the top left of the window of side `side` centred on `centre`
+/// (a window [`window_inside`] accepts) and the bilinear fractions along a row and down a
+/// column, as [`super::ncc::fill_window`] computes them.
+#[inline(always)]
+pub(super) fn window_corner(centre: [f64; 2], side: usize) -> (usize, usize, f32, f32) {
+    let half = (side / 2) as f64;
+    let (u0, v0) = (centre[0] - half, centre[1] - half);
+    let (iu, iv) = (u0.floor(), v0.floor());
+    (iu as usize, iv as usize, (u0 - iu) as f32, (v0 - iv) as f32)
+}
+
 /// The bilinear samples of the window of side `side` centred on `centre` (checked by
 /// [`window_inside`]) into lane `lane` of the pixel-major `windows`: pixel `i` at
 /// `windows[i * GROUP + lane]`. [`super::ncc::fill_window`]'s arithmetic, sample for
@@ -134,11 +157,7 @@ pub(super) fn fill_lane(
     windows: &mut [f32],
     lane: usize,
 ) {
-    let half = (side / 2) as f64;
-    let (u0, v0) = (centre[0] - half, centre[1] - half);
-    let (iu, iv) = (u0.floor(), v0.floor());
-    let (tu, tv) = ((u0 - iu) as f32, (v0 - iv) as f32);
-    let (iu, iv) = (iu as usize, iv as usize);
+    let (iu, iv, tu, tv) = window_corner(centre, side);
     let width = image.width;
     for (r, dest) in windows[..side * side * GROUP]
         .chunks_exact_mut(side * GROUP)

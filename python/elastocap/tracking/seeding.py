@@ -247,6 +247,28 @@ def _hull_depths(cam: Camera, seeds: NDArray[np.float64], cameras: Sequence[Came
     return fine, inside
 
 
+def _unique_peaks(scores: NDArray[np.float64], uv: NDArray[np.float64],
+                  min_correlation: float) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """Seeding's test on the correlation along each candidate's line: whether it holds (M,)
+    and the best sample (M,), from the scores (M, K; NaN or -inf where none) at the
+    samples' pixels ``uv`` (M, K, 2) in the partner. Holds where the best score reaches
+    ``min_correlation`` and beats every local maximum away from it by ``_UNIQUENESS``;
+    the scores ``track_ncc_at(decide=...)`` leaves at -inf cannot change either answer.
+
+    A repeated texture along the line makes a false match as likely as the true one: the
+    best peak must stand out from every local maximum away from it (more than
+    ``_PEAK_WIDTH`` samples, or ``settings.SEED_PEAK_PIXELS`` pixels in the partner's image:
+    the samples' spacing there varies from ~0.1 px (a short baseline) to a few pixels). The
+    peaks are found in the core, in parallel (benches/README.md, "seedpar1")."""
+    best, peak, second = _core.seed_line_peaks(np.ascontiguousarray(scores, dtype=float), width=_PEAK_WIDTH,
+                                               uv=uv if settings.SEED_PEAK_PIXELS is not None else None,
+                                               pixels=settings.SEED_PEAK_PIXELS)
+    # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
+    with np.errstate(invalid="ignore"):
+        good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+    return good, best
+
+
 def seed_points(images: Sequence[NDArray[np.float32]], masks: Sequence[NDArray[np.bool_]], cameras: Sequence[Camera],
                 covered: NDArray[np.float64], *, spacing: int, size: int, min_correlation: float, min_views: int,
                 min_texture: float, tolerance: float, max_residual: float, floor: float,
@@ -320,20 +342,13 @@ def _camera_seeds(images: Sequence[NDArray[np.float32]], checked: Sequence[NDArr
             break
         other = cameras[p]
         uv = _line_pixels(other, points, hull, todo)
-        # Scored four candidates at a time (benches/README.md, "lsmshare1"; it replaced
-        # seednear1's own eight-at-a-time copy of the same sums).
-        scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size)
-        # A repeated texture along the line makes a false match as likely as the true
-        # one: the best peak must stand out from every local maximum away from it (more
-        # than _PEAK_WIDTH samples, or settings.SEED_PEAK_PIXELS pixels in the partner's
-        # image: the samples' spacing there varies from ~0.1 px (a short baseline) to a
-        # few pixels). In the core, in parallel (benches/README.md, "seedpar1").
-        best, peak, second = _core.seed_line_peaks(np.ascontiguousarray(scores, dtype=float), width=_PEAK_WIDTH,
-                                                   uv=uv if settings.SEED_PEAK_PIXELS is not None else None,
-                                                   pixels=settings.SEED_PEAK_PIXELS)
-        # A point with no score anywhere has peak = second = -inf (NaN margin, not good).
-        with np.errstate(invalid="ignore"):
-            good = (peak >= min_correlation) & (peak - second >= _UNIQUENESS)
+        # Only the scores that can decide the test are exact (the others -inf: a row whose
+        # best is below min_correlation keeps nothing, and a score below the best minus
+        # _UNIQUENESS is neither the peak nor a rival that refuses it, and leaves its
+        # neighbours' local maxima as they are); benches/README.md, "seedfloor1".
+        scores = _core.track_ncc_at(images[k], seeds[todo], images[p], np.ascontiguousarray(uv), size=size,
+                                    decide=(min_correlation, _UNIQUENESS))
+        good, best = _unique_peaks(scores, uv, min_correlation)
         rows, best = todo[good], best[good]
         if rows.size == 0:
             continue
