@@ -22,6 +22,7 @@
 //! arithmetic is unchanged).
 
 use super::ncc::{normalised, sample_window, window_inside};
+use super::ncc_at_decisive::{bilinear_blocks, BLOCK};
 use crate::lsm::ImageView;
 
 /// Candidates scored together.
@@ -148,7 +149,8 @@ pub(super) fn window_corner(centre: [f64; 2], side: usize) -> (usize, usize, f32
 /// The bilinear samples of the window of side `side` centred on `centre` (checked by
 /// [`window_inside`]) into lane `lane` of the pixel-major `windows`: pixel `i` at
 /// `windows[i * GROUP + lane]`. [`super::ncc::fill_window`]'s arithmetic, sample for
-/// sample (written in place: filling a window then copying it across cost ~5% more).
+/// sample (written in place: filling a window then copying it across cost ~5% more);
+/// sides of eight and more by [`bilinear_blocks`] (each interpolation along a row once).
 #[inline(always)]
 pub(super) fn fill_lane(
     image: &ImageView<'_>,
@@ -157,6 +159,15 @@ pub(super) fn fill_lane(
     windows: &mut [f32],
     lane: usize,
 ) {
+    if side >= BLOCK {
+        bilinear_blocks(image, centre, side, |r, start, block| {
+            let first = (r * side + start) * GROUP + lane;
+            for (j, &value) in block.iter().enumerate() {
+                windows[first + j * GROUP] = value;
+            }
+        });
+        return;
+    }
     let (iu, iv, tu, tv) = window_corner(centre, side);
     let width = image.width;
     for (r, dest) in windows[..side * side * GROUP]

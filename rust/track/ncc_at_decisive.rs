@@ -70,7 +70,7 @@ pub fn ncc_at_decisive(
         };
         return;
     }
-    decisive_body(
+    decisive_body::<false>(
         template_image,
         point,
         search,
@@ -82,8 +82,10 @@ pub fn ncc_at_decisive(
     );
 }
 
-/// [`ncc_at_decisive`] compiled for AVX2 (the estimate's sums four `f64` lanes a register;
-/// no fused multiply-add is formed, so the exact scores' arithmetic is unchanged).
+/// [`ncc_at_decisive`] compiled for AVX2 (the estimate's sums four `f64` lanes a register,
+/// its products added fused, which rounds as the separate product and sum do: see
+/// [`estimate`]; the exact scores form no fused multiply-add, so their arithmetic is
+/// unchanged).
 ///
 /// # Safety
 /// The CPU must have AVX2 and FMA ([`crate::lsm::wide`]).
@@ -100,7 +102,7 @@ unsafe fn decisive_wide(
     uniqueness: f64,
     scores: &mut [f64],
 ) {
-    decisive_body(
+    decisive_body::<true>(
         template_image,
         point,
         search,
@@ -114,7 +116,7 @@ unsafe fn decisive_wide(
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn decisive_body(
+fn decisive_body<const FUSED: bool>(
     template_image: &ImageView<'_>,
     point: [f64; 2],
     search: &ImageView<'_>,
@@ -133,6 +135,8 @@ fn decisive_body(
         return;
     };
     let template_sum: f64 = template.iter().map(|&t| t as f64).sum();
+    // In `f64` once for the row, not converted again for every position's estimate.
+    let template_wide: Vec<f64> = template.iter().map(|&t| t as f64).collect();
     values.resize(n, 0.0);
     // The estimates (NaN outside the image and where not trusted) and the positions scored
     // exactly whatever the threshold (in the image, estimate not trusted).
@@ -145,7 +149,7 @@ fn decisive_body(
             continue;
         }
         fill_rows(search, candidate, size, &mut values);
-        match estimate(&template, template_sum, &values) {
+        match estimate::<FUSED>(&template_wide, template_sum, &values) {
             Some(e) => {
                 estimates[k] = e;
                 top = top.max(e);
@@ -197,51 +201,83 @@ fn decisive_body(
 }
 
 /// Columns filled together: one `f32` register of AVX2.
-const BLOCK: usize = 8;
+pub(super) const BLOCK: usize = 8;
 
-/// [`fill_window`]'s samples (the same arithmetic, sample for sample), eight columns of a
-/// row at a time: a window side of 15 is a block at column 0 and one at column 7 (the
-/// overlapping column is written twice with the same value). With [`fill_window`]'s loop,
-/// which the compiler left one column at a time, the estimates of big16's seeding frame 5
-/// took 208 ns a position, with this 148 (benches/README.md, "seedfloor1"); sides below
-/// eight go through [`fill_window`].
+/// [`fill_window`]'s samples (the same arithmetic, sample for sample) of a window of side
+/// `side` (at least [`BLOCK`]), handed to `emit(row, column, block)` eight columns at a
+/// time: a window side of 15 is the block at column 0 and the one at column 7 (the
+/// overlapping column comes twice with the same values).
+///
+/// A column block is walked down the window's rows with the last interpolation along a
+/// row kept: [`fill_window`]'s `bottom` of row `r` is its `top` of row `r + 1` (the same
+/// operations on the same pixels, so the same `f32`), and computing it once takes a third
+/// of the fill's arithmetic away (benches/README.md, "seedmain1").
+#[inline(always)]
+pub(super) fn bilinear_blocks(
+    image: &ImageView<'_>,
+    centre: [f64; 2],
+    side: usize,
+    mut emit: impl FnMut(usize, usize, &[f32; BLOCK]),
+) {
+    debug_assert!(side >= BLOCK);
+    let (iu, iv, tu, tv) = window_corner(centre, side);
+    let width = image.width;
+    let across = |r: usize, start: usize| -> [f32; BLOCK] {
+        let row: &[f32; BLOCK + 1] = image.data[(iv + r) * width + iu + start..][..BLOCK + 1]
+            .try_into()
+            .unwrap();
+        std::array::from_fn(|j| row[j] + tu * (row[j + 1] - row[j]))
+    };
+    let mut c = 0;
+    loop {
+        let start = c.min(side - BLOCK);
+        let mut top = across(0, start);
+        for r in 0..side {
+            let bottom = across(r + 1, start);
+            let block: [f32; BLOCK] = std::array::from_fn(|j| top[j] + tv * (bottom[j] - top[j]));
+            emit(r, start, &block);
+            top = bottom;
+        }
+        if start + BLOCK == side {
+            break;
+        }
+        c += BLOCK;
+    }
+}
+
+/// [`fill_window`]'s samples (the same arithmetic, sample for sample) into `out`
+/// (row-major), by [`bilinear_blocks`]; sides below [`BLOCK`] go through [`fill_window`].
+/// With [`fill_window`]'s loop, which the compiler left one column at a time, the
+/// estimates of big16's seeding frame 5 took 208 ns a position, with blocks of eight
+/// columns 148 (benches/README.md, "seedfloor1").
 #[inline(always)]
 pub(super) fn fill_rows(image: &ImageView<'_>, centre: [f64; 2], side: usize, out: &mut [f32]) {
     if side < BLOCK {
         fill_window(image, centre, side, out);
         return;
     }
-    let (iu, iv, tu, tv) = window_corner(centre, side);
-    let width = image.width;
-    for (r, dest) in out[..side * side].chunks_exact_mut(side).enumerate() {
-        let row0 = &image.data[(iv + r) * width + iu..][..side + 1];
-        let row1 = &image.data[(iv + r + 1) * width + iu..][..side + 1];
-        let mut c = 0;
-        loop {
-            let start = c.min(side - BLOCK);
-            let a: &[f32; BLOCK + 1] = row0[start..start + BLOCK + 1].try_into().unwrap();
-            let b: &[f32; BLOCK + 1] = row1[start..start + BLOCK + 1].try_into().unwrap();
-            let block: [f32; BLOCK] = std::array::from_fn(|j| {
-                let top = a[j] + tu * (a[j + 1] - a[j]);
-                let bottom = b[j] + tu * (b[j + 1] - b[j]);
-                top + tv * (bottom - top)
-            });
-            dest[start..start + BLOCK].copy_from_slice(&block);
-            if start + BLOCK == side {
-                break;
-            }
-            c += BLOCK;
-        }
-    }
+    bilinear_blocks(image, centre, side, |r, start, block| {
+        out[r * side + start..][..BLOCK].copy_from_slice(block);
+    });
 }
 
 /// The correlation of the contiguous `window` (row-major, as `template`) with the
-/// normalised `template` (whose values sum to `template_sum`) from three sums taken in any
-/// order; `None` where the window's variance is too small a part of its second moment for
-/// the estimate to be within [`SLACK`] of the exact score (or not finite).
+/// normalised `template` (its `f32` values in `f64`, summing to `template_sum`) from three
+/// sums taken in any order; `None` where the window's variance is too small a part of its
+/// second moment for the estimate to be within [`SLACK`] of the exact score (or not
+/// finite).
+///
+/// With `FUSED` the squares and products are added by fused multiply-adds (the AVX2 build):
+/// a product of two `f32`s is exact in `f64`, so `x * y + s` rounds once either way and
+/// both forms give the same estimate to the bit (tested).
 #[inline(always)]
-pub(super) fn estimate(template: &[f32], template_sum: f64, window: &[f32]) -> Option<f64> {
+pub(super) fn estimate<const FUSED: bool>(
+    template: &[f64],
+    template_sum: f64,
+    window: &[f32],
+) -> Option<f64> {
     const LANES: usize = 8;
+    let madd = |x: f64, y: f64, s: f64| if FUSED { x.mul_add(y, s) } else { x * y + s };
     let mut sum = [0.0f64; LANES];
     let mut square = [0.0f64; LANES];
     let mut dot = [0.0f64; LANES];
@@ -249,18 +285,17 @@ pub(super) fn estimate(template: &[f32], template_sum: f64, window: &[f32]) -> O
     let (t_main, t_rest) = template.split_at(w_main.len());
     for (w, t) in w_main.chunks_exact(LANES).zip(t_main.chunks_exact(LANES)) {
         for j in 0..LANES {
-            // Products of two `f32`s are exact in `f64`.
             let x = w[j] as f64;
             sum[j] += x;
-            square[j] += x * x;
-            dot[j] += t[j] as f64 * x;
+            square[j] = madd(x, x, square[j]);
+            dot[j] = madd(t[j], x, dot[j]);
         }
     }
     for (&w, &t) in w_rest.iter().zip(t_rest) {
         let x = w as f64;
         sum[0] += x;
-        square[0] += x * x;
-        dot[0] += t as f64 * x;
+        square[0] = madd(x, x, square[0]);
+        dot[0] = madd(t, x, dot[0]);
     }
     let (sum, square, dot) = (
         sum.iter().sum::<f64>(),

@@ -5,6 +5,7 @@
 
 use super::ncc::{fill_window, normalised, sample_window};
 use super::ncc_at;
+use super::ncc_at::{fill_lane, GROUP};
 use super::ncc_at_decisive::{estimate, fill_rows, ncc_at_decisive};
 use crate::lsm::ImageView;
 use rand::{Rng, SeedableRng};
@@ -225,13 +226,20 @@ fn trusted_estimates_are_within_a_tenth_of_the_slack() {
             continue;
         };
         let sum: f64 = template.iter().map(|&t| t as f64).sum();
+        let wide: Vec<f64> = template.iter().map(|&t| t as f64).collect();
         let mut window = vec![0.0f32; 225];
         for _ in 0..50 {
             let c = [rng.random_range(9.0..70.0), rng.random_range(9.0..70.0)];
             fill_window(&tb, c, 15, &mut window);
             let mut exact = [0.0];
             ncc_at(&ta, [40.0, 40.0], &tb, &[c], 15, &mut exact);
-            if let Some(e) = estimate(&template, sum, &window) {
+            let plain = estimate::<false>(&wide, sum, &window);
+            // Fused products round as the separate ones (a product of two `f32`s is exact).
+            assert_eq!(
+                plain.map(f64::to_bits),
+                estimate::<true>(&wide, sum, &window).map(f64::to_bits)
+            );
+            if let Some(e) = plain {
                 trusted += 1;
                 worst = worst.max((e - exact[0]).abs());
             }
@@ -263,6 +271,18 @@ fn blocks_of_columns_fill_as_the_window_does_to_the_bit() {
                     .all(|(x, y)| x.to_bits() == y.to_bits()),
                 "side {side}"
             );
+            // The exact path's pixel-major lanes: the same samples in lane 5, the other
+            // lanes untouched.
+            let mut lanes = vec![-1.0f32; side * side * GROUP];
+            fill_lane(&image, c, side, &mut lanes, 5);
+            for (i, pixel) in lanes.chunks_exact(GROUP).enumerate() {
+                assert_eq!(
+                    pixel[5].to_bits(),
+                    want[i].to_bits(),
+                    "side {side} pixel {i}"
+                );
+                assert!(pixel.iter().enumerate().all(|(j, &x)| j == 5 || x == -1.0));
+            }
         }
     }
 }
