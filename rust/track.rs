@@ -15,7 +15,7 @@
 //!
 //! Submodules: `ncc` (box search by normalised cross-correlation), `ncc_at` (candidate
 //! scoring by it), `ncc_at_decisive` (seeding's candidate scores, exact only where they can
-//! decide its test), `ncc_batch` (the correlation at candidates across many images in one pass),
+//! decide its test), `ncc_at_estimate` (its cheap estimate and the bilinear fill in blocks), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
 //! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
 //! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
@@ -28,6 +28,7 @@ mod ncc_at;
 mod ncc_at_decisive;
 #[cfg(test)]
 mod ncc_at_decisive_tests;
+mod ncc_at_estimate;
 #[cfg(test)]
 mod ncc_at_tests;
 mod ncc_batch;

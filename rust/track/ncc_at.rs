@@ -22,7 +22,7 @@
 //! arithmetic is unchanged).
 
 use super::ncc::{normalised, sample_window, window_inside};
-use super::ncc_at_decisive::{bilinear_blocks, BLOCK};
+use super::ncc_at_estimate::{bilinear_blocks, BLOCK};
 use crate::lsm::ImageView;
 
 /// Candidates scored together.

@@ -23,8 +23,9 @@
 //! and every window whose estimate is not trusted, are scored by [`super::ncc_at`]'s own
 //! grouped arithmetic, so they are its scores to the bit.
 
-use super::ncc::{fill_window, window_inside};
-use super::ncc_at::{fill_lane, score_group, template_patch, window_corner, GROUP};
+use super::ncc::window_inside;
+use super::ncc_at::{fill_lane, score_group, template_patch, GROUP};
+use super::ncc_at_estimate::{estimate, fill_rows};
 use crate::lsm::ImageView;
 
 /// Bound on the difference between a trusted estimate and the exact score (the analysis
@@ -33,9 +34,6 @@ const SLACK: f64 = 1e-5;
 /// The threshold is lowered by this much more, so that the caller's `peak - rival >=
 /// uniqueness` (rounded) holds for every replaced rival.
 const MARGIN: f64 = 1e-6;
-/// An estimate is trusted where the window's summed squared deviation exceeds this part
-/// of its summed squares (a standard deviation above 1e-3 of the root mean square).
-const CONTRAST: f64 = 1e-6;
 
 /// [`super::ncc_at`]'s scores where they can decide seeding's test, -inf where they cannot:
 /// in a row (one template, `candidates` along its line) whose best score `P` is below
@@ -198,119 +196,6 @@ fn decisive_body<const FUSED: bool>(
         &mut windows,
         scores,
     );
-}
-
-/// Columns filled together: one `f32` register of AVX2.
-pub(super) const BLOCK: usize = 8;
-
-/// [`fill_window`]'s samples (the same arithmetic, sample for sample) of a window of side
-/// `side` (at least [`BLOCK`]), handed to `emit(row, column, block)` eight columns at a
-/// time: a window side of 15 is the block at column 0 and the one at column 7 (the
-/// overlapping column comes twice with the same values).
-///
-/// A column block is walked down the window's rows with the last interpolation along a
-/// row kept: [`fill_window`]'s `bottom` of row `r` is its `top` of row `r + 1` (the same
-/// operations on the same pixels, so the same `f32`), and computing it once takes a third
-/// of the fill's arithmetic away (benches/README.md, "seedmain1").
-#[inline(always)]
-pub(super) fn bilinear_blocks(
-    image: &ImageView<'_>,
-    centre: [f64; 2],
-    side: usize,
-    mut emit: impl FnMut(usize, usize, &[f32; BLOCK]),
-) {
-    debug_assert!(side >= BLOCK);
-    let (iu, iv, tu, tv) = window_corner(centre, side);
-    let width = image.width;
-    let across = |r: usize, start: usize| -> [f32; BLOCK] {
-        let row: &[f32; BLOCK + 1] = image.data[(iv + r) * width + iu + start..][..BLOCK + 1]
-            .try_into()
-            .unwrap();
-        std::array::from_fn(|j| row[j] + tu * (row[j + 1] - row[j]))
-    };
-    let mut c = 0;
-    loop {
-        let start = c.min(side - BLOCK);
-        let mut top = across(0, start);
-        for r in 0..side {
-            let bottom = across(r + 1, start);
-            let block: [f32; BLOCK] = std::array::from_fn(|j| top[j] + tv * (bottom[j] - top[j]));
-            emit(r, start, &block);
-            top = bottom;
-        }
-        if start + BLOCK == side {
-            break;
-        }
-        c += BLOCK;
-    }
-}
-
-/// [`fill_window`]'s samples (the same arithmetic, sample for sample) into `out`
-/// (row-major), by [`bilinear_blocks`]; sides below [`BLOCK`] go through [`fill_window`].
-/// With [`fill_window`]'s loop, which the compiler left one column at a time, the
-/// estimates of big16's seeding frame 5 took 208 ns a position, with blocks of eight
-/// columns 148 (benches/README.md, "seedfloor1").
-#[inline(always)]
-pub(super) fn fill_rows(image: &ImageView<'_>, centre: [f64; 2], side: usize, out: &mut [f32]) {
-    if side < BLOCK {
-        fill_window(image, centre, side, out);
-        return;
-    }
-    bilinear_blocks(image, centre, side, |r, start, block| {
-        out[r * side + start..][..BLOCK].copy_from_slice(block);
-    });
-}
-
-/// The correlation of the contiguous `window` (row-major, as `template`) with the
-/// normalised `template` (its `f32` values in `f64`, summing to `template_sum`) from three
-/// sums taken in any order; `None` where the window's variance is too small a part of its
-/// second moment for the estimate to be within [`SLACK`] of the exact score (or not
-/// finite).
-///
-/// With `FUSED` the squares and products are added by fused multiply-adds (the AVX2 build):
-/// a product of two `f32`s is exact in `f64`, so `x * y + s` rounds once either way and
-/// both forms give the same estimate to the bit (tested).
-#[inline(always)]
-pub(super) fn estimate<const FUSED: bool>(
-    template: &[f64],
-    template_sum: f64,
-    window: &[f32],
-) -> Option<f64> {
-    const LANES: usize = 8;
-    let madd = |x: f64, y: f64, s: f64| if FUSED { x.mul_add(y, s) } else { x * y + s };
-    let mut sum = [0.0f64; LANES];
-    let mut square = [0.0f64; LANES];
-    let mut dot = [0.0f64; LANES];
-    let (w_main, w_rest) = window.split_at(window.len() / LANES * LANES);
-    let (t_main, t_rest) = template.split_at(w_main.len());
-    for (w, t) in w_main.chunks_exact(LANES).zip(t_main.chunks_exact(LANES)) {
-        for j in 0..LANES {
-            let x = w[j] as f64;
-            sum[j] += x;
-            square[j] = madd(x, x, square[j]);
-            dot[j] = madd(t[j], x, dot[j]);
-        }
-    }
-    for (&w, &t) in w_rest.iter().zip(t_rest) {
-        let x = w as f64;
-        sum[0] += x;
-        square[0] = madd(x, x, square[0]);
-        dot[0] = madd(t, x, dot[0]);
-    }
-    let (sum, square, dot) = (
-        sum.iter().sum::<f64>(),
-        square.iter().sum::<f64>(),
-        dot.iter().sum::<f64>(),
-    );
-    let mean = sum / window.len() as f64;
-    let variance = square - sum * mean;
-    // Written so that NaN is not trusted; the second test keeps the norm far above the
-    // exact score's flat threshold (1e-9).
-    if !(variance > CONTRAST * square && variance > 1e-12) {
-        return None;
-    }
-    let score = (dot - mean * template_sum) / variance.sqrt();
-    score.is_finite().then_some(score)
 }
 
 /// [`super::ncc_at`]'s scores of `candidates[k]` for each `k` of `which` into `scores[k]`,
