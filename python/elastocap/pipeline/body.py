@@ -109,6 +109,9 @@ def run_body_stage(
     anchors = None
     if tracks and any((out / "tracks").glob("[0-9]*.npz")):
         anchors = SequentialAnchors(model, load_tracks(out), Z_UP_TO_WORLD)
+    # The picture's images, read before any fitting: a bad image (truncated, of another size
+    # than its calibration) stops the stage at once, not after the fit.
+    picture_images = {name: cap.image(name, wanted[0]) for name in names} if cap.has_images else None
     attached = 0
     for frame in tqdm(wanted, desc="body", unit="frame", disable=not progress):
         masks = cap.masks(frame) if cap.has_masks else None
@@ -139,8 +142,8 @@ def run_body_stage(
     views = []
     for name in names:
         silhouette = render_silhouette(meshes[0], cap.rig[name])
-        if cap.has_images:
-            base = cap.image(name, wanted[0])
+        if picture_images is not None:
+            base = picture_images[name]
         else:
             base = np.repeat((cap.mask(name, wanted[0]) * 160).astype(np.uint8)[..., None], 3, axis=2)
         view = base.astype(np.float64)
