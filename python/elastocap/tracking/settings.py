@@ -263,6 +263,12 @@ UNCERTAIN_SD = float("inf")
 SLIDE = 4.0
 SLIDE_SCALE = 0.5
 SLIDE_STICKY = True
+# The same prediction along the rays (:mod:`elastocap.tracking.depth_slide`): positions whose
+# intersection lies farther than this many pixel equivalents from it along the direction
+# to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely)
+# are withheld as SLID too, sticky with SLIDE_STICKY. Infinite: off (main's tracks before
+# session 33). Tuning capture m15 (benches/log/139-kept2.md): PLACEHOLDER
+SLIDE_ALONG = 6.0
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
 # (any camera, not only those holding the point's views); infinite: off. Output only. Most
@@ -418,3 +424,9 @@ SEED_PEAK_PIXELS: float | None = None
 # limb puts the seed's depth behind the surface (drift15: median 2.6 px-eq on fit seed 51's
 # late seeds, a quarter of them beyond 5).
 SEED_DEPTH_SIZE = 0
+# New points that hold no narrow stereo pair (two cameras each other's nearest by the angle
+# of their axes) are dropped as they are seeded (tracking/seed_pairs.py): their depth was
+# matched across a wide baseline, or their pair's view was the intersection's blunder.
+# False: kept (main's tracks before session 33). Tuning captures (benches/log/139-kept2.md):
+# PLACEHOLDER
+SEED_NEEDS_PAIR = True

@@ -32,6 +32,7 @@ from elastocap.tracking.pyramid_search import Pyramids
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.revival import Lost, revive
 from elastocap.tracking.rigid_prediction import predicting_before, rigid_predictions
+from elastocap.tracking.seed_pairs import drop_unpaired
 from elastocap.tracking.step_points import locate_points
 from elastocap.tracking.step_report import reported
 from elastocap.tracking.step_state import forget_history, resume_state
@@ -159,6 +160,9 @@ class FrameTracker:
         if reseed or bare > 0:
             uv, x, xcov, flags, flags2d = add_new_points(self, grey, masks, uv, x, xcov, flags, flags2d,
                                                          bare=0 if reseed else bare)
+            if settings.SEED_NEEDS_PAIR:
+                # Seeds whose depth no narrow pair measured (seed_pairs.py).
+                uv, x, xcov, flags, flags2d = drop_unpaired(self, n, uv, x, xcov, flags, flags2d)
         total = len(uv)
         if self.anchors is not None:
             views_now = np.isfinite(uv[..., 0])

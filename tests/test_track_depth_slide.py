@@ -1,0 +1,93 @@
+"""Points whose narrow pair's depth slides off their neighbours' rigid map, withheld along
+the rays (``settings.SLIDE_ALONG``, :mod:`elastocap.tracking.depth_slide`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from test_track_slide import PIXEL, _pair, _tracker
+
+from elastocap import InvalidInputError
+from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import slid_in_depth
+from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.rigidity import RigidResiduals, rigid_fusion
+from elastocap.tracking.step_report import withhold_slid
+
+
+def _run(monkeypatch, along: float, rate: float, frames: int = 24) -> tuple[list[bool], list[bool]]:
+    """A forearm-sized patch of 60 points turning and moving rigidly over ``frames`` frames,
+    seen by a narrow pair looking along z; one point's depth slides ``rate`` px-eq a frame
+    along the rays (the pair's disparity drifting: its intersection agrees with itself).
+    Intersections carry the noise of a re-tied pair: 0.2 px-eq across the rays, 0.7 along
+    them (the seeding frame's and this one's together: a median 0.95 px-eq along the rays
+    from the rigid prediction, as m15's kept positions within 5 px-eq of the truth have).
+    The slider stays in its neighbours' rigid fits (withheld, it is still tracked) and pulls
+    their predictions by a fraction of its offset: 24 frames keep that under the bound.
+    Returns, per frame, whether the slider was withheld and whether any other point was."""
+    monkeypatch.setattr(settings, "SLIDE", 4.0)
+    monkeypatch.setattr(settings, "SLIDE_SCALE", 0.5)
+    monkeypatch.setattr(settings, "SLIDE_STICKY", True)
+    monkeypatch.setattr(settings, "SLIDE_ALONG", along)
+    rng = np.random.default_rng(3)
+    m = 60
+    angle = rng.uniform(-1.0, 1.0, m)
+    base = np.column_stack([0.1 * np.sin(angle), rng.uniform(-0.15, 0.15, m), -0.1 * np.cos(angle)])
+    tracker = _tracker(_pair())
+    slider = 11
+    ray = np.array([0.0, 0.0, 1.0])
+    across = (0.2 * PIXEL) ** 2
+    cov = np.tile(across * np.eye(3) + ((0.7 * PIXEL) ** 2 - across) * np.outer(ray, ray), (m, 1, 1))
+    pixel = np.full(m, PIXEL)
+    views = np.ones((m, 2), bool)
+    mine, others = [], []
+    for f in range(frames):
+        # A small turn: the rays stay along z in the patch's frame, so the slide stays along them.
+        rot = Rotation.from_euler("xyz", [0.2 * f, 0.3 * f, -0.1 * f], degrees=True).as_matrix()
+        truth = base @ rot.T + np.array([0.004 * f, -0.002 * f, 0.0])
+        x = truth + rng.normal(0, 0.2 * PIXEL, (m, 3)) + rng.normal(0, 0.7 * PIXEL, (m, 1)) * ray
+        x[slider] += rate * PIXEL * f * ray
+        if f == 0:
+            tracker.seeded_at = np.zeros(m, np.int64)
+            tracker.history = {0: x.copy()}
+        fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
+                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
+                                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+        out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
+        withheld = flags == TrackFlag.SLID
+        np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+        mine.append(bool(withheld[slider]))
+        others.append(bool(withheld[np.arange(m) != slider].any()))
+    return mine, others
+
+
+@pytest.mark.parametrize("rate", [0.3, 0.5])
+def test_a_point_whose_depth_slides_is_withheld_and_its_neighbours_are_not(monkeypatch, rate):
+    mine, others = _run(monkeypatch, 6.0, rate)
+    assert not any(others), "a rigidly moving neighbour withheld"
+    first = mine.index(True)
+    # Found once the slide passes the bound, give or take the pair's depth noise and the
+    # pull of the fusion; withheld on every frame after (sticky).
+    assert (6.0 - 3.0) / rate <= first <= (6.0 + 3.0) / rate
+    assert all(mine[first:])
+
+
+def test_the_slide_along_the_rays_passes_the_across_check_alone(monkeypatch):
+    # The SLID check looks across the rays: without the bound the sliding depth is kept.
+    mine, others = _run(monkeypatch, float("inf"), 0.5)
+    assert not any(mine) and not any(others)
+
+
+def test_the_bound_reads_the_along_residual_and_refuses_nonsense(monkeypatch):
+    n = 5
+    res = RigidResiduals(across=np.zeros(n), along=np.array([0.0, 5.9, 6.1, np.nan, 40.0]), spread=np.zeros(n),
+                         held_out=np.zeros(n), predicted=np.zeros((n, 3)))
+    monkeypatch.setattr(settings, "SLIDE_ALONG", 6.0)
+    np.testing.assert_array_equal(slid_in_depth(res), [False, False, True, False, True])
+    monkeypatch.setattr(settings, "SLIDE_ALONG", float("inf"))
+    assert not slid_in_depth(res).any()
+    for bad in (float("nan"), 0.0, -1.0):
+        monkeypatch.setattr(settings, "SLIDE_ALONG", bad)
+        with pytest.raises(InvalidInputError):
+            slid_in_depth(res)
