@@ -16,20 +16,23 @@ from elastocap.tracking.rigidity import RigidResiduals, rigid_fusion
 from elastocap.tracking.step_report import withhold_slid
 
 
-def _run(monkeypatch, along: float, rate: float, frames: int = 24) -> tuple[list[bool], list[bool]]:
+def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18) -> tuple[list[bool], list[bool]]:
     """A forearm-sized patch of 60 points turning and moving rigidly over ``frames`` frames,
     seen by a narrow pair looking along z; one point's depth slides ``rate`` px-eq a frame
-    along the rays (the pair's disparity drifting: its intersection agrees with itself).
+    along the rays (the pair's disparity drifting: its intersection agrees with itself),
+    withheld once beyond ``along`` px-eq on ``over`` consecutive frames.
     Intersections carry the noise of a re-tied pair: 0.2 px-eq across the rays, 0.7 along
     them (the seeding frame's and this one's together: a median 0.95 px-eq along the rays
     from the rigid prediction, as m15's kept positions within 5 px-eq of the truth have).
     The slider stays in its neighbours' rigid fits (withheld, it is still tracked) and pulls
-    their predictions by a fraction of its offset: 24 frames keep that under the bound.
+    their predictions by a fraction of its offset: over 18 frames (the slider 7-9 px-eq off)
+    that stays under the bound; far beyond, its neighbours follow it over (left alone).
     Returns, per frame, whether the slider was withheld and whether any other point was."""
     monkeypatch.setattr(settings, "SLIDE", 4.0)
     monkeypatch.setattr(settings, "SLIDE_SCALE", 0.5)
     monkeypatch.setattr(settings, "SLIDE_STICKY", True)
     monkeypatch.setattr(settings, "SLIDE_ALONG", along)
+    monkeypatch.setattr(settings, "SLIDE_ALONG_FRAMES", over)
     rng = np.random.default_rng(3)
     m = 60
     angle = rng.uniform(-1.0, 1.0, m)
@@ -62,14 +65,16 @@ def _run(monkeypatch, along: float, rate: float, frames: int = 24) -> tuple[list
     return mine, others
 
 
-@pytest.mark.parametrize("rate", [0.3, 0.5])
-def test_a_point_whose_depth_slides_is_withheld_and_its_neighbours_are_not(monkeypatch, rate):
-    mine, others = _run(monkeypatch, 6.0, rate)
+@pytest.mark.parametrize(("along", "over"), [(6.0, 1), (5.0, 2)])
+@pytest.mark.parametrize("rate", [0.4, 0.5])
+def test_a_point_whose_depth_slides_is_withheld_and_its_neighbours_are_not(monkeypatch, rate, along, over):
+    mine, others = _run(monkeypatch, along, rate, over)
     assert not any(others), "a rigidly moving neighbour withheld"
     first = mine.index(True)
     # Found once the slide passes the bound, give or take the pair's depth noise and the
-    # pull of the fusion; withheld on every frame after (sticky).
-    assert (6.0 - 3.0) / rate <= first <= (6.0 + 3.0) / rate
+    # pull of the fusion (and the frames it must stay there); withheld on every frame
+    # after (sticky).
+    assert (along - 3.0) / rate <= first <= (along + 3.0) / rate + over - 1
     assert all(mine[first:])
 
 
@@ -79,15 +84,30 @@ def test_the_slide_along_the_rays_passes_the_across_check_alone(monkeypatch):
     assert not any(mine) and not any(others)
 
 
-def test_the_bound_reads_the_along_residual_and_refuses_nonsense(monkeypatch):
-    n = 5
-    res = RigidResiduals(across=np.zeros(n), along=np.array([0.0, 5.9, 6.1, np.nan, 40.0]), spread=np.zeros(n),
-                         held_out=np.zeros(n), predicted=np.zeros((n, 3)))
+def _residuals(along: list[float]) -> RigidResiduals:
+    n = len(along)
+    return RigidResiduals(across=np.zeros(n), along=np.array(along), spread=np.zeros(n), held_out=np.zeros(n),
+                          predicted=np.zeros((n, 3)))
+
+
+def test_the_bound_reads_the_along_residual_on_consecutive_frames_and_refuses_nonsense(monkeypatch):
+    tracker = _tracker(_pair())
     monkeypatch.setattr(settings, "SLIDE_ALONG", 6.0)
-    np.testing.assert_array_equal(slid_in_depth(res), [False, False, True, False, True])
+    monkeypatch.setattr(settings, "SLIDE_ALONG_FRAMES", 1)
+    np.testing.assert_array_equal(slid_in_depth(tracker, _residuals([0.0, 5.9, 6.1, np.nan, 40.0])),
+                                  [False, False, True, False, True])
+    monkeypatch.setattr(settings, "SLIDE_ALONG_FRAMES", 2)
+    tracker.along_run = np.zeros(0, np.int64)
+    frames = [[7.0, 7.0, 1.0, 7.0], [7.0, np.nan, 7.0, 7.0], [7.0, 7.0, 7.0, 1.0, 7.0]]  # a point seeded on the last
+    got = [slid_in_depth(tracker, _residuals(f)).tolist() for f in frames]
+    assert got == [[False] * 4, [True, False, False, True], [True, False, True, False, False]]
+    np.testing.assert_array_equal(tracker.along_run, [3, 1, 2, 0, 1])
     monkeypatch.setattr(settings, "SLIDE_ALONG", float("inf"))
-    assert not slid_in_depth(res).any()
-    for bad in (float("nan"), 0.0, -1.0):
-        monkeypatch.setattr(settings, "SLIDE_ALONG", bad)
+    assert not slid_in_depth(tracker, _residuals([40.0] * 5)).any()
+    for name, bad in (("SLIDE_ALONG", float("nan")), ("SLIDE_ALONG", 0.0), ("SLIDE_ALONG", -1.0),
+                      ("SLIDE_ALONG_FRAMES", 0), ("SLIDE_ALONG_FRAMES", 1.5)):
+        monkeypatch.setattr(settings, "SLIDE_ALONG", 6.0)
+        monkeypatch.setattr(settings, "SLIDE_ALONG_FRAMES", 2)
+        monkeypatch.setattr(settings, name, bad)
         with pytest.raises(InvalidInputError):
-            slid_in_depth(res)
+            slid_in_depth(tracker, _residuals([1.0] * 5))

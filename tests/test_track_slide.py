@@ -36,6 +36,7 @@ def _tracker(cameras: list[Camera]) -> FrameTracker:
     tracker.seeded_at = np.zeros(0, np.int64)
     tracker.history = {}
     tracker.slid = np.zeros(0, bool)
+    tracker.along_run = np.zeros(0, np.int64)
     return tracker
 
 

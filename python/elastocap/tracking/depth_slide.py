@@ -16,6 +16,8 @@ px-eq for the kept positions within 5 px-eq of the truth on m15, 3.4 for those b
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -23,23 +25,61 @@ from elastocap._core import InvalidInputError
 from elastocap.tracking import settings
 from elastocap.tracking.rigidity import RigidResiduals
 
-__all__ = ["slid_in_depth"]
+if TYPE_CHECKING:
+    from elastocap.tracking.step import FrameTracker
+
+__all__ = ["along_run", "along_state", "slid_in_depth"]
 
 
-def slid_in_depth(residuals: RigidResiduals) -> NDArray[np.bool_]:
+def along_run(previous: NDArray[np.int64], over: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """(N,) the number of consecutive frames, this one included, on which each point was
+    ``over`` (N,) the bound (``previous``: the counts of the frame before, as long as
+    ``over`` or shorter; points seeded since start at zero)."""
+    run = np.zeros(len(over), np.int64)
+    m = min(len(previous), len(over))
+    run[:m] = previous[:m]
+    return np.where(over, run + 1, 0)
+
+
+def slid_in_depth(tracker: FrameTracker, residuals: RigidResiduals) -> NDArray[np.bool_]:
     """(N,) the points farther along the direction to their cameras from their neighbours'
-    rigid prediction than ``settings.SLIDE_ALONG`` pixel equivalents (False where no
-    prediction was made, and everywhere when the setting is infinite: off).
+    rigid prediction than ``settings.SLIDE_ALONG`` pixel equivalents on
+    ``settings.SLIDE_ALONG_FRAMES`` consecutive frames, this one included (the count kept in
+    ``tracker.along_run``; a frame without a prediction restarts it). None when the bound is
+    infinite (off).
+
+    The pair's depth noise crosses the bound on single frames of points that did not slide
+    (a tenth of a pixel of disparity is a pixel equivalent); a slide stays. On the tuning
+    captures (benches/log/139-kept2.md) two frames over 5 px-eq withhold a third of the
+    positions that one frame over 5 does, for two thirds of the far ones.
 
     Raises
     ------
     InvalidInputError
-        ``settings.SLIDE_ALONG`` is NaN or not positive.
+        ``settings.SLIDE_ALONG`` is NaN or not positive, or ``settings.SLIDE_ALONG_FRAMES``
+        not a whole number >= 1.
     """
     bound = float(settings.SLIDE_ALONG)
+    frames = settings.SLIDE_ALONG_FRAMES
     if np.isnan(bound) or bound <= 0:
         raise InvalidInputError(f"settings.SLIDE_ALONG must be positive (infinite: off), got {bound}")
+    if not (isinstance(frames, (int, np.integer)) and not isinstance(frames, bool) and frames >= 1):
+        raise InvalidInputError(f"settings.SLIDE_ALONG_FRAMES must be a whole number >= 1, got {frames!r}")
     if np.isinf(bound):
         return np.zeros(len(residuals.along), bool)
     with np.errstate(invalid="ignore"):
-        return np.asarray(residuals.along > bound)
+        over = np.asarray(residuals.along > bound)
+    tracker.along_run = along_run(tracker.along_run, over)
+    return np.asarray(tracker.along_run >= frames)
+
+
+def along_state(tracker: FrameTracker, n: int) -> dict[str, NDArray[np.int32]]:
+    """The frame file's ``along_run`` (n,) int32: each point's count of frames beyond the
+    bound, which a resumed run reads back (:func:`~elastocap.tracking.step_state.resume_state`);
+    nothing while the check is off, so that the files are as they were without it."""
+    if not np.isfinite(float(settings.SLIDE_ALONG)):
+        return {}
+    out = np.zeros(n, np.int32)
+    m = min(n, len(tracker.along_run))
+    out[:m] = tracker.along_run[:m]
+    return {"along_run": out}

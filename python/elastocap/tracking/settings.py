@@ -268,7 +268,8 @@ SLIDE_STICKY = True
 # to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely)
 # are withheld as SLID too, sticky with SLIDE_STICKY. Infinite: off (main's tracks before
 # session 33). Tuning capture m15 (benches/log/139-kept2.md): PLACEHOLDER
-SLIDE_ALONG = 6.0
+SLIDE_ALONG = 5.0
+SLIDE_ALONG_FRAMES = 2
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
 # (any camera, not only those holding the point's views); infinite: off. Output only. Most

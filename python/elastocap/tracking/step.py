@@ -24,6 +24,7 @@ from elastocap.capture import Capture
 from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
+from elastocap.tracking.depth_slide import along_state
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.frame_images import CheckedImages
 from elastocap.tracking.handover import hand_over
@@ -78,6 +79,9 @@ class FrameTracker:
         # Per point: found slid off its neighbours' rigid map (settings.SLIDE); withheld
         # from then on.
         self.slid = np.zeros(0, bool)
+        # Per point: consecutive frames its depth lay beyond settings.SLIDE_ALONG from that
+        # map (depth_slide.py).
+        self.along_run = np.zeros(0, np.int64)
         self.texture: list[float] = []
         self.keep_texture = 0.0
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
@@ -204,6 +208,7 @@ class FrameTracker:
             # Consecutive frames each held view was predicted hidden: a resumed run ends
             # the same views (settings.HIDDEN_FRAMES) as one run.
             "hidden_run": self.hidden.astype(np.int32),
+            **along_state(self, total),
             **({} if self.lost is None else self.lost.state(total)),
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),

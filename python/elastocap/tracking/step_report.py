@@ -100,7 +100,7 @@ def withhold_slid(tracker: FrameTracker, x_in: NDArray[np.float64], cov_in: NDAr
     with np.errstate(invalid="ignore"):
         slid = res.across > settings.SLIDE + settings.SLIDE_SCALE * np.nan_to_num(res.held_out)
     # And along the rays: the pair's depth slid (depth_slide.py; settings.SLIDE_ALONG).
-    slid |= slid_in_depth(res)
+    slid |= slid_in_depth(tracker, res)
     if len(tracker.slid) < len(x):
         tracker.slid = np.concatenate([tracker.slid, np.zeros(len(x) - len(tracker.slid), bool)])
     if settings.SLIDE_STICKY:

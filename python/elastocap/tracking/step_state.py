@@ -46,6 +46,8 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
     if "hidden_run" in last:
         # Files written before it was recorded restart the counts at zero.
         tracker.hidden = np.asarray(last["hidden_run"], np.int64)
+    if "along_run" in last:
+        tracker.along_run = np.asarray(last["along_run"], np.int64)
     tracker.seeded_at = np.full(n, -1, np.int64)
     for frame in chosen[:done]:
         written = read_frame(frame_file(out, frame))
