@@ -50,8 +50,9 @@ def slid_in_depth(tracker: FrameTracker, residuals: RigidResiduals) -> NDArray[n
 
     The pair's depth noise crosses the bound on single frames of points that did not slide
     (a tenth of a pixel of disparity is a pixel equivalent); a slide stays. On the tuning
-    captures (benches/log/139-kept2.md) two frames over 5 px-eq withhold a third of the
-    positions that one frame over 5 does, for two thirds of the far ones.
+    captures m15 / m41 (benches/log/139-kept2.md) two frames over 5 px-eq withhold a quarter
+    / two fifths of the positions that one frame over 5 does, for two thirds / half of the
+    far ones.
 
     Raises
     ------

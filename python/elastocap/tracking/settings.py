@@ -264,12 +264,18 @@ SLIDE = 4.0
 SLIDE_SCALE = 0.5
 SLIDE_STICKY = True
 # The same prediction along the rays (:mod:`elastocap.tracking.depth_slide`): positions whose
-# intersection lies farther than this many pixel equivalents from it along the direction
-# to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely)
-# are withheld as SLID too, sticky with SLIDE_STICKY. Infinite: off (main's tracks before
-# session 33). Tuning capture m15 (benches/log/139-kept2.md): PLACEHOLDER
-SLIDE_ALONG = 5.0
-SLIDE_ALONG_FRAMES = 2
+# intersection lies farther than SLIDE_ALONG pixel equivalents from it along the direction
+# to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely) on
+# SLIDE_ALONG_FRAMES consecutive frames are withheld as SLID too, sticky with SLIDE_STICKY.
+# Infinite: off (main's tracks before session 33). Output only. Tuning captures m15 / m41 /
+# m69, with SEED_NEEDS_PAIR, true reference, all points (benches/log/139-kept2.md): kept
+# 3-D beyond 5 px-eq 1.519 / 0.665 / 1.521% -> 0.953 / 0.540 / 1.034% (6, 1 frame), 1.034 /
+# 0.592 / 1.238% (5, 2 frames); through -0.87 / -1.37 / -1.64 and -0.26 / -1.16 / -1.03
+# points; through with RMS <= 0.5 px within -0.3 point. Withholding costs a through track
+# its through: no bound tried (4-8 px-eq, 1-3 frames, scaled by the neighbours' residual)
+# takes m15 under 1% for less than a point of m41's through.
+SLIDE_ALONG = 6.0
+SLIDE_ALONG_FRAMES = 1
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
 # (any camera, not only those holding the point's views); infinite: off. Output only. Most
@@ -428,6 +434,7 @@ SEED_DEPTH_SIZE = 0
 # New points that hold no narrow stereo pair (two cameras each other's nearest by the angle
 # of their axes) are dropped as they are seeded (tracking/seed_pairs.py): their depth was
 # matched across a wide baseline, or their pair's view was the intersection's blunder.
-# False: kept (main's tracks before session 33). Tuning captures (benches/log/139-kept2.md):
-# PLACEHOLDER
+# False: kept (main's tracks before session 33). Tuning captures m15 / m68 (alone,
+# benches/log/139-kept2.md): kept 3-D beyond 5 px-eq 1.519 / 0.722% -> 1.397 / 0.598%,
+# through +0.05 / +0.05 point, 2 / 13 seeds fewer.
 SEED_NEEDS_PAIR = True
