@@ -6,14 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_track_slide import PIXEL, _pair, _tracker
+from test_track_slide import PIXEL, _pair, _tracker, withheld_on_frame
 
 from elastocap import InvalidInputError
 from elastocap.tracking import settings
 from elastocap.tracking.depth_slide import slid_in_depth
-from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.rigidity import RigidResiduals, rigid_fusion
-from elastocap.tracking.step_report import withhold_slid
+from elastocap.tracking.rigidity import RigidResiduals
 
 
 def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18) -> tuple[list[bool], list[bool]]:
@@ -51,15 +49,7 @@ def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18
         truth = base @ rot.T + np.array([0.004 * f, -0.002 * f, 0.0])
         x = truth + rng.normal(0, 0.2 * PIXEL, (m, 3)) + rng.normal(0, 0.7 * PIXEL, (m, 1)) * ray
         x[slider] += rate * PIXEL * f * ray
-        if f == 0:
-            tracker.seeded_at = np.zeros(m, np.int64)
-            tracker.history = {0: x.copy()}
-        fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
-                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
-                                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
-        out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
-        withheld = flags == TrackFlag.SLID
-        np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+        withheld = withheld_on_frame(tracker, f, x, cov, pixel, views)
         mine.append(bool(withheld[slider]))
         others.append(bool(withheld[np.arange(m) != slider].any()))
     return mine, others

@@ -40,6 +40,23 @@ def _tracker(cameras: list[Camera]) -> FrameTracker:
     return tracker
 
 
+def withheld_on_frame(tracker: FrameTracker, frame: int, x: np.ndarray, cov: np.ndarray, pixel: np.ndarray,
+                      views: np.ndarray) -> np.ndarray:
+    """(M,) which of the intersections ``x`` (M, 3) the report withholds as SLID on ``frame``
+    (frame 0 seeds them all), after the rigid fusion, as the step does."""
+    m = len(x)
+    if frame == 0:
+        tracker.seeded_at = np.zeros(m, np.int64)
+        tracker.history = {0: x.copy()}
+    fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
+                               sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
+                               candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+    out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
+    withheld = flags == TrackFlag.SLID
+    np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+    return withheld
+
+
 @pytest.mark.parametrize("rate", [0.25, 0.5])
 def test_a_point_sliding_in_both_views_is_withheld_and_its_neighbours_are_not(monkeypatch, rate):
     # A forearm-sized patch of 60 points turns and moves rigidly over 40 frames; one point
@@ -73,15 +90,7 @@ def test_a_point_sliding_in_both_views_is_withheld_and_its_neighbours_are_not(mo
         local[slider, 1] += rate * PIXEL * f
         truth = local @ rot.T + np.array([0.004 * f, -0.002 * f, 0.0])
         x = truth + rng.normal(0, 0.2 * PIXEL, (m, 3)) + rng.normal(0, 1.5 * PIXEL, (m, 1)) * ray
-        if f == 0:
-            tracker.seeded_at = np.zeros(m, np.int64)
-            tracker.history = {0: x.copy()}
-        fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
-                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
-                                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
-        out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
-        withheld = flags == TrackFlag.SLID
-        np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+        withheld = withheld_on_frame(tracker, f, x, cov, pixel, views)
         assert not withheld[np.arange(m) != slider].any(), f"a rigidly moving neighbour withheld on frame {f}"
         flagged_at.append(bool(withheld[slider]))
     first = flagged_at.index(True)
