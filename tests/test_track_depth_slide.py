@@ -14,7 +14,7 @@ from elastocap.tracking.depth_slide import slid_in_depth
 from elastocap.tracking.rigidity import RigidResiduals
 
 
-def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18) -> tuple[list[bool], list[bool]]:
+def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 40, leaves: bool = True) -> tuple[list[bool], list[bool]]:
     """A forearm-sized patch of 60 points turning and moving rigidly over ``frames`` frames,
     seen by a narrow pair looking along z; one point's depth slides ``rate`` px-eq a frame
     along the rays (the pair's disparity drifting: its intersection agrees with itself),
@@ -22,15 +22,15 @@ def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18
     Intersections carry the noise of a re-tied pair: 0.2 px-eq across the rays, 0.7 along
     them (the seeding frame's and this one's together: a median 0.95 px-eq along the rays
     from the rigid prediction, as m15's kept positions within 5 px-eq of the truth have).
-    The slider stays in its neighbours' rigid fits (withheld, it is still tracked) and pulls
-    their predictions by a fraction of its offset: over 18 frames (the slider 7-9 px-eq off)
-    that stays under the bound; far beyond, its neighbours follow it over (left alone).
+    Once found, the slider leaves its neighbours' rigid fits when ``leaves``
+    (``settings.SLIDE_ALONG_LEAVES``).
     Returns, per frame, whether the slider was withheld and whether any other point was."""
     monkeypatch.setattr(settings, "SLIDE", 4.0)
     monkeypatch.setattr(settings, "SLIDE_SCALE", 0.5)
     monkeypatch.setattr(settings, "SLIDE_STICKY", True)
     monkeypatch.setattr(settings, "SLIDE_ALONG", along)
     monkeypatch.setattr(settings, "SLIDE_ALONG_FRAMES", over)
+    monkeypatch.setattr(settings, "SLIDE_ALONG_LEAVES", leaves)
     rng = np.random.default_rng(3)
     m = 60
     angle = rng.uniform(-1.0, 1.0, m)
@@ -56,7 +56,7 @@ def _run(monkeypatch, along: float, rate: float, over: int = 1, frames: int = 18
 
 
 @pytest.mark.parametrize(("along", "over"), [(6.0, 1), (5.0, 2)])
-@pytest.mark.parametrize("rate", [0.4, 0.5])
+@pytest.mark.parametrize("rate", [0.3, 0.6])
 def test_a_point_whose_depth_slides_is_withheld_and_its_neighbours_are_not(monkeypatch, rate, along, over):
     mine, others = _run(monkeypatch, along, rate, over)
     assert not any(others), "a rigidly moving neighbour withheld"
@@ -66,6 +66,13 @@ def test_a_point_whose_depth_slides_is_withheld_and_its_neighbours_are_not(monke
     # after (sticky).
     assert (along - 3.0) / rate <= first <= (along + 3.0) / rate + over - 1
     assert all(mine[first:])
+
+
+def test_a_point_slid_in_depth_left_in_its_neighbours_fits_drags_them_over(monkeypatch):
+    # Withheld but still tracked, the slider pulls its neighbours' rigid predictions by a
+    # share of its offset: left in their fits, some follow it over the bound.
+    mine, others = _run(monkeypatch, 6.0, 0.6, leaves=False)
+    assert mine.index(True) < others.index(True)
 
 
 def test_the_slide_along_the_rays_passes_the_across_check_alone(monkeypatch):

@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from elastocap.cameras import Camera
 from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import planned_positions
 from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
+from elastocap.tracking.rigidity import neighbour_plans, rigid_fusion, rigid_residuals
 from elastocap.tracking.step import FrameTracker
 from elastocap.tracking.step_report import withhold_slid
 
@@ -37,21 +38,25 @@ def _tracker(cameras: list[Camera]) -> FrameTracker:
     tracker.history = {}
     tracker.slid = np.zeros(0, bool)
     tracker.along_run = np.zeros(0, np.int64)
+    tracker.depth_slid = np.zeros(0, bool)
     return tracker
 
 
 def withheld_on_frame(tracker: FrameTracker, frame: int, x: np.ndarray, cov: np.ndarray, pixel: np.ndarray,
                       views: np.ndarray) -> np.ndarray:
     """(M,) which of the intersections ``x`` (M, 3) the report withholds as SLID on ``frame``
-    (frame 0 seeds them all), after the rigid fusion, as the step does."""
+    (frame 0 seeds them all), after the rigid fusion, with the neighbours the step's report
+    chooses (:func:`~elastocap.tracking.step_report.reported`)."""
     m = len(x)
     if frame == 0:
         tracker.seeded_at = np.zeros(m, np.int64)
         tracker.history = {0: x.copy()}
-    fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
-                               sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
-                               candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
-    out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
+    options = dict(neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
+                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+    plans = neighbour_plans(planned_positions(tracker, x), cov, pixel, tracker.seeded_at, tracker.history, **options)
+    fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, sigma=settings.RIGID_SIGMA,
+                               plans=plans, **options)
+    out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views, plans=plans)
     withheld = flags == TrackFlag.SLID
     np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
     return withheld

@@ -28,7 +28,7 @@ from elastocap.tracking.rigidity import RigidResiduals
 if TYPE_CHECKING:
     from elastocap.tracking.step import FrameTracker
 
-__all__ = ["along_run", "along_state", "slid_in_depth"]
+__all__ = ["along_run", "along_slid", "along_state", "planned_positions", "slid_in_depth"]
 
 
 def along_run(previous: NDArray[np.int64], over: NDArray[np.bool_]) -> NDArray[np.int64]:
@@ -71,7 +71,40 @@ def slid_in_depth(tracker: FrameTracker, residuals: RigidResiduals) -> NDArray[n
     with np.errstate(invalid="ignore"):
         over = np.asarray(residuals.along > bound)
     tracker.along_run = along_run(tracker.along_run, over)
-    return np.asarray(tracker.along_run >= frames)
+    slid = np.asarray(tracker.along_run >= frames)
+    tracker.depth_slid = _grown(tracker.depth_slid, len(slid)) | slid
+    return slid
+
+
+def along_slid(previous: NDArray[np.bool_], run: NDArray[np.integer]) -> NDArray[np.bool_]:
+    """(N,) the points found slid in depth so far: ``previous`` (as long or shorter) and those
+    whose count ``run`` (N,) of a written frame reached ``settings.SLIDE_ALONG_FRAMES`` (a
+    resumed run's state, :func:`~elastocap.tracking.step_state.resume_state`)."""
+    return _grown(previous, len(run)) | (np.asarray(run) >= settings.SLIDE_ALONG_FRAMES)
+
+
+def _grown(flags: NDArray[np.bool_], n: int) -> NDArray[np.bool_]:
+    out = np.zeros(n, bool)
+    m = min(n, len(flags))
+    out[:m] = flags[:m]
+    return out
+
+
+def planned_positions(tracker: FrameTracker, x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The intersections ``x`` (N, 3) the neighbours' rigid fits are chosen from and fitted
+    to: without the points found slid in depth on an earlier frame (NaN rows) when
+    ``settings.SLIDE_ALONG_LEAVES``. Withheld, such a point is still tracked; left in, it
+    pulls its neighbours' predictions by a share of its offset and takes them over the
+    bound after it (m15 / m41: kept 3-D beyond 5 px-eq 0.953 / 0.540% -> 0.830 / 0.476%,
+    through 27.74 / 30.77% -> 27.74 / 30.56%; benches/log/139-kept2.md). ``x`` itself
+    where there are none."""
+    if not settings.SLIDE_ALONG_LEAVES or not tracker.depth_slid.any():
+        return x
+    gone = np.flatnonzero(tracker.depth_slid)
+    gone = gone[gone < len(x)]
+    out = x.copy()
+    out[gone] = np.nan
+    return out
 
 
 def along_state(tracker: FrameTracker, n: int) -> dict[str, NDArray[np.int32]]:

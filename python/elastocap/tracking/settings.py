@@ -276,6 +276,10 @@ SLIDE_STICKY = True
 # takes m15 under 1% for less than a point of m41's through.
 SLIDE_ALONG = 6.0
 SLIDE_ALONG_FRAMES = 1
+# The points so found leave their neighbours' rigid fits (the fusion's and both checks'
+# predictions) from the next frame on: withheld, they are still tracked, and left in they
+# pull their neighbours' predictions after them (depth_slide.planned_positions).
+SLIDE_ALONG_LEAVES = True
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
 # (any camera, not only those holding the point's views); infinite: off. Output only. Most

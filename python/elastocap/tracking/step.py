@@ -82,6 +82,7 @@ class FrameTracker:
         # Per point: consecutive frames its depth lay beyond settings.SLIDE_ALONG from that
         # map (depth_slide.py).
         self.along_run = np.zeros(0, np.int64)
+        self.depth_slid = np.zeros(0, bool)
         self.texture: list[float] = []
         self.keep_texture = 0.0
         # The coarse-to-fine search's reduced images of the last two frames (a frame's

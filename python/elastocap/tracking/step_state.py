@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import along_slid
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import frame_file, read_frame
 
@@ -58,6 +59,8 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
         if new.size:
             tracker.seeded_at[new] = frame
             tracker.history[frame] = crossed
+        if "along_run" in written:
+            tracker.depth_slid = along_slid(tracker.depth_slid, written["along_run"])
         found = np.flatnonzero(written["flags"] == TrackFlag.SLID)
         if found.size:
             tracker.slid = np.concatenate([tracker.slid, np.zeros(max(0, found.max() + 1 - len(tracker.slid)), bool)])
