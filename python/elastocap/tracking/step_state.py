@@ -60,7 +60,7 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
             tracker.seeded_at[new] = frame
             tracker.history[frame] = crossed
         if "along_run" in written:
-            tracker.depth_slid = along_slid(tracker.depth_slid, written["along_run"])
+            tracker.depth_slid = along_slid(tracker.depth_slid, np.asarray(written["along_run"], np.int64))
         found = np.flatnonzero(written["flags"] == TrackFlag.SLID)
         if found.size:
             tracker.slid = np.concatenate([tracker.slid, np.zeros(max(0, found.max() + 1 - len(tracker.slid)), bool)])
