@@ -274,7 +274,7 @@ SLIDE_STICKY = True
 # points; through with RMS <= 0.5 px within -0.3 point. Withholding costs a through track
 # its through: no bound tried (4-8 px-eq, 1-3 frames, scaled by the neighbours' residual)
 # takes m15 under 1% for less than a point of m41's through.
-SLIDE_ALONG = 6.0
+SLIDE_ALONG = 8.0
 SLIDE_ALONG_FRAMES = 1
 # The points so found leave their neighbours' rigid fits (the fusion's and both checks'
 # predictions) from the next frame on: withheld, they are still tracked, and left in they
