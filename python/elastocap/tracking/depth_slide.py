@@ -12,7 +12,10 @@ looks across the rays only; this one looks along them, at the same rigid predict
 (:func:`~elastocap.tracking.rigidity.rigid_residuals`' ``along``: the distance from where the
 neighbours' rigid motion since the seeding frame puts the point, along the direction to its
 cameras, pixel equivalents). Its threshold sits above the pair's depth noise (a median 0.95
-px-eq for the kept positions within 5 px-eq of the truth on m15, 3.4 for those beyond)."""
+px-eq for the kept positions within 5 px-eq of the truth on m15, 3.4 for those beyond). The
+prediction is no better than the intersection where they disagree (half of the time the
+neighbours slid too), so the position is withheld, not moved; the point found leaves its
+neighbours' fits (:func:`planned_positions`)."""
 
 from __future__ import annotations
 
@@ -95,9 +98,9 @@ def planned_positions(tracker: FrameTracker, x: NDArray[np.float64]) -> NDArray[
     to: without the points found slid in depth on an earlier frame (NaN rows) when
     ``settings.SLIDE_ALONG_LEAVES``. Withheld, such a point is still tracked; left in, it
     pulls its neighbours' predictions by a share of its offset and takes them over the
-    bound after it (m15 / m41: kept 3-D beyond 5 px-eq 0.953 / 0.540% -> 0.830 / 0.476%,
-    through 27.74 / 30.77% -> 27.74 / 30.56%; benches/log/139-kept2.md). ``x`` itself
-    where there are none."""
+    bound after it (m15 / m41 at 6 px-eq: kept 3-D beyond 5 px-eq 0.953 / 0.540% -> 0.830 /
+    0.476%, through 27.74 / 30.77% -> 27.74 / 30.56%; benches/log/139-kept2.md). ``x``
+    itself where there are none."""
     if not settings.SLIDE_ALONG_LEAVES or not tracker.depth_slid.any():
         return x
     gone = np.flatnonzero(tracker.depth_slid)

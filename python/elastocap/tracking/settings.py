@@ -266,19 +266,18 @@ SLIDE_STICKY = True
 # The same prediction along the rays (:mod:`elastocap.tracking.depth_slide`): positions whose
 # intersection lies farther than SLIDE_ALONG pixel equivalents from it along the direction
 # to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely) on
-# SLIDE_ALONG_FRAMES consecutive frames are withheld as SLID too, sticky with SLIDE_STICKY.
-# Infinite: off (main's tracks before session 33). Output only. Tuning captures m15 / m41 /
-# m69, with SEED_NEEDS_PAIR, true reference, all points (benches/log/139-kept2.md): kept
-# 3-D beyond 5 px-eq 1.519 / 0.665 / 1.521% -> 0.953 / 0.540 / 1.034% (6, 1 frame), 1.034 /
-# 0.592 / 1.238% (5, 2 frames); through -0.87 / -1.37 / -1.64 and -0.26 / -1.16 / -1.03
-# points; through with RMS <= 0.5 px within -0.3 point. Withholding costs a through track
-# its through: no bound tried (4-8 px-eq, 1-3 frames, scaled by the neighbours' residual)
-# takes m15 under 1% for less than a point of m41's through.
+# SLIDE_ALONG_FRAMES consecutive frames are withheld as SLID too, sticky with SLIDE_STICKY;
+# with SLIDE_ALONG_LEAVES such points leave their neighbours' rigid fits (the fusion's and
+# both checks' predictions) from the next frame on: withheld, they are still tracked, and
+# left in they pull their neighbours' predictions after them. Infinite: off (main's tracks
+# before session 33). Tuning captures m15 / m41, with SEED_NEEDS_PAIR, true reference, all
+# points (benches/log/139-kept2.md): kept 3-D beyond 5 px-eq 1.519 / 0.665% -> 0.970 /
+# 0.537%, through -0.41 / -0.53 point, through with RMS <= 0.5 px -0.29 / -0.32 (8, leaving);
+# 0.964 / 0.520%, -0.56 / -0.95 (7, leaving); 0.830 / 0.476%, -0.87 / -1.58 (6, leaving);
+# 0.953 / 0.540%, -0.87 / -1.37 (6, staying); 1.034 / 0.592%, -0.26 / -1.16 (5 on 2 frames,
+# staying). Withholding costs a through track its through.
 SLIDE_ALONG = 8.0
 SLIDE_ALONG_FRAMES = 1
-# The points so found leave their neighbours' rigid fits (the fusion's and both checks'
-# predictions) from the next frame on: withheld, they are still tracked, and left in they
-# pull their neighbours' predictions after them (depth_slide.planned_positions).
 SLIDE_ALONG_LEAVES = True
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
