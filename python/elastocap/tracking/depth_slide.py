@@ -48,8 +48,8 @@ def slid_in_depth(tracker: FrameTracker, residuals: RigidResiduals) -> NDArray[n
     """(N,) the points farther along the direction to their cameras from their neighbours'
     rigid prediction than ``settings.SLIDE_ALONG`` pixel equivalents on
     ``settings.SLIDE_ALONG_FRAMES`` consecutive frames, this one included (the count kept in
-    ``tracker.along_run``; a frame without a prediction restarts it). None when the bound is
-    infinite (off).
+    ``tracker.along_run``; a frame without a prediction restarts it; those found are added
+    to ``tracker.depth_slid``). No point when the bound is infinite (off).
 
     The pair's depth noise crosses the bound on single frames of points that did not slide
     (a tenth of a pixel of disparity is a pixel equivalent); a slide stays. On the tuning
