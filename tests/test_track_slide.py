@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from elastocap.cameras import Camera
 from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import planned_positions
 from elastocap.tracking.flags import TrackFlag
-from elastocap.tracking.rigidity import rigid_fusion, rigid_residuals
+from elastocap.tracking.rigidity import neighbour_plans, rigid_fusion, rigid_residuals
 from elastocap.tracking.step import FrameTracker
 from elastocap.tracking.step_report import withhold_slid
 
@@ -36,7 +37,29 @@ def _tracker(cameras: list[Camera]) -> FrameTracker:
     tracker.seeded_at = np.zeros(0, np.int64)
     tracker.history = {}
     tracker.slid = np.zeros(0, bool)
+    tracker.along_run = np.zeros(0, np.int64)
+    tracker.depth_slid = np.zeros(0, bool)
     return tracker
+
+
+def withheld_on_frame(tracker: FrameTracker, frame: int, x: np.ndarray, cov: np.ndarray, pixel: np.ndarray,
+                      views: np.ndarray) -> np.ndarray:
+    """(M,) which of the intersections ``x`` (M, 3) the report withholds as SLID on ``frame``
+    (frame 0 seeds them all), after the rigid fusion, with the neighbours the step's report
+    chooses (:func:`~elastocap.tracking.step_report.reported`)."""
+    m = len(x)
+    if frame == 0:
+        tracker.seeded_at = np.zeros(m, np.int64)
+        tracker.history = {0: x.copy()}
+    options = dict(neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
+                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
+    plans = neighbour_plans(planned_positions(tracker, x), cov, pixel, tracker.seeded_at, tracker.history, **options)
+    fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, sigma=settings.RIGID_SIGMA,
+                               plans=plans, **options)
+    out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views, plans=plans)
+    withheld = flags == TrackFlag.SLID
+    np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+    return withheld
 
 
 @pytest.mark.parametrize("rate", [0.25, 0.5])
@@ -49,6 +72,9 @@ def test_a_point_sliding_in_both_views_is_withheld_and_its_neighbours_are_not(mo
     monkeypatch.setattr(settings, "SLIDE", 4.0)
     monkeypatch.setattr(settings, "SLIDE_SCALE", 1.0)
     monkeypatch.setattr(settings, "SLIDE_STICKY", True)
+    # The check across the rays alone: the depth noise below (1.5 px-eq a frame, drawn
+    # afresh) is the along check's to judge (test_track_depth_slide.py).
+    monkeypatch.setattr(settings, "SLIDE_ALONG", float("inf"))
     rng = np.random.default_rng(11)
     m, frames = 60, 40
     angle = rng.uniform(-1.0, 1.0, m)
@@ -69,15 +95,7 @@ def test_a_point_sliding_in_both_views_is_withheld_and_its_neighbours_are_not(mo
         local[slider, 1] += rate * PIXEL * f
         truth = local @ rot.T + np.array([0.004 * f, -0.002 * f, 0.0])
         x = truth + rng.normal(0, 0.2 * PIXEL, (m, 3)) + rng.normal(0, 1.5 * PIXEL, (m, 1)) * ray
-        if f == 0:
-            tracker.seeded_at = np.zeros(m, np.int64)
-            tracker.history = {0: x.copy()}
-        fused, fcov = rigid_fusion(x, cov, pixel, tracker.seeded_at, tracker.history, neighbours=settings.RIGID_NEIGHBOURS,
-                                   sigma=settings.RIGID_SIGMA, both_frames=settings.RIGID_BOTH_FRAMES,
-                                   candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
-        out, _, flags = withhold_slid(tracker, x, cov, fused, fcov, np.zeros(m, np.uint8), pixel, views)
-        withheld = flags == TrackFlag.SLID
-        np.testing.assert_array_equal(np.isnan(out).all(axis=1), withheld)
+        withheld = withheld_on_frame(tracker, f, x, cov, pixel, views)
         assert not withheld[np.arange(m) != slider].any(), f"a rigidly moving neighbour withheld on frame {f}"
         flagged_at.append(bool(withheld[slider]))
     first = flagged_at.index(True)

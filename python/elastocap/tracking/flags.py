@@ -52,8 +52,10 @@ class TrackFlag(IntEnum):
         neighbours since its seeding frame puts it than ``settings.SLIDE`` pixel
         equivalents plus ``settings.SLIDE_SCALE`` times the neighbours' own residual to
         that motion: it slid along the surface in both views of its pair, a few tenths of a
-        pixel a frame, which no one-frame check sees (:func:`~elastocap.tracking.rigidity.rigid_residuals`).
-        Withheld (the tracker follows it on), and on every later frame of the track.
+        pixel a frame, which no one-frame check sees (:func:`~elastocap.tracking.rigidity.rigid_residuals`);
+        or farther along its rays than ``settings.SLIDE_ALONG`` (its pair's depth slid,
+        :mod:`~elastocap.tracking.depth_slide`). Withheld (the tracker follows it on), and on
+        every later frame of the track.
     OUTSIDE : 14
         Tracked, but its position projects farther than ``settings.OUTSIDE`` pixels
         outside the silhouette of a camera whose image it falls in: off the surface, in

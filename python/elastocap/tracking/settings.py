@@ -263,6 +263,22 @@ UNCERTAIN_SD = float("inf")
 SLIDE = 4.0
 SLIDE_SCALE = 0.5
 SLIDE_STICKY = True
+# The same prediction along the rays (:mod:`elastocap.tracking.depth_slide`): positions whose
+# intersection lies farther than SLIDE_ALONG pixel equivalents from it along the direction
+# to their cameras (the pair's depth slid: a narrow pair seeing the surface obliquely) on
+# SLIDE_ALONG_FRAMES consecutive frames are withheld as SLID too, sticky with SLIDE_STICKY;
+# with SLIDE_ALONG_LEAVES such points leave their neighbours' rigid fits (the fusion's and
+# both checks' predictions) from the next frame on: withheld, they are still tracked, and
+# left in they pull their neighbours' predictions after them. Infinite: off (main's tracks
+# before session 33). Tuning captures m15 / m41, with SEED_NEEDS_PAIR, true reference, all
+# points (benches/log/139-kept2.md): kept 3-D beyond 5 px-eq 1.519 / 0.665% -> 0.970 /
+# 0.537%, through -0.41 / -0.53 point, through with RMS <= 0.5 px -0.29 / -0.32 (8, leaving);
+# 0.964 / 0.520%, -0.56 / -0.95 (7, leaving); 0.830 / 0.476%, -0.87 / -1.58 (6, leaving);
+# 0.953 / 0.540%, -0.87 / -1.37 (6, staying); 1.034 / 0.592%, -0.26 / -1.16 (5 on 2 frames,
+# staying). Withholding costs a through track its through.
+SLIDE_ALONG = 8.0
+SLIDE_ALONG_FRAMES = 1
+SLIDE_ALONG_LEAVES = True
 # Reported positions withheld as OUTSIDE (:mod:`elastocap.tracking.silhouette`): projecting
 # farther than this many pixels outside the silhouette of a camera whose image they fall in
 # (any camera, not only those holding the point's views); infinite: off. Output only. Most
@@ -418,3 +434,10 @@ SEED_PEAK_PIXELS: float | None = None
 # limb puts the seed's depth behind the surface (drift15: median 2.6 px-eq on fit seed 51's
 # late seeds, a quarter of them beyond 5).
 SEED_DEPTH_SIZE = 0
+# New points that hold no narrow stereo pair (two cameras each other's nearest by the angle
+# of their axes) are dropped as they are seeded (tracking/seed_pairs.py): their depth was
+# matched across a wide baseline, or their pair's view was the intersection's blunder.
+# False: kept (main's tracks before session 33). Tuning captures m15 / m68 (alone,
+# benches/log/139-kept2.md): kept 3-D beyond 5 px-eq 1.519 / 0.722% -> 1.397 / 0.598%,
+# through +0.05 / +0.05 point, 2 / 13 seeds fewer.
+SEED_NEEDS_PAIR = True

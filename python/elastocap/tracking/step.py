@@ -24,6 +24,7 @@ from elastocap.capture import Capture
 from elastocap.stereo.matching import noise_level
 from elastocap.tracking import settings
 from elastocap.tracking.anchors import Anchors
+from elastocap.tracking.depth_slide import along_state
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.frame_images import CheckedImages
 from elastocap.tracking.handover import hand_over
@@ -32,6 +33,7 @@ from elastocap.tracking.pyramid_search import Pyramids
 from elastocap.tracking.reacquire import reacquire
 from elastocap.tracking.revival import Lost, revive
 from elastocap.tracking.rigid_prediction import predicting_before, rigid_predictions
+from elastocap.tracking.seed_pairs import drop_unpaired
 from elastocap.tracking.step_points import locate_points
 from elastocap.tracking.step_report import reported
 from elastocap.tracking.step_state import forget_history, resume_state
@@ -77,6 +79,10 @@ class FrameTracker:
         # Per point: found slid off its neighbours' rigid map (settings.SLIDE); withheld
         # from then on.
         self.slid = np.zeros(0, bool)
+        # Per point: consecutive frames its depth lay beyond settings.SLIDE_ALONG from that
+        # map (depth_slide.py).
+        self.along_run = np.zeros(0, np.int64)
+        self.depth_slid = np.zeros(0, bool)
         self.texture: list[float] = []
         self.keep_texture = 0.0
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
@@ -159,6 +165,9 @@ class FrameTracker:
         if reseed or bare > 0:
             uv, x, xcov, flags, flags2d = add_new_points(self, grey, masks, uv, x, xcov, flags, flags2d,
                                                          bare=0 if reseed else bare)
+            if settings.SEED_NEEDS_PAIR:
+                # Seeds whose depth no narrow pair measured (seed_pairs.py).
+                uv, x, xcov, flags, flags2d = drop_unpaired(self, n, uv, x, xcov, flags, flags2d)
         total = len(uv)
         if self.anchors is not None:
             views_now = np.isfinite(uv[..., 0])
@@ -200,6 +209,7 @@ class FrameTracker:
             # Consecutive frames each held view was predicted hidden: a resumed run ends
             # the same views (settings.HIDDEN_FRAMES) as one run.
             "hidden_run": self.hidden.astype(np.int32),
+            **along_state(self, total),
             **({} if self.lost is None else self.lost.state(total)),
             **({} if self.anchors is None else {
                 "anchor_frame": np.where(self.anchors.held[:total], self.anchors.frame[:total], -1),

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import planned_positions, slid_in_depth
 from elastocap.tracking.drift import drift_covariance, not_positive_definite, weakest_sd
 from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
@@ -48,7 +49,7 @@ def reported(tracker: FrameTracker, uv: NDArray[np.float64], x: NDArray[np.float
     # covariances, the same options): chosen once.
     plans = None
     if settings.RIGID or np.isfinite(settings.SLIDE):
-        plans = neighbour_plans(x_in, cov_in, pixel, tracker.seeded_at, tracker.history,
+        plans = neighbour_plans(planned_positions(tracker, x_in), cov_in, pixel, tracker.seeded_at, tracker.history,
                                 neighbours=settings.RIGID_NEIGHBOURS, both_frames=settings.RIGID_BOTH_FRAMES,
                                 candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH)
     if settings.RIGID:
@@ -98,6 +99,8 @@ def withhold_slid(tracker: FrameTracker, x_in: NDArray[np.float64], cov_in: NDAr
                           candidates=settings.RIGID_CANDIDATES, stretch=settings.RIGID_STRETCH, plans=plans)
     with np.errstate(invalid="ignore"):
         slid = res.across > settings.SLIDE + settings.SLIDE_SCALE * np.nan_to_num(res.held_out)
+    # And along the rays: the pair's depth slid (depth_slide.py; settings.SLIDE_ALONG).
+    slid |= slid_in_depth(tracker, res)
     if len(tracker.slid) < len(x):
         tracker.slid = np.concatenate([tracker.slid, np.zeros(len(x) - len(tracker.slid), bool)])
     if settings.SLIDE_STICKY:

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elastocap.tracking import settings
+from elastocap.tracking.depth_slide import along_slid
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.tracks import frame_file, read_frame
 
@@ -46,6 +47,8 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
     if "hidden_run" in last:
         # Files written before it was recorded restart the counts at zero.
         tracker.hidden = np.asarray(last["hidden_run"], np.int64)
+    if "along_run" in last:
+        tracker.along_run = np.asarray(last["along_run"], np.int64)
     tracker.seeded_at = np.full(n, -1, np.int64)
     for frame in chosen[:done]:
         written = read_frame(frame_file(out, frame))
@@ -56,6 +59,8 @@ def resume_state(tracker: FrameTracker, out: str | Path, chosen: list[int]) -> i
         if new.size:
             tracker.seeded_at[new] = frame
             tracker.history[frame] = crossed
+        if "along_run" in written:
+            tracker.depth_slid = along_slid(tracker.depth_slid, np.asarray(written["along_run"], np.int64))
         found = np.flatnonzero(written["flags"] == TrackFlag.SLID)
         if found.size:
             tracker.slid = np.concatenate([tracker.slid, np.zeros(max(0, found.max() + 1 - len(tracker.slid)), bool)])
