@@ -109,12 +109,14 @@ def run_body_stage(
     anchors = None
     if tracks and any((out / "tracks").glob("[0-9]*.npz")):
         anchors = SequentialAnchors(model, load_tracks(out), Z_UP_TO_WORLD)
-    # The picture's images, read before any fitting: a bad image (truncated, of another size
-    # than its calibration) stops the stage at once, not after the fit.
-    picture_images = {name: cap.image(name, wanted[0]) for name in names} if cap.has_images else None
+    picture_images: dict[str, NDArray[np.uint8]] | None = None
     attached = 0
     for frame in tqdm(wanted, desc="body", unit="frame", disable=not progress):
         masks = cap.masks(frame) if cap.has_masks else None
+        if picture_images is None and cap.has_images:
+            # The picture's images, read before any fitting (after the first masks, whose
+            # errors come first): a bad image stops the stage at once, not after the fit.
+            picture_images = {name: cap.image(name, wanted[0]) for name in names}
         stereo = _stereo_points(out, frame)
         observed = BodyObservations(
             masks=None if masks is None else [masks[n] for n in names],
