@@ -46,7 +46,7 @@ mod types;
 
 pub use pairs::match_pair_patches;
 pub(crate) use resample::wide;
-pub(crate) use single::{check_image, check_options, match_single, Single, SingleScratch};
+pub(crate) use single::{check_image, check_options, match_single, SingleScratch};
 pub use types::{
     ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Refined, Stage, Status, Warp,
     PARAMETERS,

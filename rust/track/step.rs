@@ -137,14 +137,15 @@ pub fn track_cameras(
 ) -> Result<()> {
     let views = last.len();
     let c = cameras.len();
-    if (c == 0 && views > 0) || (c > 0 && views % c != 0) {
+    // Views per camera (0 without cameras, where there must be no views either).
+    let n = views.checked_div(c).unwrap_or(0);
+    if n * c != views {
         return Err(Error::LengthMismatch {
             argument: "last",
-            expected: if c == 0 { 0 } else { views / c * c },
+            expected: n * c,
             got: views,
         });
     }
-    let n = views.checked_div(c).unwrap_or(0);
     for (argument, got) in [
         ("before", before.len()),
         ("positions", out.positions.len()),

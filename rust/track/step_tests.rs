@@ -39,6 +39,9 @@ fn texture(width: usize, height: usize, shift: [f64; 2], seed: u64) -> Vec<f32> 
         .collect()
 }
 
+/// A camera's positions, flags, covariances and correlations.
+type Outputs = (Vec<[f64; 2]>, Vec<u8>, Vec<[f64; 4]>, Vec<f64>);
+
 /// One camera's step as the staged passes ran it: the box searches, then the forward
 /// matches of the views that passed as one batch, then the backward matches as another.
 fn staged(
@@ -46,7 +49,7 @@ fn staged(
     last: &[[f64; 2]],
     before: &[[f64; 2]],
     options: &TrackOptions,
-) -> (Vec<[f64; 2]>, Vec<u8>, Vec<[f64; 4]>, Vec<f64>) {
+) -> Outputs {
     let n = last.len();
     let (mut positions, mut flags) = (vec![[f64::NAN; 2]; n], vec![0u8; n]);
     let (mut covariance, mut correlation) = (vec![[f64::NAN; 4]; n], vec![f64::NAN; n]);
@@ -298,9 +301,9 @@ fn one_pass_over_every_camera_equals_the_staged_passes_to_the_bit() {
             },
         )
         .unwrap();
-        for k in 0..3 {
+        for (k, frames) in cameras.iter().enumerate() {
             let r = k * n..(k + 1) * n;
-            let (p, f, c, r2) = staged(&cameras[k], &last[r.clone()], &before[r.clone()], &options);
+            let (p, f, c, r2) = staged(frames, &last[r.clone()], &before[r.clone()], &options);
             assert_eq!(flags[r.clone()], f[..], "camera {k}");
             assert!(same(&positions[r.clone()], &p), "camera {k}");
             assert!(same(&covariance[r.clone()], &c), "camera {k}");
