@@ -1,7 +1,7 @@
 //! One frame of every camera: predict, search the box, refine by temporal least-squares
-//! matching, check forward-backward. One parallel pass (rayon) over every camera's views,
-//! each view's stages run one after the other by the worker that takes it
-//! ([`super::step_view`]).
+//! matching, check forward-backward. One parallel pass (rayon) over every camera's seeded
+//! views, in image order, each view's stages run one after the other by the worker that
+//! takes it ([`super::step_view`]).
 //!
 //! The pass was one per stage and camera (the box searches, then a batch of forward
 //! matches through [`crate::lsm::match_weighted_patches`], then one of backward matches:
@@ -12,13 +12,18 @@
 
 use rayon::prelude::*;
 
-use super::step_view::{track_view, ViewScratch};
+use super::flags::Flag;
+use super::step_view::{track_view, View, ViewScratch};
 use crate::error::{Error, Result};
 use crate::lsm::{check_image, check_options, ImageView, Interpolation, MatchOptions};
 
 /// Gauss-Newton iterations of the forward-backward check's match (started at the inverse
 /// of the forward map).
 const BACKWARD_ITERATIONS: usize = 5;
+
+/// Rows of an image band of the views' order ([`track_cameras`]): about a view's window
+/// (a 15 px patch and a box of radius 6 span 27 rows).
+const BAND: f64 = 32.0;
 
 /// Options of the temporal step, the same for every point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -208,31 +213,43 @@ pub fn track_cameras(
             }
         }
     }
-    out.positions
-        .par_iter_mut()
-        .zip(out.flags.par_iter_mut())
-        .zip(out.covariance.par_iter_mut())
-        .zip(out.correlation.par_iter_mut())
+    // The seeded views in image order (camera, band of rows, column): each view reads a
+    // window of about `size + 2 radius` rows of its images, which its neighbours in that
+    // order read again while they are in cache (in the tracker's order, the points', the
+    // windows jump across the image). The unseeded views need no pass.
+    let mut order: Vec<(usize, usize, f64, usize)> = last
+        .iter()
         .enumerate()
-        .try_for_each_init(
-            ViewScratch::default,
-            |scratch, (i, (((position, flag), covariance), correlation))| {
-                let view = track_view(
-                    &cameras[i / n],
-                    last[i],
-                    before[i],
-                    options,
-                    &check,
-                    i % n,
-                    scratch,
-                )?;
-                *position = view.position;
-                *flag = view.flag;
-                *covariance = view.covariance;
-                *correlation = view.correlation;
-                Ok(())
-            },
-        )
+        .filter(|(_, x)| x[0].is_finite() && x[1].is_finite())
+        .map(|(i, x)| (i / n, (x[1] / BAND).floor().max(0.0) as usize, x[0], i))
+        .collect();
+    order.par_sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
+    let tracked = order
+        .par_iter()
+        .map_init(ViewScratch::default, |scratch, &(k, _, _, i)| {
+            track_view(
+                &cameras[k],
+                last[i],
+                before[i],
+                options,
+                &check,
+                i % n,
+                scratch,
+            )
+        })
+        .collect::<Result<Vec<View>>>()?;
+    let unseeded = View::lost(Flag::NotSeeded);
+    out.positions.fill(unseeded.position);
+    out.flags.fill(unseeded.flag);
+    out.covariance.fill(unseeded.covariance);
+    out.correlation.fill(unseeded.correlation);
+    for (&(_, _, _, i), view) in order.iter().zip(&tracked) {
+        out.positions[i] = view.position;
+        out.flags[i] = view.flag;
+        out.covariance[i] = view.covariance;
+        out.correlation[i] = view.correlation;
+    }
+    Ok(())
 }
 
 /// The options of the forward-backward check's match.

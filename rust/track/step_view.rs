@@ -25,7 +25,8 @@ pub(super) struct View {
 }
 
 impl View {
-    fn lost(flag: Flag) -> Self {
+    /// A view not tracked, for `flag`.
+    pub(super) fn lost(flag: Flag) -> Self {
         Self {
             flag: flag as u8,
             position: [f64::NAN; 2],
