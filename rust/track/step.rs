@@ -25,6 +25,12 @@ const BACKWARD_ITERATIONS: usize = 5;
 /// (a 15 px patch and a box of radius 6 span 27 rows).
 const BAND: f64 = 32.0;
 
+/// Most views a worker takes at once (about a millisecond of work). Rayon's own split of
+/// one pass stops at a few pieces per thread: on a shared machine a worker descheduled in
+/// the middle of a quarter of the frame's views kept the other waiting (the staged passes
+/// waited at each stage instead); pieces this small are stolen by the idle one.
+const LEAF: usize = 16;
+
 /// Options of the temporal step, the same for every point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackOptions {
@@ -226,6 +232,7 @@ pub fn track_cameras(
     order.par_sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
     let tracked = order
         .par_iter()
+        .with_max_len(LEAF)
         .map_init(ViewScratch::default, |scratch, &(k, _, _, i)| {
             track_view(
                 &cameras[k],
