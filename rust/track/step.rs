@@ -5,7 +5,7 @@
 //!
 //! The pass was one per stage and camera (the box searches, then a batch of forward
 //! matches through [`crate::lsm::match_weighted_patches`], then one of backward matches:
-//! with the batches' checks, some 50 fork-joins per frame of 8 cameras). Every view's
+//! with the batches' checks, some 50 fork-joins per call of 8 cameras). Every view's
 //! stages read only that view's inputs and the images, so the views' results are those
 //! of the staged passes to the bit; the stages' checks of their inputs are made per view,
 //! the checks of the options and images once.
