@@ -16,7 +16,8 @@
 //! image; `line` its epipolar constraint), `sandwich` (its covariance under noisy template
 //! gradients), `rich` (second-order warp terms and a gain gradient after convergence, an
 //! option), `multi` (all search images of a point, joint covariance), `pairs` (many patches
-//! across many camera pairs in one parallel call), `dense` (Cholesky and inverses of small
+//! across many camera pairs in one parallel call), `single` (one point into one search image,
+//! outside a batch: the frame step's per-view pipeline), `dense` (Cholesky and inverses of small
 //! systems), `types` (options, status, outputs).
 
 #[cfg(target_arch = "x86_64")]
@@ -38,12 +39,14 @@ mod resample;
 mod rich;
 mod sample;
 mod sandwich;
+mod single;
 #[cfg(test)]
 mod tests;
 mod types;
 
 pub use pairs::match_pair_patches;
 pub(crate) use resample::wide;
+pub(crate) use single::{check_image, check_options, match_single, SingleScratch};
 pub use types::{
     ExtraModel, ImageView, Interpolation, MatchOptions, MatchOutput, Refined, Stage, Status, Warp,
     PARAMETERS,

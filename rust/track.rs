@@ -17,7 +17,8 @@
 //! scoring by it), `ncc_at_decisive` (seeding's candidate scores, exact only where they can
 //! decide its test), `ncc_at_estimate` (its cheap estimate and the bilinear fill in blocks), `ncc_batch` (the correlation at candidates across many images in one pass),
 //! `weighted_ncc` (the box search with per-pixel template weights), `step` (one frame of
-//! one camera), `flags` (why a point is not tracked), `seed_hull` (the seeding's visual-hull
+//! every camera, one parallel pass), `step_view` (one view's stages), `flags` (why a point
+//! is not tracked), `seed_hull` (the seeding's visual-hull
 //! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
 //! `seed_peaks` (the best correlation along a seed's line and the best peak away from it),
 //! `zbuffer` (the visibility's test of nearer tracked points on a point's line of sight).
@@ -39,6 +40,9 @@ mod seed_hull;
 mod seed_peaks;
 mod step;
 #[cfg(test)]
+mod step_tests;
+mod step_view;
+#[cfg(test)]
 mod tests;
 mod weighted_ncc;
 #[cfg(test)]
@@ -53,5 +57,5 @@ pub use ncc_batch::ncc_at_cameras;
 pub use seed_depths::{hull_depths, DepthGrid};
 pub use seed_hull::{hull_inside, hull_pixels, line_pixels, HullCamera, HullView, OUTSIDE};
 pub use seed_peaks::{line_peak, Away};
-pub use step::{track_camera, CameraStep, TrackOptions};
+pub use step::{track_camera, track_cameras, CameraFrames, CameraStep, TrackOptions};
 pub use zbuffer::occluded;

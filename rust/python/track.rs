@@ -9,7 +9,8 @@ use pyo3::prelude::*;
 use super::{c_slice, invalid_input, rows};
 use crate::lsm::{ImageView, Interpolation, MatchOptions};
 use crate::track::{
-    box_search_scores, ncc_at, ncc_at_decisive, track_camera, CameraStep, TrackOptions,
+    box_search_scores, ncc_at, ncc_at_decisive, track_cameras, CameraFrames, CameraStep,
+    TrackOptions,
 };
 
 /// A C-contiguous float32 image as the core reads it.
@@ -146,25 +147,26 @@ fn track_step<'py>(
         let flags_s = flags_w.as_slice_mut()?;
         let covariance_s = covariance_w.as_slice_mut()?.as_chunks_mut::<4>().0;
         let correlation_s = correlation_w.as_slice_mut()?;
+        let cameras: Vec<CameraFrames<'_>> = (0..c)
+            .map(|k| CameraFrames {
+                previous: prev[k],
+                current: cur[k],
+                weights: weight_views.as_ref().map(|w| w[k]),
+            })
+            .collect();
         super::detach(py, || {
-            for k in 0..c {
-                let range = k * n..(k + 1) * n;
-                track_camera(
-                    &prev[k],
-                    &cur[k],
-                    &last_rows[range.clone()],
-                    &before_rows[range.clone()],
-                    weight_views.as_ref().map(|w| [&w[k][0], &w[k][1]]),
-                    &options,
-                    CameraStep {
-                        positions: &mut positions_s[range.clone()],
-                        flags: &mut flags_s[range.clone()],
-                        covariance: &mut covariance_s[range.clone()],
-                        correlation: &mut correlation_s[range],
-                    },
-                )?;
-            }
-            Ok::<(), crate::Error>(())
+            track_cameras(
+                &cameras,
+                last_rows,
+                before_rows,
+                &options,
+                CameraStep {
+                    positions: positions_s,
+                    flags: flags_s,
+                    covariance: covariance_s,
+                    correlation: correlation_s,
+                },
+            )
         })?;
     }
     Ok((positions, flags, covariance, correlation))

@@ -1,19 +1,35 @@
-//! One frame of one camera: predict, search the box, refine by temporal least-squares
-//! matching, check forward-backward. Parallel over points (rayon), the matching batched
-//! through [`crate::lsm::match_patches`].
+//! One frame of every camera: predict, search the box, refine by temporal least-squares
+//! matching, check forward-backward. One parallel pass (rayon) over every camera's seeded
+//! views, in image order, each view's stages run one after the other by the worker that
+//! takes it ([`super::step_view`]).
+//!
+//! The pass was one per stage and camera (the box searches, then a batch of forward
+//! matches through [`crate::lsm::match_weighted_patches`], then one of backward matches:
+//! with the batches' checks, some 50 fork-joins per call of 8 cameras). Every view's
+//! stages read only that view's inputs and the images, so the views' results are those
+//! of the staged passes to the bit; the stages' checks of their inputs are made per view,
+//! the checks of the options and images once.
 
 use rayon::prelude::*;
 
 use super::flags::Flag;
-use super::ncc::{box_search, BoxScratch};
+use super::step_view::{track_view, View, ViewScratch};
 use crate::error::{Error, Result};
-use crate::lsm::{
-    match_weighted_patches, ImageView, Interpolation, MatchOptions, MatchOutput, Status, PARAMETERS,
-};
+use crate::lsm::{check_image, check_options, ImageView, Interpolation, MatchOptions};
 
 /// Gauss-Newton iterations of the forward-backward check's match (started at the inverse
 /// of the forward map).
 const BACKWARD_ITERATIONS: usize = 5;
+
+/// Rows of an image band of the views' order ([`track_cameras`]): about a view's window
+/// (a 15 px patch and a box of radius 6 span 27 rows).
+const BAND: f64 = 32.0;
+
+/// Most views a worker takes at once (about a millisecond of work). Rayon's own split of
+/// one pass stops at a few pieces per thread: on a shared machine a worker descheduled in
+/// the middle of a quarter of the frame's views kept the other waiting (the staged passes
+/// waited at each stage instead); pieces this small are stolen by the idle one.
+const LEAF: usize = 16;
 
 /// Options of the temporal step, the same for every point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,6 +86,18 @@ fn invalid(argument: &'static str, value: f64, expected: &'static str) -> Error 
     }
 }
 
+/// One camera's images for the step: `previous` and `current` frame, and, when given,
+/// per-pixel weights of each (see [`track_cameras`]).
+#[derive(Debug, Clone, Copy)]
+pub struct CameraFrames<'a> {
+    /// The previous frame's grey image (the templates).
+    pub previous: ImageView<'a>,
+    /// The current frame's grey image (the search).
+    pub current: ImageView<'a>,
+    /// The weights of `previous` and `current`, each of its image's size (0 to 1).
+    pub weights: Option<[ImageView<'a>; 2]>,
+}
+
 /// Tracks the points at `last` (their positions in `previous`; NaN rows are not
 /// tracked) into `current`, predicting linearly from `before` (the positions one frame
 /// earlier; NaN rows predict no motion). `weights`, when given, are per-pixel weights of
@@ -78,10 +106,10 @@ fn invalid(argument: &'static str, value: f64, expected: &'static str) -> Error 
 /// frame's, so a patch on the silhouette's edge follows the surface and not the
 /// background in its corner (see [`crate::lsm::match_weighted_patches`]).
 ///
+/// The one-camera case of [`track_cameras`].
+///
 /// # Errors
-/// [`Error::LengthMismatch`] when `before` or the outputs do not have one entry per point,
-/// [`Error::InvalidOption`] for options out of range, and what
-/// [`crate::lsm::match_patches`] reports for images or options.
+/// As [`track_cameras`].
 pub fn track_camera(
     previous: &ImageView<'_>,
     current: &ImageView<'_>,
@@ -91,7 +119,44 @@ pub fn track_camera(
     options: &TrackOptions,
     out: CameraStep<'_>,
 ) -> Result<()> {
-    let n = last.len();
+    let frames = CameraFrames {
+        previous: *previous,
+        current: *current,
+        weights: weights.map(|[a, b]| [*a, *b]),
+    };
+    track_cameras(std::slice::from_ref(&frames), last, before, options, out)
+}
+
+/// [`track_camera`] of every camera in one parallel pass: `last`, `before` and the outputs
+/// hold `N` views per camera, camera after camera (view `p` of camera `k` at `k N + p`),
+/// camera `k` tracked from `cameras[k].previous` into `cameras[k].current` with its weights.
+/// Each camera's results are [`track_camera`]'s of that camera alone, to the bit.
+///
+/// # Errors
+/// [`Error::LengthMismatch`] when `last` does not hold the same number of views for every
+/// camera, or `before` or the outputs do not have one entry per view,
+/// [`Error::InvalidOption`] for options out of range, [`Error::WrongLength`] for an image
+/// smaller than 2x2, whose data does not match its size, or weights of another size than
+/// their image, and what the matching reports for a view's match
+/// ([`crate::lsm::match_patches`]'s errors of a non-finite or folded start).
+pub fn track_cameras(
+    cameras: &[CameraFrames<'_>],
+    last: &[[f64; 2]],
+    before: &[[f64; 2]],
+    options: &TrackOptions,
+    out: CameraStep<'_>,
+) -> Result<()> {
+    let views = last.len();
+    let c = cameras.len();
+    // Views per camera (0 without cameras, where there must be no views either).
+    let n = views.checked_div(c).unwrap_or(0);
+    if n * c != views {
+        return Err(Error::LengthMismatch {
+            argument: "last",
+            expected: n * c,
+            got: views,
+        });
+    }
     for (argument, got) in [
         ("before", before.len()),
         ("positions", out.positions.len()),
@@ -99,10 +164,10 @@ pub fn track_camera(
         ("covariance", out.covariance.len()),
         ("correlation", out.correlation.len()),
     ] {
-        if got != n {
+        if got != views {
             return Err(Error::LengthMismatch {
                 argument,
-                expected: n,
+                expected: views,
                 got,
             });
         }
@@ -132,190 +197,80 @@ pub fn track_camera(
     if size < 3 || size % 2 == 0 || size > 255 {
         return Err(invalid("size", size as f64, "an odd integer from 3 to 255"));
     }
-    out.positions.fill([f64::NAN; 2]);
-    out.covariance.fill([f64::NAN; 4]);
-    out.correlation.fill(f64::NAN);
-
-    // Box search around the linear prediction.
-    let box_weights = if options.weighted_box {
-        weights.map(|w| w[0])
-    } else {
-        None
-    };
-    let searched: Vec<(u8, [f64; 2])> = (0..n)
-        .into_par_iter()
-        .map_init(BoxScratch::default, |scratch, p| {
-            let x = last[p];
-            if !(x[0].is_finite() && x[1].is_finite()) {
-                return (Flag::NotSeeded as u8, x);
-            }
-            let b = before[p];
-            let prediction = if b[0].is_finite() && b[1].is_finite() {
-                [2.0 * x[0] - b[0], 2.0 * x[1] - b[1]]
-            } else {
-                x
-            };
-            match box_search(
-                previous,
-                x,
-                current,
-                prediction,
-                size,
-                options.radius,
-                box_weights,
-                scratch,
-            ) {
-                None => (Flag::ImageBorder as u8, x),
-                Some(best) if !(best.score >= options.min_correlation) => {
-                    (Flag::LowCorrelation as u8, x)
+    if views == 0 {
+        return Ok(());
+    }
+    let check = backward_options(&options.matching);
+    check_options(&options.matching)?;
+    check_options(&check)?;
+    for frames in cameras {
+        check_image("template", &frames.previous)?;
+        check_image("search_images", &frames.current)?;
+        if let Some(weights) = &frames.weights {
+            for (w, image) in weights.iter().zip([&frames.previous, &frames.current]) {
+                if w.width != image.width || w.height != image.height {
+                    return Err(Error::WrongLength {
+                        argument: "weights",
+                        expected: image.width * image.height,
+                        got: w.data.len(),
+                    });
                 }
-                Some(best) => (Flag::Tracked as u8, best.centre),
+                check_image("weights", w)?;
             }
-        })
-        .collect();
-    let active: Vec<usize> = (0..n)
-        .filter(|&p| searched[p].0 == Flag::Tracked as u8)
-        .collect();
-    for (flag, &(code, _)) in out.flags.iter_mut().zip(&searched) {
-        *flag = code;
-    }
-    if active.is_empty() {
-        return Ok(());
-    }
-
-    // Temporal least-squares matching, previous -> current.
-    let points: Vec<[f64; 2]> = active.iter().map(|&p| last[p]).collect();
-    let starts: Vec<[f64; 6]> = active
-        .iter()
-        .map(|&p| {
-            let c = searched[p].1;
-            [1.0, 0.0, c[0], 0.0, 1.0, c[1]]
-        })
-        .collect();
-    let forward = run_matches(
-        previous,
-        weights.map(|w| w[0]),
-        &points,
-        current,
-        &starts,
-        &options.matching,
-    )?;
-
-    // Forward-backward: the current patch matched back into the previous frame, started
-    // at the inverse of the forward map, must land on the start.
-    let (mut back_points, mut back_starts, mut back_of) = (Vec::new(), Vec::new(), Vec::new());
-    for (k, &p) in active.iter().enumerate() {
-        let status = forward.status[k];
-        let code = if status == Status::LeftImage as u8 {
-            Flag::ImageBorder
-        } else if !matches!(status, s if s == Status::Converged as u8 || s == Status::MaxIterations as u8)
-        {
-            Flag::MatchFailed
-        } else if !(forward.correlation[k] >= options.min_correlation) {
-            Flag::LowCorrelation
-        } else {
-            let m = forward.affine[k];
-            let det = m[0] * m[4] - m[1] * m[3];
-            back_points.push([m[2], m[5]]);
-            back_starts.push([
-                m[4] / det,
-                -m[1] / det,
-                last[p][0],
-                -m[3] / det,
-                m[0] / det,
-                last[p][1],
-            ]);
-            back_of.push(k);
-            Flag::Tracked
-        };
-        out.flags[p] = code as u8;
-    }
-    if back_of.is_empty() {
-        return Ok(());
-    }
-    // The check only has to land within `forward_backward` (tenths of a pixel) of the
-    // start, from the inverse map, which is already within hundredths of it when the
-    // forward match is right: bilinear resampling (its bias is hundredths of a pixel) and
-    // a few iterations are enough, and cost a quarter of the forward match.
-    // Its covariance is not used: no sandwich (a quarter of a match).
-    let check = MatchOptions {
-        max_iterations: options.matching.max_iterations.min(BACKWARD_ITERATIONS),
-        interpolation: Interpolation::Bilinear,
-        sandwich: false,
-        ..options.matching
-    };
-    let backward = run_matches(
-        current,
-        weights.map(|w| w[1]),
-        &back_points,
-        previous,
-        &back_starts,
-        &check,
-    )?;
-    let block = PARAMETERS * PARAMETERS;
-    for (j, &k) in back_of.iter().enumerate() {
-        let p = active[k];
-        let status = backward.status[j];
-        let m = backward.affine[j];
-        let miss = (m[2] - last[p][0]).hypot(m[5] - last[p][1]);
-        let has_estimate =
-            status == Status::Converged as u8 || status == Status::MaxIterations as u8;
-        if !has_estimate || !(miss <= options.forward_backward) {
-            out.flags[p] = Flag::ForwardBackward as u8;
-            continue;
         }
-        let f = forward.affine[k];
-        out.positions[p] = [f[2], f[5]];
-        let c = &forward.covariance[k * block..(k + 1) * block];
-        out.covariance[p] = [c[0], c[1], c[PARAMETERS], c[PARAMETERS + 1]];
-        out.correlation[p] = forward.correlation[k];
+    }
+    // The seeded views in image order (camera, band of rows, column): each view reads a
+    // window of about `size + 2 radius` rows of its images, which its neighbours in that
+    // order read again while they are in cache (in the tracker's order, the points', the
+    // windows jump across the image). The unseeded views need no pass.
+    let mut order: Vec<(usize, usize, f64, usize)> = last
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| x[0].is_finite() && x[1].is_finite())
+        .map(|(i, x)| (i / n, (x[1] / BAND).floor().max(0.0) as usize, x[0], i))
+        .collect();
+    order.par_sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
+    let tracked = order
+        .par_iter()
+        .with_max_len(LEAF)
+        .map_init(ViewScratch::default, |scratch, &(k, _, _, i)| {
+            track_view(
+                &cameras[k],
+                last[i],
+                before[i],
+                options,
+                &check,
+                i % n,
+                scratch,
+            )
+        })
+        .collect::<Result<Vec<View>>>()?;
+    let unseeded = View::lost(Flag::NotSeeded);
+    out.positions.fill(unseeded.position);
+    out.flags.fill(unseeded.flag);
+    out.covariance.fill(unseeded.covariance);
+    out.correlation.fill(unseeded.correlation);
+    for (&(_, _, _, i), view) in order.iter().zip(&tracked) {
+        out.positions[i] = view.position;
+        out.flags[i] = view.flag;
+        out.covariance[i] = view.covariance;
+        out.correlation[i] = view.correlation;
     }
     Ok(())
 }
 
-/// Flat results of one batch of single-search-image matches.
-struct Batch {
-    status: Vec<u8>,
-    affine: Vec<[f64; 6]>,
-    correlation: Vec<f64>,
-    covariance: Vec<f64>,
-}
-
-fn run_matches(
-    template: &ImageView<'_>,
-    weights: Option<&ImageView<'_>>,
-    points: &[[f64; 2]],
-    search: &ImageView<'_>,
-    starts: &[[f64; 6]],
-    options: &MatchOptions,
-) -> Result<Batch> {
-    let m = points.len();
-    let mut batch = Batch {
-        status: vec![0; m],
-        affine: vec![[0.0; 6]; m],
-        correlation: vec![0.0; m],
-        covariance: vec![0.0; m * PARAMETERS * PARAMETERS],
-    };
-    let mut radiometry = vec![[0.0; 2]; m];
-    let mut sigma0 = vec![0.0; m];
-    let mut iterations = vec![0u32; m];
-    match_weighted_patches(
-        template,
-        weights,
-        points,
-        std::slice::from_ref(search),
-        starts,
-        None,
-        options,
-        MatchOutput {
-            status: &mut batch.status,
-            affine: &mut batch.affine,
-            radiometry: &mut radiometry,
-            sigma0: &mut sigma0,
-            correlation: &mut batch.correlation,
-            iterations: &mut iterations,
-            covariance: &mut batch.covariance,
-        },
-    )?;
-    Ok(batch)
+/// The options of the forward-backward check's match.
+///
+/// The check only has to land within `forward_backward` (tenths of a pixel) of the
+/// start, from the inverse map, which is already within hundredths of it when the
+/// forward match is right: bilinear resampling (its bias is hundredths of a pixel) and
+/// a few iterations are enough, and cost a quarter of the forward match.
+/// Its covariance is not used: no sandwich (a quarter of a match).
+fn backward_options(matching: &MatchOptions) -> MatchOptions {
+    MatchOptions {
+        max_iterations: matching.max_iterations.min(BACKWARD_ITERATIONS),
+        interpolation: Interpolation::Bilinear,
+        sandwich: false,
+        ..*matching
+    }
 }
