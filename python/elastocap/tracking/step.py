@@ -56,6 +56,9 @@ def _mask_weights(mask: NDArray[np.bool_]) -> NDArray[np.generic]:
 class FrameTracker:
     """The state carried from frame to frame (all points, ids in order of seeding)."""
 
+    # pixel_last() of the state the current step started from (None: not yet computed).
+    _pixel_last: NDArray[np.float64] | None = None
+
     def __init__(self, capture: Capture, spacing: int, size: int, radius: int, min_correlation: float,
                  options: dict[str, Any]) -> None:
         self.capture = capture
@@ -90,7 +93,6 @@ class FrameTracker:
         # The coarse-to-fine search's reduced images of the last two frames (a frame's
         # current images are the next frame's previous ones: reduced once).
         self.pyramids = Pyramids()
-        self._pixel_last: NDArray[np.float64] | None = None
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         # Checked once here for every match of the frame (frame_images.py).
@@ -140,7 +142,6 @@ class FrameTracker:
         return self._pixel_last
 
     def step(self, frame: int, *, first: bool, reseed: bool, bare: int = 0) -> dict[str, NDArray[np.generic]]:
-        # pixel_last() of the state this step starts from (computed on first use).
         self._pixel_last = None
         grey, masks = self._read(frame)
         weights = self._weights(masks)
