@@ -64,7 +64,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from elastocap._core import rigid_fits
+from elastocap._core import rigid_fits, track_rigid_held_out
 from elastocap.tracking import settings
 
 __all__ = ["NeighbourPlan", "nanmedian_rows", "neighbour_plans", "rigid_fusion", "rigid_motions", "rigid_residuals"]
@@ -291,15 +291,15 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
         own = np.einsum("nij,nkj->nki", r, a) + t[:, None] - b
         res = np.where(weight > 0, np.linalg.norm(own, axis=2), np.nan) / pixel[rows][:, None]
         spread[rows] = nanmedian_rows(res)  # every row has chosen neighbours
-        # Leave one out: K fits per point, each without one of its neighbours.
-        m, k = near.shape
-        w = np.repeat(weight[:, None, :], k, axis=1) * (1.0 - np.eye(k))[None]  # (M, K, K)
-        ok = (weight > 0) & (w.sum(axis=2) >= 3)
-        if ok.any():
-            i, j = np.nonzero(ok)
-            r1, t1 = rigid_motions(a[i], b[i], w[i, j])
-            miss = np.einsum("nij,nj->ni", r1, a[i, j]) + t1 - b[i, j]
-            loo = np.full((m, k), np.nan)
+        # Leave one out: K fits per point, each without one of its neighbours (where three
+        # others remain; NaN elsewhere), in the core with each point's neighbours read in
+        # place, not gathered once per fit.
+        r1, t1 = track_rigid_held_out(np.ascontiguousarray(a), np.ascontiguousarray(b),
+                                      np.ascontiguousarray(weight, dtype=np.float64), min_others=3.0)
+        i, j = np.nonzero(np.isfinite(t1[..., 0]))
+        if i.size:
+            miss = np.einsum("nij,nj->ni", r1[i, j], a[i, j]) + t1[i, j] - b[i, j]
+            loo = np.full(near.shape, np.nan)
             loo[i, j] = np.linalg.norm(miss, axis=1) / pixel[rows][i]
             held_out[rows] = nanmedian_rows(loo)  # NaN: rows without three neighbours
     return RigidResiduals(across, along, spread, held_out, prediction)
