@@ -41,7 +41,7 @@ from elastocap.tracking.views import facing_normals, surface_normals
 __all__ = ["FrameTracker"]
 
 
-def _grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def _grey(image: NDArray[np.uint8]) -> NDArray[np.generic]:
     """(H, W) uint8 grey levels of an RGB image; :class:`CheckedImages` makes them float32
     (whole numbers: no NaN to scan for, unlike a float image's check)."""
     return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
