@@ -1,6 +1,9 @@
 //! Binding of the rigid residuals' leave-one-out fits (`elastocap.tracking.rigidity`).
 
-use numpy::{PyArray1, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 use super::{c_slice, invalid_input};

@@ -38,7 +38,13 @@ pub fn rigid_held_out(
     out
 }
 
-fn set_held_out(a: &[[f64; 3]], b: &[[f64; 3]], w: &[f64], min_others: f64, fits: &mut [([f64; 9], [f64; 3])]) {
+fn set_held_out(
+    a: &[[f64; 3]],
+    b: &[[f64; 3]],
+    w: &[f64],
+    min_others: f64,
+    fits: &mut [([f64; 9], [f64; 3])],
+) {
     let mut without = w.to_vec();
     for j in 0..w.len() {
         if !(w[j] > 0.0) {

@@ -10,7 +10,10 @@ fn sets() -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<f64>) {
             [f.sin() * 3.0, (0.7 * f).cos() * 2.0, 0.3 * f]
         })
         .collect();
-    let mut b: Vec<[f64; 3]> = a.iter().map(|p| [p[1] + 1.0, -p[0] + 0.5, p[2] - 2.0]).collect();
+    let mut b: Vec<[f64; 3]> = a
+        .iter()
+        .map(|p| [p[1] + 1.0, -p[0] + 0.5, p[2] - 2.0])
+        .collect();
     b[3] = [b[3][0] + 0.4, b[3][1], b[3][2] - 0.3];
     let w = vec![1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 0.0];
     (a, b, w)
@@ -36,10 +39,14 @@ fn each_fit_is_the_fit_without_the_neighbour_to_the_bit() {
             let mut without = w[5 * m..5 * m + 5].to_vec();
             without[j] = 0.0;
             if !(w[5 * m + j] > 0.0 && without.iter().sum::<f64>() >= 3.0) {
-                assert!(r.iter().chain(&t).all(|v| v.is_nan()), "set {m} neighbour {j}");
+                assert!(
+                    r.iter().chain(&t).all(|v| v.is_nan()),
+                    "set {m} neighbour {j}"
+                );
                 continue;
             }
-            let (re, te) = rigid_motions(&a[5 * m..5 * m + 5], &b[5 * m..5 * m + 5], &without, 5)[0];
+            let (re, te) =
+                rigid_motions(&a[5 * m..5 * m + 5], &b[5 * m..5 * m + 5], &without, 5)[0];
             for (got, expect) in r.iter().chain(&t).zip(re.iter().chain(&te)) {
                 assert_eq!(got.to_bits(), expect.to_bits(), "set {m} neighbour {j}");
             }
