@@ -67,9 +67,14 @@ fn the_outlier_is_missed_and_the_others_fit() {
     }
     // The second set: neighbours 6 and 9 not chosen; each chosen one leaves only 2 others.
     assert!(fits[5..].iter().all(|(r, _)| r[0].is_nan()));
+    // With two others enough, the chosen ones are fitted (two points leave a rotation
+    // about their line free: the fit exists, its miss is not asked about).
     let loose = rigid_held_out(&a, &b, &w, 5, 2.0);
     for j in [5, 7, 8] {
-        assert!(miss(&loose[j], a[j], b[j]) < 1e-9, "{j}");
+        assert!(
+            loose[j].0.iter().chain(&loose[j].1).all(|v| v.is_finite()),
+            "{j}"
+        );
     }
     assert!(loose[6].0[0].is_nan() && loose[9].0[0].is_nan());
 }
