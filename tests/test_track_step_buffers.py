@@ -6,19 +6,21 @@ import numpy as np
 
 from elastocap.tracking.anchors import Anchors
 from elastocap.tracking.frame_images import CheckedImages
-from elastocap.tracking.step import _grey, _mask_weights
+from elastocap.tracking.step import _grey, _grey_levels, _mask_weights
 
 
 def test_grey_and_mask_weights_are_the_float32_conversions():
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
     mask = rng.random((37, 53)) < 0.4
-    grey = CheckedImages([_grey(image)])[0]
+    grey = CheckedImages([_grey_levels(image)])[0]
     import cv2
 
     expect = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
     assert grey.dtype == np.float32 and grey.flags.c_contiguous
     assert np.array_equal(grey, expect)
+    # The float32 reading (the benches') is the same values.
+    assert _grey(image).dtype == np.float32 and np.array_equal(_grey(image), expect)
     weights = CheckedImages([_mask_weights(mask)])[0]
     assert weights.dtype == np.float32 and weights.flags.c_contiguous
     assert np.array_equal(weights, mask.astype(np.float32))

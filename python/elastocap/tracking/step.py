@@ -41,10 +41,16 @@ from elastocap.tracking.views import facing_normals, surface_normals
 __all__ = ["FrameTracker"]
 
 
-def _grey(image: NDArray[np.uint8]) -> NDArray[np.generic]:
+def _grey_levels(image: NDArray[np.uint8]) -> NDArray[np.generic]:
     """(H, W) uint8 grey levels of an RGB image; :class:`CheckedImages` makes them float32
     (whole numbers: no NaN to scan for, unlike a float image's check)."""
     return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+
+
+def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """(H, W) float32 grey levels of an RGB image: the values the tracker's images hold
+    (benches/track_ceiling.py reads its images so)."""
+    return np.ascontiguousarray(_grey_levels(image).astype(np.float32))
 
 
 def _mask_weights(mask: NDArray[np.bool_]) -> NDArray[np.generic]:
@@ -96,7 +102,7 @@ class FrameTracker:
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         # Checked once here for every match of the frame (frame_images.py).
-        grey = CheckedImages(_grey(self.capture.image(name, frame)) for name in self.names)
+        grey = CheckedImages(_grey_levels(self.capture.image(name, frame)) for name in self.names)
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
             self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
