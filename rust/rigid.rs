@@ -28,7 +28,9 @@ pub fn rigid_motions(
         .collect()
 }
 
-fn rigid_motion(a: &[[f64; 3]], b: &[[f64; 3]], w: &[f64]) -> ([f64; 9], [f64; 3]) {
+/// One set's fit (`rigid_motions` of a single set; `crate::track::rigid_held_out` refits
+/// each set with one point left out through it, so that its fits are the same to the bit).
+pub(crate) fn rigid_motion(a: &[[f64; 3]], b: &[[f64; 3]], w: &[f64]) -> ([f64; 9], [f64; 3]) {
     let total: f64 = w.iter().sum();
     let mut ca = [0.0; 3];
     let mut cb = [0.0; 3];

@@ -21,7 +21,8 @@
 //! is not tracked), `seed_hull` (the seeding's visual-hull
 //! test of ray samples), `seed_depths` (the seeding's depth search along a ray through the hull),
 //! `seed_peaks` (the best correlation along a seed's line and the best peak away from it),
-//! `zbuffer` (the visibility's test of nearer tracked points on a point's line of sight).
+//! `zbuffer` (the visibility's test of nearer tracked points on a point's line of sight),
+//! `rigid_held_out` (the rigid residuals' leave-one-out fits of each point's neighbours).
 
 mod flags;
 mod ncc;
@@ -35,6 +36,9 @@ mod ncc_at_tests;
 mod ncc_batch;
 #[cfg(test)]
 mod ncc_batch_tests;
+mod rigid_held_out;
+#[cfg(test)]
+mod rigid_held_out_tests;
 mod seed_depths;
 mod seed_hull;
 mod seed_peaks;
@@ -54,6 +58,7 @@ pub use ncc::{box_search_scores, NccBest};
 pub use ncc_at::ncc_at;
 pub use ncc_at_decisive::ncc_at_decisive;
 pub use ncc_batch::ncc_at_cameras;
+pub use rigid_held_out::rigid_held_out;
 pub use seed_depths::{hull_depths, DepthGrid};
 pub use seed_hull::{hull_inside, hull_pixels, line_pixels, HullCamera, HullView, OUTSIDE};
 pub use seed_peaks::{line_peak, Away};

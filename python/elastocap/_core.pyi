@@ -43,6 +43,7 @@ __all__ = [
     "seed_line_peaks",
     "track_ncc_at_cameras",
     "track_occluded",
+    "track_rigid_held_out",
 ]
 
 __version__: str
@@ -553,3 +554,6 @@ def track_occluded(
     radius: float,
     nearest: int,
 ) -> NDArray[np.bool_]: ...
+def track_rigid_held_out(
+    a: NDArray[np.float64], b: NDArray[np.float64], weights: NDArray[np.float64], *, min_others: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...

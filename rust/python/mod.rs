@@ -21,6 +21,7 @@ mod seeding;
 mod snake;
 mod solve;
 mod track;
+mod track_rigid;
 mod track_views;
 mod track_visibility;
 
@@ -80,6 +81,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     seeding::register(m)?;
     track_views::register(m)?;
     track_visibility::register(m)?;
+    track_rigid::register(m)?;
     intersect::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
 

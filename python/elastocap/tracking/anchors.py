@@ -32,36 +32,69 @@ class Anchors:
     def __init__(self, cameras: int, size: int) -> None:
         self.size = size
         self.side = size + 6  # the patch, its gradient border and the bicubic margin
-        self.patches = np.zeros((0, cameras, self.side, self.side), np.float32)
-        # The template weights around each patch (its frame's mask), 1 where none given.
-        self.weights = np.ones((0, cameras, self.side, self.side), np.float32)
-        self.held = np.zeros((0, cameras), bool)
-        # Where each patch was cut (frame number, position): a resumed run cuts it again.
-        self.frame = np.full((0, cameras), -1, np.int64)
-        self.uv = np.full((0, cameras, 2), np.nan)
-        # How many times each view's patch was cut since the view was acquired (its drift
-        # grows with the cuts again: :mod:`elastocap.tracking.drift`).
-        self.cuts = np.zeros((0, cameras), np.int64)
-        # The richer model's centre minus the affine one, smoothed over the frames since the
-        # patch was cut (``settings.ANCHOR_REFINE_SMOOTH``); NaN until the first.
-        self.offset = np.full((0, cameras, 2), np.nan)
-        # How many corrections each patch has been through since it was cut (the richer
-        # stage's age gate, ``settings.ANCHOR_REFINE_MIN_AGE`` / ``ANCHOR_REFINE_EVERY``).
-        self.age = np.zeros((0, cameras), np.int64)
+        # Per point and camera (:meth:`_view`): the patches and their template weights (the
+        # frame's mask; 1 where none given); whether held; where each was cut (frame number,
+        # position: a resumed run cuts it again); how many times it was cut since the view
+        # was acquired (its drift grows with the cuts again: :mod:`elastocap.tracking.drift`);
+        # the richer model's centre minus the affine one, smoothed over the frames since
+        # the patch was cut (``settings.ANCHOR_REFINE_SMOOTH``; NaN until the first); how
+        # many corrections it has been through since it was cut (the richer stage's age
+        # gate, ``settings.ANCHOR_REFINE_MIN_AGE`` / ``ANCHOR_REFINE_EVERY``).
+        self._new_stores(0, cameras)
+        self._view(0)
 
     def grow(self, n: int) -> None:
-        """Room for ``n`` points in all."""
-        extra = n - len(self.held)
-        if extra > 0:
-            c = self.held.shape[1]
-            self.patches = np.concatenate([self.patches, np.zeros((extra, c, self.side, self.side), np.float32)])
-            self.weights = np.concatenate([self.weights, np.ones((extra, c, self.side, self.side), np.float32)])
-            self.held = np.concatenate([self.held, np.zeros((extra, c), bool)])
-            self.frame = np.concatenate([self.frame, np.full((extra, c), -1, np.int64)])
-            self.uv = np.concatenate([self.uv, np.full((extra, c, 2), np.nan)])
-            self.cuts = np.concatenate([self.cuts, np.zeros((extra, c), np.int64)])
-            self.offset = np.concatenate([self.offset, np.full((extra, c, 2), np.nan)])
-            self.age = np.concatenate([self.age, np.zeros((extra, c), np.int64)])
+        """Room for ``n`` points in all. The arrays are views of the first ``n`` rows of
+        stores with room to spare: a seeding frame adds hundreds of points to ~1,500, and
+        copying every patch and weight (~14 kB a point each) into new arrays on each such
+        frame cost ~0.02 CPU s (more in page faults on a loaded machine); a store is copied
+        only when its room runs out (to twice the points then), and only the rows taken
+        into the view are written (with their start values: the room past them is never
+        touched)."""
+        count = len(self.held)
+        if n <= count:
+            return
+        c = self.held.shape[1]
+        if n > len(self._held_store):
+            old = self._stores()
+            self._new_stores(max(n, 2 * count, 64), c)
+            for store, values in zip(self._stores(), old):
+                store[:count] = values[:count]
+        self._start(count, n)
+        self._view(n)
+
+    def _stores(self) -> tuple[NDArray[np.generic], ...]:
+        return (self._patches_store, self._weights_store, self._held_store, self._frame_store, self._uv_store,
+                self._cuts_store, self._offset_store, self._age_store)
+
+    def _new_stores(self, room: int, c: int) -> None:
+        """Stores of ``room`` points, not written (:meth:`_start` writes the rows taken)."""
+        side = self.side
+        self._patches_store = np.empty((room, c, side, side), np.float32)
+        self._weights_store = np.empty((room, c, side, side), np.float32)
+        self._held_store = np.empty((room, c), bool)
+        self._frame_store = np.empty((room, c), np.int64)
+        self._uv_store = np.empty((room, c, 2))
+        self._cuts_store = np.empty((room, c), np.int64)
+        self._offset_store = np.empty((room, c, 2))
+        self._age_store = np.empty((room, c), np.int64)
+
+    def _start(self, begin: int, end: int) -> None:
+        """The stores' rows ``begin:end`` at their start values (nothing held)."""
+        self._patches_store[begin:end] = 0.0
+        self._weights_store[begin:end] = 1.0
+        self._held_store[begin:end] = False
+        self._frame_store[begin:end] = -1
+        self._uv_store[begin:end] = np.nan
+        self._cuts_store[begin:end] = 0
+        self._offset_store[begin:end] = np.nan
+        self._age_store[begin:end] = 0
+
+    def _view(self, n: int) -> None:
+        """The arrays as the stores' first ``n`` rows (writes go to the stores)."""
+        self.patches, self.weights = self._patches_store[:n], self._weights_store[:n]
+        self.held, self.frame, self.uv = self._held_store[:n], self._frame_store[:n], self._uv_store[:n]
+        self.cuts, self.offset, self.age = self._cuts_store[:n], self._offset_store[:n], self._age_store[:n]
 
     def cut(self, images: Sequence[NDArray[np.float32]], uv: NDArray[np.float64], where: NDArray[np.bool_], frame: int, *,
             weights: Sequence[NDArray[np.float32]] | None = None) -> None:

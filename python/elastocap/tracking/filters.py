@@ -5,7 +5,6 @@ one setting fits any rig scale."""
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -14,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from elastocap.cameras import Camera
 from elastocap.tracking.flags import TrackFlag
+from elastocap.tracking.rigidity import nanmedian_rows
 
 __all__ = ["pixel_size", "trajectory_flags"]
 
@@ -71,10 +71,12 @@ def trajectory_flags(
         close = distance[:, 1:] <= reach[:, None]
         v = velocity[moving][near[:, 1:]]
         v = np.where(close[..., None], v, np.nan)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            local = np.nanmedian(v, axis=1)
-            spread = np.nanmedian(np.linalg.norm(v - local[:, None], axis=2), axis=1) / pixel[moving]
+        with np.errstate(all="ignore"):
+            # np.nanmedian's medians to the bit, without its masked sort (~5 ms a frame):
+            # each velocity component's over the neighbours, then the spread's.
+            m = len(moving)
+            local = nanmedian_rows(v.transpose(0, 2, 1).reshape(3 * m, k)).reshape(m, 3)
+            spread = nanmedian_rows(np.linalg.norm(v - local[:, None], axis=2)) / pixel[moving]
             deviation = np.linalg.norm(velocity[moving] - local, axis=1) / pixel[moving]
         enough = close.sum(axis=1) >= 3
         odd = moving[enough & (deviation > uniformity + 3.0 * np.nan_to_num(spread))]

@@ -22,7 +22,9 @@ class CheckedImages(list[NDArray[np.float32]]):
     """The frame's grey images (C of (H, W) float32), each through ``checked_image`` when
     listed. Its items must not be written to afterwards (the tracker never does)."""
 
-    def __init__(self, images: Iterable[NDArray[np.float32]]) -> None:
+    def __init__(self, images: Iterable[NDArray[np.generic]]) -> None:
+        # Grey levels of any dtype checked_image takes (the tracker's: uint8, converted
+        # without a NaN scan).
         super().__init__(checked_image(image) for image in images)
 
 

@@ -64,7 +64,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from elastocap._core import rigid_fits
+from elastocap._core import rigid_fits, track_rigid_held_out
 from elastocap.tracking import settings
 
 __all__ = ["NeighbourPlan", "nanmedian_rows", "neighbour_plans", "rigid_fusion", "rigid_motions", "rigid_residuals"]
@@ -277,7 +277,10 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
     for rows, near, weight, then, now in plans:
         if now:
             continue
-        r, t = rigid_motions(then[near], moved[near], weight)
+        # The neighbours' positions then and now, gathered once for the fit and the K
+        # leave-one-out fits of every point.
+        a, b = then[near], moved[near]
+        r, t = rigid_motions(a, b, weight)
         predicted = np.einsum("nij,nj->ni", r, then[rows]) + t
         prediction[rows] = predicted
         d = x[rows] - predicted
@@ -285,18 +288,18 @@ def rigid_residuals(x: NDArray[np.float64], moved: NDArray[np.float64], covarian
         depth = np.einsum("ni,ni->n", d, u)
         along[rows] = np.abs(depth) / pixel[rows]
         across[rows] = np.linalg.norm(d - depth[:, None] * u, axis=1) / pixel[rows]
-        own = np.einsum("nij,nkj->nki", r, then[near]) + t[:, None] - moved[near]
+        own = np.einsum("nij,nkj->nki", r, a) + t[:, None] - b
         res = np.where(weight > 0, np.linalg.norm(own, axis=2), np.nan) / pixel[rows][:, None]
         spread[rows] = nanmedian_rows(res)  # every row has chosen neighbours
-        # Leave one out: K fits per point, each without one of its neighbours.
-        m, k = near.shape
-        w = np.repeat(weight[:, None, :], k, axis=1) * (1.0 - np.eye(k))[None]  # (M, K, K)
-        ok = (weight > 0) & (w.sum(axis=2) >= 3)
-        if ok.any():
-            i, j = np.nonzero(ok)
-            r1, t1 = rigid_motions(then[near[i]], moved[near[i]], w[i, j])
-            miss = np.einsum("nij,nj->ni", r1, then[near[i, j]]) + t1 - moved[near[i, j]]
-            loo = np.full((m, k), np.nan)
+        # Leave one out: K fits per point, each without one of its neighbours (where three
+        # others remain; NaN elsewhere), in the core with each point's neighbours read in
+        # place, not gathered once per fit.
+        r1, t1 = track_rigid_held_out(np.ascontiguousarray(a), np.ascontiguousarray(b),
+                                      np.ascontiguousarray(weight, dtype=np.float64), min_others=3.0)
+        i, j = np.nonzero(np.isfinite(t1[..., 0]))
+        if i.size:
+            miss = np.einsum("nij,nj->ni", r1[i, j], a[i, j]) + t1[i, j] - b[i, j]
+            loo = np.full(near.shape, np.nan)
             loo[i, j] = np.linalg.norm(miss, axis=1) / pixel[rows][i]
             held_out[rows] = nanmedian_rows(loo)  # NaN: rows without three neighbours
     return RigidResiduals(across, along, spread, held_out, prediction)

@@ -43,12 +43,29 @@ from elastocap.tracking.views import facing_normals, surface_normals
 __all__ = ["FrameTracker"]
 
 
+def _grey_levels(image: NDArray[np.uint8]) -> NDArray[np.generic]:
+    """(H, W) uint8 grey levels of an RGB image; :class:`CheckedImages` makes them float32
+    (whole numbers: no NaN to scan for, unlike a float image's check)."""
+    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+
+
 def _grey(image: NDArray[np.uint8]) -> NDArray[np.float32]:
-    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32))
+    """(H, W) float32 grey levels of an RGB image: the values the tracker's images hold
+    (benches/track_ceiling.py reads its images so)."""
+    return np.ascontiguousarray(_grey_levels(image).astype(np.float32))
+
+
+def _mask_weights(mask: NDArray[np.bool_]) -> NDArray[np.generic]:
+    """A mask as :class:`CheckedImages` takes it to 0/1 float32 weights: a bool mask as its
+    bytes (converted without the float image's NaN scan), any other as float32."""
+    return mask.view(np.uint8) if mask.dtype == bool else np.ascontiguousarray(mask, dtype=np.float32)
 
 
 class FrameTracker:
     """The state carried from frame to frame (all points, ids in order of seeding)."""
+
+    # pixel_last() of the state the current step started from (None: not yet computed).
+    _pixel_last: NDArray[np.float64] | None = None
 
     def __init__(self, capture: Capture, spacing: int, size: int, radius: int, min_correlation: float,
                  options: dict[str, Any]) -> None:
@@ -91,7 +108,7 @@ class FrameTracker:
 
     def _read(self, frame: int) -> tuple[list[NDArray[np.float32]], list[NDArray[np.bool_]]]:
         # Checked once here for every match of the frame (frame_images.py).
-        grey = CheckedImages(_grey(self.capture.image(name, frame)) for name in self.names)
+        grey = CheckedImages(_grey_levels(self.capture.image(name, frame)) for name in self.names)
         masks = [self.capture.mask(name, frame) for name in self.names]
         if not self.texture:
             self.texture = [settings.TEXTURE_OVER_NOISE * noise_level(g) for g in grey]
@@ -101,7 +118,7 @@ class FrameTracker:
     def _weights(self, masks: list[NDArray[np.bool_]]) -> list[NDArray[np.float32]] | None:
         if not self.o["mask_weights"]:
             return None
-        return CheckedImages(np.ascontiguousarray(m, dtype=np.float32) for m in masks)
+        return CheckedImages(_mask_weights(m) for m in masks)
 
     def resume(self, out: str | Path, chosen: list[int]) -> int:
         """Restores the state after the longest prefix of ``chosen`` already written;
@@ -116,8 +133,7 @@ class FrameTracker:
         if settings.RIGID_PREDICTION is None or len(self.uv) == 0:
             return self.uv_last
         held = np.isfinite(self.uv[..., 0])
-        pixel = pixel_size(self.cameras, self.x_last, held)
-        prediction = rigid_predictions(self.cameras, self.uv, self.x_last, self.x_before, pixel,
+        prediction = rigid_predictions(self.cameras, self.uv, self.x_last, self.x_before, self.pixel_last(),
                                        neighbours=settings.RIGID_PREDICTION_NEIGHBOURS,
                                        min_neighbours=settings.RIGID_PREDICTION_MIN_NEIGHBOURS,
                                        reach=settings.RIGID_PREDICTION_REACH)
@@ -129,7 +145,16 @@ class FrameTracker:
             raise ValueError(f"RIGID_PREDICTION must be None, 'new' or 'all', not {settings.RIGID_PREDICTION!r}")
         return predicting_before(self.uv, self.uv_last, prediction, use)
 
+    def pixel_last(self) -> NDArray[np.float64]:
+        """(N,) world size of a pixel at each point's last position, over the cameras that
+        held it (:func:`~elastocap.tracking.filters.pixel_size`): the rigid prediction and
+        the 2-D searches' reach ask it alike on a frame, so it is computed once a step."""
+        if self._pixel_last is None:
+            self._pixel_last = pixel_size(self.cameras, self.x_last, np.isfinite(self.uv[..., 0]))
+        return self._pixel_last
+
     def step(self, frame: int, *, first: bool, reseed: bool, bare: int = 0) -> dict[str, NDArray[np.generic]]:
+        self._pixel_last = None
         grey, masks = self._read(frame)
         weights = self._weights(masks)
         n, c = self.uv.shape[:2]

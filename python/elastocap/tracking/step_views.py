@@ -15,7 +15,6 @@ from numpy.typing import NDArray
 
 from elastocap.tracking import settings
 from elastocap.tracking.depth_weights import depth_edges, rust_step, track_step_by_depth
-from elastocap.tracking.filters import pixel_size
 from elastocap.tracking.flags import TrackFlag
 from elastocap.tracking.prediction import research_failed_views
 from elastocap.tracking.pyramid_search import check_options as check_pyramid_options
@@ -88,8 +87,7 @@ def step_views(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: li
     if settings.RESEARCH:
         # The failed views searched again where their neighbours went (a fast
         # limb's, and a new point's, which has no velocity to predict from).
-        held = np.isfinite(tracker.uv[..., 0])
-        reach = settings.RESEARCH_REACH * pixel_size(tracker.cameras, tracker.x_last, held)
+        reach = settings.RESEARCH_REACH * tracker.pixel_last()
         found = research_failed_views(
             tracker.grey, grey, tracker.uv, before, uv, flags2d, cov2d, corr, tracker.x_last, reach, size=settings.RESEARCH_SIZE or tracker.size,
             radius=tracker.radius, wide_radius=settings.RESEARCH_WIDE_RADIUS, min_correlation=tracker.min_correlation,
@@ -111,8 +109,7 @@ def step_views(tracker: FrameTracker, grey: list[NDArray[np.float32]], masks: li
                               margin=settings.PYRAMID_PEAK_MARGIN, exclusion=settings.PYRAMID_PEAK_EXCLUSION,
                               pool=settings.PYRAMID_POOL, reach=settings.PYRAMID_POOL_REACH)
         young = np.isfinite(tracker.uv[..., 0]) & ~np.isfinite(tracker.uv_last[..., 0])
-        held_now = np.isfinite(tracker.uv[..., 0])
-        pool_reach = settings.PYRAMID_POOL_REACH * pixel_size(tracker.cameras, tracker.x_last, held_now)
+        pool_reach = settings.PYRAMID_POOL_REACH * tracker.pixel_last()
         coarse = pyramid_search(
             tracker.grey, grey, tracker.uv, before, young, uv, flags2d, cov2d, corr, level=settings.PYRAMID_LEVEL,
             radius=settings.PYRAMID_RADIUS, coarse_size=settings.PYRAMID_SIZE,
